@@ -1,0 +1,49 @@
+"""The ``cylindersplat`` command line.
+
+Each subcommand lives in its own module exposing ``register(subparsers)``, which adds an argparse
+sub-parser whose ``func`` attribute runs the command with the parsed namespace. Add a subcommand by
+appending its module path to ``SUBCOMMAND_MODULES``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+SUBCOMMAND_MODULES = [
+    "cylindersplat.commands.demo",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="cylindersplat",
+        description="Feed-forward 3D Gaussian Splatting from posed 360-degree panoramas.",
+    )
+    parser.add_argument("--version", action="version", version=f"cylindersplat {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for module in SUBCOMMAND_MODULES:
+        importlib.import_module(module).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        result = args.func(args)
+    except (ValueError, FileNotFoundError) as exc:
+        # User errors: one clear line, no traceback.
+        print(f"cylindersplat {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    return int(result or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,6 @@
+"""Gaussian container and standard 3DGS PLY I/O."""
+
+from .container import SH_C0, Gaussians, rgb_to_sh0, sh0_to_rgb, sh_degree_from_count
+from .ply import load_ply, save_ply
+
+__all__ = ["Gaussians", "SH_C0", "rgb_to_sh0", "sh0_to_rgb", "sh_degree_from_count", "load_ply", "save_ply"]
