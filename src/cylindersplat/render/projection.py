@@ -1,0 +1,235 @@
+"""EWA projection of 3D Gaussians into equirectangular and pinhole images.
+
+Both projections produce a :class:`ProjectedGaussians` (one row per visible Gaussian-camera
+pair), which the rasterizer (:mod:`.rasterize`) turns into pixels. The 2D covariance is the EWA
+linearisation ``Sigma_2d = J W Sigma_3d W^T J^T + dilation * I`` with ``J`` the projection's
+Jacobian at the mean. It is computed in float64 (cheap: one row per Gaussian) because near the
+poles its entries span many orders of magnitude.
+
+Safeguards (equirect), documented so the fast backend can match them:
+
+* Gaussians with radial distance ``< near`` are culled (no contribution, zero gradient).
+* ``rho = sqrt(x^2 + z^2)`` is bounded below by ``pole_eps * r`` inside the Jacobian, so a
+  Gaussian on the pole axis gets a finite (very wide in ``u``) footprint; at the pole itself
+  ``u`` is taken as ``W / 2``.
+* The 2D standard deviation along ``u`` is capped at ``W / 6`` (3 sigma = half the panorama), so a
+  footprint never reaches around the sphere onto itself and stays continuous across the seam; the
+  ``v`` standard deviation is capped at ``2 H``. Capping scales the covariance row/column, which
+  keeps it positive definite.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from ..gaussians import Gaussians
+from ..geometry.equirect import equirect_jacobian
+from .covariance import covariance_3d, eval_sh
+
+__all__ = ["ProjectedGaussians", "RasterSettings", "project_equirect_gaussians", "project_pinhole_gaussians"]
+
+
+@dataclass(frozen=True)
+class RasterSettings:
+    """Constants shared by every backend (3DGS conventions unless stated)."""
+
+    near: float = 0.01  # metres: closer Gaussians are culled
+    dilation: float = 0.3  # px^2 added to the 2D covariance (anti-aliasing low-pass)
+    sigma_extent: float = 3.0  # support: the sigma_extent-sigma ellipse of the 2D Gaussian
+    alpha_max: float = 0.99
+    alpha_min: float = 1.0 / 255.0
+    transmittance_min: float = 1e-4
+    pole_eps: float = 1e-3  # rho >= pole_eps * r inside the equirect Jacobian
+    tile_size: int = 16
+
+
+@dataclass
+class ProjectedGaussians:
+    """Visible (Gaussian, camera) pairs, flattened over cameras.
+
+    camera:   (M,)   index of the camera (0 .. num_cameras - 1)
+    uv:       (M, 2) projected mean in pixels
+    conic:    (M, 3) inverse 2D covariance entries (A, B, C): power = -(A du^2 + 2 B du dv + C dv^2) / 2
+    extent:   (M, 2) half-widths of the support's bounding box in u and v (pixels)
+    depth:    (M,)   radial distance of the mean (sort key and depth output)
+    opacity:  (M,)
+    color:    (M, 3)
+    """
+
+    camera: Tensor
+    uv: Tensor
+    conic: Tensor
+    extent: Tensor
+    depth: Tensor
+    opacity: Tensor
+    color: Tensor
+    num_cameras: int
+    height: int
+    width: int
+    wrap_u: bool
+
+
+def _flatten_cameras(gaussians: Gaussians, c2w: Tensor) -> tuple[Gaussians, Tensor, tuple[int, ...]]:
+    """Bring Gaussians to ``(B, N, ...)`` and cameras to ``(B, V, 4, 4)``; returns the output batch shape."""
+    if gaussians.batch_shape == ():
+        if c2w.ndim == 2:
+            out_shape: tuple[int, ...] = ()
+            c2w = c2w[None, None]
+        elif c2w.ndim == 3:
+            out_shape = (c2w.shape[0],)
+            c2w = c2w[None]
+        else:
+            raise ValueError(f"unbatched Gaussians need c2w of shape (4, 4) or (V, 4, 4), got {tuple(c2w.shape)}")
+        gaussians = Gaussians(**{k: v[None] for k, v in gaussians.tensors().items()})
+    elif len(gaussians.batch_shape) == 1:
+        b = gaussians.batch_shape[0]
+        if c2w.ndim != 4 or c2w.shape[0] != b:
+            raise ValueError(f"Gaussians with batch size {b} need c2w of shape ({b}, V, 4, 4), got {tuple(c2w.shape)}")
+        out_shape = tuple(c2w.shape[:2])
+    else:
+        raise ValueError(f"Gaussians may have at most one batch dimension, got {tuple(gaussians.batch_shape)}")
+    return gaussians, c2w, out_shape
+
+
+def _view_colors(gaussians: Gaussians, c2w: Tensor) -> Tensor:
+    """Per (batch, view, Gaussian) RGB, ``(B, V, N, 3)``; view-independent for SH degree 0."""
+    sh = gaussians.sh
+    if sh.shape[-2] == 1:
+        return eval_sh(sh, gaussians.means)[:, None].expand(-1, c2w.shape[1], -1, -1)
+    dirs = gaussians.means[:, None] - c2w[:, :, None, :3, 3]
+    dirs = dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True).clamp_min(1e-12)
+    return eval_sh(sh[:, None].expand(-1, c2w.shape[1], -1, -1, -1), dirs)
+
+
+def _finish(
+    cov2d: Tensor,
+    uv: Tensor,
+    depth: Tensor,
+    valid: Tensor,
+    gaussians: Gaussians,
+    colors: Tensor,
+    settings: RasterSettings,
+    max_std: tuple[float, float],
+    height: int,
+    width: int,
+    wrap_u: bool,
+) -> ProjectedGaussians:
+    """Shared tail: dilation, std caps, conic, extents, culling, flattening (all ``(B, V, N, ...)``)."""
+    eye = torch.eye(2, dtype=cov2d.dtype, device=cov2d.device)
+    cov2d = cov2d + settings.dilation * eye
+    a, b, c = cov2d[..., 0, 0], cov2d[..., 0, 1], cov2d[..., 1, 1]
+    # Cap the standard deviations by scaling rows/columns (keeps the matrix positive definite).
+    fu = torch.clamp(max_std[0] ** 2 / a, max=1.0)
+    fv = torch.clamp(max_std[1] ** 2 / c, max=1.0)
+    a, b, c = a * fu, b * torch.sqrt(fu * fv), c * fv
+    det = (a * c - b * b).clamp_min(1e-30)
+    conic = torch.stack((c / det, -b / det, a / det), dim=-1)
+    extent = settings.sigma_extent * torch.sqrt(torch.stack((a, c), dim=-1))
+
+    opacity = gaussians.opacities[:, None].expand_as(depth)
+    valid = valid & (opacity >= settings.alpha_min)
+    valid = valid & (uv[..., 1] - extent[..., 1] < height) & (uv[..., 1] + extent[..., 1] > 0)
+    if not wrap_u:
+        valid = valid & (uv[..., 0] - extent[..., 0] < width) & (uv[..., 0] + extent[..., 0] > 0)
+
+    num_b, num_v, num_n = depth.shape
+    camera = torch.arange(num_b * num_v, device=depth.device).view(num_b, num_v, 1).expand(-1, -1, num_n)
+    dtype = gaussians.dtype
+    return ProjectedGaussians(
+        camera=camera[valid],
+        uv=uv[valid].to(dtype),
+        conic=conic[valid].to(dtype),
+        extent=extent[valid].to(dtype),
+        depth=depth[valid].to(dtype),
+        opacity=opacity[valid],
+        color=colors[valid],
+        num_cameras=num_b * num_v,
+        height=height,
+        width=width,
+        wrap_u=wrap_u,
+    )
+
+
+def project_equirect_gaussians(
+    gaussians: Gaussians, c2w: Tensor, height: int, width: int, settings: RasterSettings = RasterSettings()
+) -> tuple[ProjectedGaussians, tuple[int, ...]]:
+    """Project into equirect cameras. Returns the projection and the output batch shape ``(*B, V)``."""
+    gaussians, c2w, out_shape = _flatten_cameras(gaussians, c2w)
+    f64 = torch.float64
+    rot = c2w[..., :3, :3].to(f64)  # (B, V, 3, 3)
+    means = gaussians.means.to(f64)
+    p = (means[:, None] - c2w[:, :, None, :3, 3].to(f64)) @ rot  # (B, V, N, 3) camera frame
+    x, y, z = p.unbind(-1)
+    rho2 = x * x + z * z
+    r = torch.sqrt((rho2 + y * y).clamp_min(1e-30))
+    valid = r > settings.near
+
+    # Projection with safe inputs at the pole axis (atan2(0, 0) has no gradient).
+    on_axis = rho2 < 1e-24
+    z_safe = torch.where(on_axis, torch.ones_like(z), z)
+    x_safe = torch.where(on_axis, torch.zeros_like(x), x)
+    rho = torch.sqrt(rho2.clamp_min(1e-24))
+    u = width / (2 * math.pi) * (torch.atan2(x_safe, z_safe) + math.pi)
+    v = height / math.pi * (torch.atan2(y, rho) + math.pi / 2)
+    uv = torch.stack((u, v), dim=-1)
+
+    r_safe = torch.where(valid, r, torch.ones_like(r))
+    p_safe = torch.where(valid[..., None], p, torch.ones_like(p))
+    jac = equirect_jacobian(p_safe, height, width, min_rho=settings.pole_eps * r_safe)  # (B, V, N, 2, 3)
+    cov_world = covariance_3d(gaussians.scales.to(f64), gaussians.rotations.to(f64))  # (B, N, 3, 3)
+    cov_cam = rot.transpose(-1, -2)[:, :, None] @ cov_world[:, None] @ rot[:, :, None]
+    cov2d = jac @ cov_cam @ jac.transpose(-1, -2)
+
+    colors = _view_colors(gaussians, c2w)
+    proj = _finish(
+        cov2d, uv, r, valid, gaussians, colors, settings, (width / 6.0, 2.0 * height), height, width, wrap_u=True
+    )
+    return proj, out_shape
+
+
+def project_pinhole_gaussians(
+    gaussians: Gaussians,
+    c2w: Tensor,
+    intrinsics: Tensor,
+    height: int,
+    width: int,
+    settings: RasterSettings = RasterSettings(),
+) -> tuple[ProjectedGaussians, tuple[int, ...]]:
+    """Project into pinhole cameras (``intrinsics`` 3x3, shared). Depth output is radial distance.
+
+    Gaussians are culled when ``z <= near`` or when their mean lies outside a guard band of 1.3x the
+    field of view (as 3DGS does, to keep the linearisation sane); the sort key is the radial
+    distance so that direct and cubemap renders composite in the same order.
+    """
+    gaussians, c2w, out_shape = _flatten_cameras(gaussians, c2w)
+    f64 = torch.float64
+    rot = c2w[..., :3, :3].to(f64)
+    p = (gaussians.means.to(f64)[:, None] - c2w[:, :, None, :3, 3].to(f64)) @ rot
+    x, y, z = p.unbind(-1)
+    k = intrinsics.to(f64)
+    fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+    valid = z > settings.near
+    z_safe = torch.where(valid, z, torch.ones_like(z))
+    tx, ty = x / z_safe, y / z_safe
+    lim_x, lim_y = 1.3 * (width / 2) / fx, 1.3 * (height / 2) / fy
+    valid = valid & ((tx - (cx - width / 2) / fx).abs() <= lim_x) & ((ty - (cy - height / 2) / fy).abs() <= lim_y)
+    uv = torch.stack((fx * tx + cx, fy * ty + cy), dim=-1)
+    zero = torch.zeros_like(z)
+    jac = torch.stack(
+        (
+            torch.stack((fx / z_safe, zero, -fx * x / z_safe**2), dim=-1),
+            torch.stack((zero, fy / z_safe, -fy * y / z_safe**2), dim=-1),
+        ),
+        dim=-2,
+    )
+    cov_world = covariance_3d(gaussians.scales.to(f64), gaussians.rotations.to(f64))
+    cov_cam = rot.transpose(-1, -2)[:, :, None] @ cov_world[:, None] @ rot[:, :, None]
+    cov2d = jac @ cov_cam @ jac.transpose(-1, -2)
+    r = torch.linalg.vector_norm(p, dim=-1)
+    colors = _view_colors(gaussians, c2w)
+    proj = _finish(cov2d, uv, r, valid, gaussians, colors, settings, (4.0 * width, 4.0 * height), height, width, wrap_u=False)
+    return proj, out_shape

@@ -1,0 +1,83 @@
+"""Gaussian container operations and the standard 3DGS PLY layout."""
+
+import numpy as np
+import pytest
+import torch
+from plyfile import PlyData
+
+from cylindersplat.gaussians import Gaussians, load_ply, save_ply
+
+
+def random_gaussians(n=10, sh_degree=0, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    k = (sh_degree + 1) ** 2
+    return Gaussians(
+        means=torch.randn(n, 3, generator=gen),
+        scales=torch.rand(n, 3, generator=gen) * 0.1 + 0.01,
+        rotations=torch.nn.functional.normalize(torch.randn(n, 4, generator=gen), dim=-1),
+        opacities=torch.rand(n, generator=gen) * 0.98 + 0.01,
+        sh=torch.randn(n, k, 3, generator=gen) * 0.3,
+    )
+
+
+def test_container_cat_select_and_moves():
+    a, b = random_gaussians(4), random_gaussians(3, sh_degree=2, seed=1)
+    c = Gaussians.cat([a, b])
+    assert len(c) == 7 and c.sh_degree == 2
+    torch.testing.assert_close(c.sh[:4, 0], a.sh[:, 0])
+    assert (c.sh[:4, 1:] == 0).all()
+    mask = torch.tensor([True, False, True, False, False, False, True])
+    sel = c[mask]
+    torch.testing.assert_close(sel.means, c.means[mask])
+    assert len(c[torch.tensor([0, 6])]) == 2
+    assert c.to(torch.float64).dtype == torch.float64
+    rgb = torch.rand(5, 3)
+    torch.testing.assert_close(Gaussians.from_rgb(torch.zeros(5, 3), torch.ones(5, 3), torch.randn(5, 4), torch.ones(5), rgb).rgb, rgb)
+
+
+def test_validate_names_the_problem():
+    g = random_gaussians(4)
+    g.validate()
+    with pytest.raises(ValueError, match="opacities"):
+        Gaussians(g.means, g.scales, g.rotations, g.opacities + 1.5, g.sh).validate()
+    with pytest.raises(ValueError, match="scales must have shape"):
+        Gaussians(g.means, g.scales[:3], g.rotations, g.opacities, g.sh).validate()
+    bad = g.means.clone()
+    bad[0, 0] = float("inf")
+    with pytest.raises(ValueError, match="means contains non-finite"):
+        Gaussians(bad, g.scales, g.rotations, g.opacities, g.sh).validate()
+
+
+@pytest.mark.parametrize("sh_degree", [0, 3])
+def test_ply_round_trip_is_lossless(tmp_path, sh_degree):
+    g = random_gaussians(50, sh_degree=sh_degree)
+    path = save_ply(g, tmp_path / "scene.ply")
+    back = load_ply(path)
+    for name, t in g.tensors().items():
+        torch.testing.assert_close(getattr(back, name), t, rtol=2e-6, atol=2e-7, msg=name)
+
+
+def test_ply_uses_the_standard_3dgs_layout(tmp_path):
+    g = random_gaussians(5, sh_degree=1)
+    save_ply(g, tmp_path / "s.ply")
+    vertex = PlyData.read(str(tmp_path / "s.ply"))["vertex"]
+    names = [p.name for p in vertex.properties]
+    expected = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [f"f_rest_{i}" for i in range(9)]
+    expected += ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    assert names == expected
+    # logit opacity, log scale, channel-major f_rest (R coefficients first), zero normals.
+    np.testing.assert_allclose(vertex["opacity"], torch.logit(g.opacities.double()).numpy(), rtol=1e-5)
+    np.testing.assert_allclose(vertex["scale_1"], g.scales[:, 1].log().numpy(), rtol=1e-5)
+    np.testing.assert_allclose(vertex["f_rest_0"], g.sh[:, 1, 0].numpy())
+    np.testing.assert_allclose(vertex["f_rest_3"], g.sh[:, 1, 1].numpy())
+    np.testing.assert_allclose(vertex["f_rest_1"], g.sh[:, 2, 0].numpy())
+    assert (vertex["nx"] == 0).all()
+
+
+def test_ply_errors_are_clear(tmp_path):
+    with pytest.raises(FileNotFoundError, match="missing.ply"):
+        load_ply(tmp_path / "missing.ply")
+    corrupt = tmp_path / "corrupt.ply"
+    corrupt.write_bytes(b"ply\nformat nonsense\n")
+    with pytest.raises(ValueError, match="corrupt.ply"):
+        load_ply(corrupt)
