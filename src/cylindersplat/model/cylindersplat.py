@@ -1,0 +1,169 @@
+"""The CylinderSplat model: pixel branch + volume branch + fusion, with curriculum switches.
+
+``mode`` selects which Gaussians the model outputs (paper Sec. 3.3 curriculum):
+
+* ``"pixel"`` (stage 1): pixel Gaussians only; the volume branch is not run.
+* ``"volume"`` (stage 2): volume Gaussians only; the pixel branch still provides depth, F_pano
+  and the feature cloud (run without autograd when all its parameters are frozen), but not its
+  Gaussians.
+* ``"both"`` (stage 3 and inference): fused ``G_pixel + G_volume``.
+
+:meth:`CylinderSplat.configure_stage` sets the mode and the matching freezing in one call.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+
+import torch
+from jaxtyping import Float
+from torch import Tensor, nn
+
+from ..gaussians import Gaussians
+from ..geometry import camera_to_world
+from .config import ModelConfig, get_config
+from .fusion import fuse_gaussians
+from .pixel_branch import PixelBranch, PixelBranchOutput
+from .rotations import matrix_to_quaternion, quaternion_multiply
+from .volume_branch import VolumeBranch
+
+__all__ = ["ModelOutput", "CylinderSplat", "from_config", "MODES"]
+
+MODES = ("pixel", "volume", "both")
+STAGE_MODES = {1: "pixel", 2: "volume", 3: "both"}
+
+
+@dataclass
+class ModelOutput:
+    gaussians: Gaussians  # what the current mode outputs, batched (B, N, ...)
+    keep_mask: Tensor  # (B, N) False for Gaussians pruned by depth-guided fusion
+    refined_depth: Float[Tensor, "B V H W"]
+    features: Float[Tensor, "B V C H W"]  # F_pano
+    pixel_gaussians: Gaussians | None  # (B, V*H*W, ...), view-major then row-major pixels
+    volume_gaussians: Gaussians | None  # (B, V*G, ...), camera-major then (q0, q1, q2) cells
+
+
+class CylinderSplat(nn.Module):
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        self.config = config
+        self.pixel_branch = PixelBranch(config)
+        self.volume_branch = VolumeBranch(config)
+        self.mode = config.mode
+
+    # -- curriculum ---------------------------------------------------------------------------
+    @property
+    def mode(self) -> str:
+        return self._mode
+
+    @mode.setter
+    def mode(self, value: str) -> None:
+        if value not in MODES:
+            raise ValueError(f"unknown branch mode {value!r}; expected one of {MODES}")
+        self._mode = value
+
+    def set_mode(self, mode: str) -> "CylinderSplat":
+        self.mode = mode
+        return self
+
+    def _set_trainable(self, module: nn.Module, trainable: bool) -> "CylinderSplat":
+        for p in module.parameters():
+            p.requires_grad_(trainable)
+        return self
+
+    def freeze_pixel_branch(self) -> "CylinderSplat":
+        return self._set_trainable(self.pixel_branch, False)
+
+    def unfreeze_pixel_branch(self) -> "CylinderSplat":
+        return self._set_trainable(self.pixel_branch, True)
+
+    def freeze_volume_branch(self) -> "CylinderSplat":
+        return self._set_trainable(self.volume_branch, False)
+
+    def unfreeze_volume_branch(self) -> "CylinderSplat":
+        return self._set_trainable(self.volume_branch, True)
+
+    def configure_stage(self, stage: int) -> "CylinderSplat":
+        """Curriculum stage 1 (pixel only), 2 (volume, pixel frozen) or 3 (joint)."""
+        if stage not in STAGE_MODES:
+            raise ValueError(f"curriculum stage must be 1, 2 or 3, got {stage}")
+        self.set_mode(STAGE_MODES[stage])
+        self._set_trainable(self.pixel_branch, stage != 2)
+        return self._set_trainable(self.volume_branch, stage != 1)
+
+    def branch_parameters(self, branch: str) -> list[nn.Parameter]:
+        return list({"pixel": self.pixel_branch, "volume": self.volume_branch}[branch].parameters())
+
+    def parameter_counts(self) -> dict[str, int]:
+        count = lambda m: sum(p.numel() for p in m.parameters())  # noqa: E731
+        pb = self.pixel_branch
+        return {
+            "backbone": count(pb.backbone),
+            "attention": count(pb.attention) + count(pb.to_tokens) + count(pb.ray_embedding),
+            "decoder": count(pb.decoder) + count(pb.full_res) + count(pb.out),
+            "pixel_head": count(pb.gaussian_head),
+            "volume_branch": count(self.volume_branch),
+            "total": count(self),
+        }
+
+    # -- forward ------------------------------------------------------------------------------
+    def forward(
+        self,
+        images: Float[Tensor, "B V 3 H W"],
+        depth_prior: Float[Tensor, "B V H W"],
+        c2w: Float[Tensor, "B V 4 4"],
+    ) -> ModelOutput:
+        if images.ndim != 5 or images.shape[2] != 3:
+            raise ValueError(f"images must be (B, V, 3, H, W), got {tuple(images.shape)}")
+        b, v, _, h, w = images.shape
+        if depth_prior.shape != (b, v, h, w) or c2w.shape != (b, v, 4, 4):
+            raise ValueError(
+                f"depth_prior must be {(b, v, h, w)} and c2w {(b, v, 4, 4)}, "
+                f"got {tuple(depth_prior.shape)} and {tuple(c2w.shape)}"
+            )
+        c2w = c2w.to(images.dtype)
+        frozen = not any(p.requires_grad for p in self.pixel_branch.parameters())
+        no_grad = torch.no_grad() if self.mode == "volume" and frozen else contextlib.nullcontext()
+        with no_grad:
+            pixel_out = self.pixel_branch(images, depth_prior, c2w, predict_gaussians=self.mode != "volume")
+
+        pixel = self._pixel_gaussians(pixel_out, c2w) if self.mode != "volume" else None
+        volume = volume_points = None
+        if self.mode != "pixel":
+            vol = self.volume_branch(
+                images, depth_prior, c2w, pixel_out.features, pixel_out.points_world, pixel_out.point_features
+            )
+            volume, volume_points = vol.gaussians, vol.points_cam
+        fused, keep = fuse_gaussians(pixel, volume, self.config.fusion, volume_points, pixel_out.refined_depth)
+        return ModelOutput(
+            gaussians=fused,
+            keep_mask=keep,
+            refined_depth=pixel_out.refined_depth,
+            features=pixel_out.features,
+            pixel_gaussians=pixel,
+            volume_gaussians=volume,
+        )
+
+    @staticmethod
+    def _pixel_gaussians(out: PixelBranchOutput, c2w: Tensor) -> Gaussians:
+        params = out.gaussian_params
+        assert params is not None
+        camera_rotation = matrix_to_quaternion(c2w[..., :3, :3])[:, :, None]
+        rotations = quaternion_multiply(camera_rotation, params["rotations"])
+        return Gaussians.from_rgb(
+            out.points_world.flatten(1, 2),
+            params["scales"].flatten(1, 2),
+            rotations.flatten(1, 2),
+            params["opacities"].flatten(1, 2),
+            params["colors"].flatten(1, 2),
+        )
+
+
+def from_config(config: ModelConfig | str = "paper", **changes) -> CylinderSplat:
+    """Build a model from a :class:`ModelConfig` or a preset name (with optional field changes)."""
+    if isinstance(config, str):
+        config = get_config(config, **changes)
+    elif changes:
+        config = config.replace(**changes)
+    return CylinderSplat(config)

@@ -1,0 +1,73 @@
+"""Fusion of pixel and volume Gaussians (paper Sec. 3 and App. "Advanced Gaussian Fusion").
+
+* ``"concat"`` (default, the paper's main results): ``G_pixel`` followed by ``G_volume``.
+* ``"depth_prune"``: each volume Gaussian is checked against the *refined* depth of its own
+  camera (the one whose triplane produced it; its centre lies inside that camera's volume). With
+  ``e = (d_g - d_pred) / d_pred`` the relative deviation along its ray, its opacity is multiplied
+  by ``exp(-e^2 / (2 sigma^2))`` (``side="front"``: only for ``e < 0``, i.e. Gaussians floating in
+  front of the observed surface; those behind it are the occluded regions the volume branch
+  completes). Gaussians whose attenuated opacity falls below ``prune_threshold`` are marked in
+  ``keep_mask`` (batched outputs keep a fixed ``N``; :func:`compact` drops them for one scene).
+  Pixel Gaussians lie on the refined depth by construction and are never attenuated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import torch
+from jaxtyping import Float
+from torch import Tensor
+
+from ..gaussians import Gaussians
+from ..geometry import project_equirect
+from .config import FusionConfig
+from .sampling import sample_panorama
+
+__all__ = ["depth_confidence", "fuse_gaussians", "compact"]
+
+
+def depth_confidence(
+    points_cam: Float[Tensor, "B V G 3"],
+    refined_depth: Float[Tensor, "B V H W"],
+    sigma: float,
+    side: str = "both",
+) -> Float[Tensor, "B V G"]:
+    """Agreement in ``(0, 1]`` of camera-frame points with their own view's predicted depth."""
+    b, v, h, w = refined_depth.shape
+    uv, distance = project_equirect(points_cam, h, w)
+    predicted = sample_panorama(refined_depth.reshape(b * v, 1, h, w), uv.reshape(b * v, -1, 2)).view(b, v, -1)
+    error = (distance - predicted) / predicted.clamp_min(1e-6)
+    if side == "front":
+        error = error.clamp_max(0.0)
+    elif side != "both":
+        raise ValueError(f"unknown pruning side {side!r}; expected 'both' or 'front'")
+    return torch.exp(-0.5 * (error / sigma) ** 2)
+
+
+def fuse_gaussians(
+    pixel: Gaussians | None,
+    volume: Gaussians | None,
+    cfg: FusionConfig,
+    volume_points_cam: Tensor | None = None,
+    refined_depth: Tensor | None = None,
+) -> tuple[Gaussians, Float[Tensor, "B N"]]:
+    """Combined Gaussians ``(B, N, ...)`` and a keep mask ``(B, N)``."""
+    if volume is not None and cfg.strategy == "depth_prune":
+        if volume_points_cam is None or refined_depth is None:
+            raise ValueError("depth_prune fusion needs the volume Gaussians' camera-frame points and the refined depth")
+        confidence = depth_confidence(volume_points_cam, refined_depth, cfg.sigma, cfg.side).flatten(1)
+        volume = replace(volume, opacities=volume.opacities * confidence)
+    elif cfg.strategy not in ("concat", "depth_prune"):
+        raise ValueError(f"unknown fusion strategy {cfg.strategy!r}; expected 'concat' or 'depth_prune'")
+    parts = [g for g in (pixel, volume) if g is not None]
+    fused = Gaussians.cat(parts) if len(parts) > 1 else parts[0]
+    keep = torch.ones_like(fused.opacities, dtype=torch.bool)
+    if volume is not None and cfg.strategy == "depth_prune":
+        keep[..., fused.num_gaussians - volume.num_gaussians :] = volume.opacities >= cfg.prune_threshold
+    return fused, keep
+
+
+def compact(gaussians: Gaussians, keep: Float[Tensor, "B N"]) -> list[Gaussians]:
+    """Drop the pruned Gaussians of every scene (ragged, so one unbatched container per scene)."""
+    return [gaussians.batch(i)[keep[i]] for i in range(keep.shape[0])]
