@@ -41,8 +41,8 @@ class CrossPlaneAttention(nn.Module):
         self.out = nn.Linear(channels, channels)
 
     def forward(self, planes: list[Tensor]) -> list[Tensor]:
-        qkv = [_split_heads(self.qkv(self.norm(p)), self.heads) for p in planes]  # (N, A, B, h, 3d)
-        q, k, v = zip(*(t.chunk(3, dim=-1) for t in qkv))
+        qkv = [self.qkv(self.norm(p)).chunk(3, dim=-1) for p in planes]
+        q, k, v = ([_split_heads(t[i], self.heads) for t in qkv] for i in range(3))  # each (N, A, B, h, d)
         scale = q[0].shape[-1] ** -0.5
         updated = []
         for index in range(3):
