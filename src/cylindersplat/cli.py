@@ -31,8 +31,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from .utils.allocator import keep_freed_memory
+
     parser = build_parser()
     args = parser.parse_args(argv)
+    keep_freed_memory()  # the CPU renderer reuses large buffers (see utils.allocator)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
