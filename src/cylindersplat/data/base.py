@@ -1,0 +1,138 @@
+"""Shared machinery of every panorama dataset: frame references -> :class:`Sample`.
+
+A concrete dataset only lists its examples (:meth:`PanoramaDataset.__len__`,
+:meth:`PanoramaDataset.example`) as :class:`ExampleRef`: frame files, poses and the context/target
+split. Loading, resizing, validity checks, depth priors and metadata are done here once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+from torch.utils.data import Dataset
+
+from ..geometry import validate_c2w
+from .depth_prior.base import DepthPrior, NoPrior, PriorQuery
+from .io import read_depth_png, read_rgb
+from .sample import Sample
+from .views import ViewSplit
+
+__all__ = ["FrameRef", "ExampleRef", "PanoramaDataset"]
+
+
+@dataclass
+class FrameRef:
+    """One stored panorama: its files and OpenCV ``c2w`` (4x4, float32)."""
+
+    name: str
+    rgb: Path
+    c2w: Tensor
+    depth: Path | None = None
+
+
+@dataclass
+class ExampleRef:
+    """One example: the frames it needs and which are context/target."""
+
+    scene: str
+    frames: list[FrameRef]
+    views: ViewSplit
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+
+class PanoramaDataset(Dataset):
+    """Base class. ``resolution`` (H, W) resizes on load (None = stored size); ``stored_size``
+    (H, W), when a layout fixes it, is checked against every file; ``depth_prior`` fills
+    ``Sample.context_depths`` (default: :class:`NoPrior`, zeros)."""
+
+    dataset_name = "base"
+
+    def __init__(
+        self,
+        resolution: tuple[int, int] | None = None,
+        depth_prior: DepthPrior | None = None,
+        stored_size: tuple[int, int] | None = None,
+        depth_resize: str = "area",
+    ) -> None:
+        if resolution is not None and resolution[1] != 2 * resolution[0]:
+            raise ValueError(f"resolution must be (H, W) with W == 2H, got {resolution}")
+        self.resolution = tuple(resolution) if resolution is not None else None
+        self.depth_prior = depth_prior or NoPrior()
+        self.stored_size = stored_size
+        self.depth_resize = depth_resize
+
+    # -- to implement ------------------------------------------------------------------------------
+    def __len__(self) -> int:
+        raise NotImplementedError
+
+    def example(self, index: int) -> ExampleRef:
+        raise NotImplementedError
+
+    # -- shared loading ----------------------------------------------------------------------------
+    def _load_frame(self, frame: FrameRef) -> tuple[Tensor, Tensor | None]:
+        image = read_rgb(frame.rgb, size=self.resolution, expected=self.stored_size)
+        depth = None
+        if frame.depth is not None:
+            depth = read_depth_png(
+                frame.depth, size=tuple(image.shape[-2:]), expected=self.stored_size, resize_mode=self.depth_resize
+            )
+        return image, depth
+
+    def __getitem__(self, index: int) -> Sample:
+        if not 0 <= index < len(self):
+            raise IndexError(f"{type(self).__name__} index {index} out of range (len {len(self)})")
+        ref = self.example(index)
+        needed = sorted(set(ref.views.context) | set(ref.views.target))
+        loaded = {i: self._load_frame(ref.frames[i]) for i in needed}
+        sizes = {tuple(loaded[i][0].shape) for i in needed}
+        if len(sizes) > 1:
+            files = ", ".join(str(ref.frames[i].rgb) for i in needed)
+            raise ValueError(f"frames of one example differ in size {sorted(sizes)}: {files}")
+        for i in needed:
+            validate_c2w(ref.frames[i].c2w, name=f"pose of {ref.frames[i].rgb.parent}")
+
+        def stack_depths(indices):
+            depths = [loaded[i][1] for i in indices]
+            return None if any(d is None for d in depths) else torch.stack(depths)
+
+        ctx, tgt = ref.views.context, ref.views.target
+        priors = [
+            self.depth_prior(
+                PriorQuery(loaded[i][0], loaded[i][1], ref.frames[i].rgb,
+                           f"{self.dataset_name}/{ref.scene}/{ref.frames[i].name}")
+            ).float()
+            for i in ctx
+        ]
+        poses = torch.stack([f.c2w.float() for f in ref.frames])
+        metadata = {
+            "dataset": self.dataset_name,
+            "scene": ref.scene,
+            "baseline": _baseline(poses[list(ctx)], poses[list(tgt)]),
+            "context_indices": list(ctx),
+            "target_indices": list(tgt),
+            "frame_names": [ref.frames[i].name for i in needed],
+            "depth_prior": self.depth_prior.name,
+            **ref.metadata,
+        }
+        return Sample(
+            context_images=torch.stack([loaded[i][0] for i in ctx]),
+            context_depths=torch.stack(priors),
+            context_poses=poses[list(ctx)],
+            target_images=torch.stack([loaded[i][0] for i in tgt]),
+            target_depths=stack_depths(tgt),
+            target_poses=poses[list(tgt)],
+            metadata=metadata,
+            context_gt_depths=stack_depths(ctx),
+        )
+
+
+def _baseline(context_poses: Tensor, target_poses: Tensor) -> float:
+    """Largest distance between two context centres (one context: to the farthest target)."""
+    centers = context_poses[:, :3, 3]
+    if len(centers) == 1:
+        centers = torch.cat([centers, target_poses[:, :3, 3]])
+    return float(torch.cdist(centers.double(), centers.double()).max())

@@ -1,0 +1,164 @@
+"""Reading and writing panoramas, 16-bit depth PNGs and pose text files, with clear errors.
+
+Every reader raises ``FileNotFoundError`` (missing file) or ``ValueError`` (unreadable/corrupt file,
+wrong size, non-2:1 panorama, non-finite numbers) with the offending path in the message.
+
+Resizing (when a dataset is read at a lower resolution than stored):
+
+* images: PIL's Lanczos filter on the 8-bit image (as PanSplat does), then ``/ 255``;
+* depth: ``"area"`` (default) is a *validity-aware* box filter for integer down-scaling factors
+  (each output pixel is the mean of the valid, non-zero input pixels of its block, 0 when the block
+  has none) so holes neither shrink depths toward 0 nor blur across invalid pixels; ``"nearest"``
+  samples the input pixel whose centre is nearest to the output pixel centre (also used for
+  non-integer factors and up-sampling). Lanczos is never used for depth: it rings at occlusion edges.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from PIL import Image, UnidentifiedImageError
+from torch import Tensor
+
+__all__ = [
+    "DEPTH_PNG_SCALE",
+    "open_image",
+    "read_rgb",
+    "read_depth_png",
+    "read_depth_npy",
+    "write_rgb",
+    "write_depth_png",
+    "read_matrix_txt",
+    "resize_depth",
+    "check_panorama_size",
+]
+
+DEPTH_PNG_SCALE = 1000.0  # 16-bit PNG units per metre (millimetres, PanoGRF convention)
+
+
+def check_panorama_size(height: int, width: int, path: Path | str, expected: tuple[int, int] | None = None) -> None:
+    """Raise ``ValueError`` naming ``path`` unless the size is 2:1 (and equals ``expected`` (H, W))."""
+    if width != 2 * height:
+        raise ValueError(f"{path}: panorama must be 2:1 (W == 2H), got {width}x{height} (WxH)")
+    if expected is not None and (height, width) != tuple(expected):
+        raise ValueError(f"{path}: expected {expected[1]}x{expected[0]} (WxH), got {width}x{height}")
+
+
+def open_image(path: Path | str) -> Image.Image:
+    """Open and fully decode an image file; corrupt or truncated files raise ``ValueError``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"missing file: {path}")
+    try:
+        with Image.open(path) as img:
+            img.load()
+            return img.copy()
+    except (UnidentifiedImageError, OSError, SyntaxError) as exc:
+        raise ValueError(f"{path}: cannot decode image ({exc})") from exc
+
+
+def read_rgb(
+    path: Path | str, size: tuple[int, int] | None = None, expected: tuple[int, int] | None = None
+) -> Float[Tensor, "3 H W"]:
+    """8-bit panorama -> float ``(3, H, W)`` in ``[0, 1]``.
+
+    ``expected`` (H, W) checks the stored size; ``size`` (H, W) resizes with Lanczos.
+    """
+    img = open_image(path)
+    check_panorama_size(img.height, img.width, path, expected)
+    img = img.convert("RGB")
+    if size is not None and (img.height, img.width) != tuple(size):
+        check_panorama_size(size[0], size[1], f"{path} (requested size)")
+        img = img.resize((size[1], size[0]), Image.LANCZOS)
+    return torch.from_numpy(np.asarray(img, dtype=np.uint8).copy()).permute(2, 0, 1).float() / 255.0
+
+
+def read_depth_png(
+    path: Path | str,
+    size: tuple[int, int] | None = None,
+    expected: tuple[int, int] | None = None,
+    scale: float = DEPTH_PNG_SCALE,
+    resize_mode: str = "area",
+) -> Float[Tensor, "H W"]:
+    """16-bit depth PNG (``scale`` units per metre, 0 = hole) -> float ``(H, W)`` metres."""
+    img = open_image(path)
+    check_panorama_size(img.height, img.width, path, expected)
+    if img.mode not in ("I;16", "I;16B", "I;16L", "I", "L"):
+        raise ValueError(f"{path}: depth PNG must be single-channel 16-bit, got mode {img.mode}")
+    depth = torch.from_numpy(np.asarray(img).astype(np.float32)) / scale
+    if size is not None:
+        depth = resize_depth(depth, size, mode=resize_mode)
+    return depth
+
+
+def read_depth_npy(path: Path | str, size: tuple[int, int] | None = None, resize_mode: str = "area") -> Tensor:
+    """Float depth in metres from a ``.npy`` file ``(H, W)``; NaN/Inf/negative become 0 (invalid)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"missing file: {path}")
+    try:
+        arr = np.load(path)
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"{path}: cannot read .npy ({exc})") from exc
+    arr = np.squeeze(arr)
+    if arr.ndim != 2:
+        raise ValueError(f"{path}: depth must be 2-D (H, W), got shape {arr.shape}")
+    check_panorama_size(arr.shape[0], arr.shape[1], path)
+    depth = torch.from_numpy(np.nan_to_num(arr.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)).clamp(min=0)
+    return resize_depth(depth, size, mode=resize_mode) if size is not None else depth
+
+
+def write_rgb(path: Path | str, image: Float[Tensor, "3 H W"] | np.ndarray) -> None:
+    """Save float ``(3, H, W)`` in ``[0, 1]`` (or uint8 ``(H, W, 3)``) as an 8-bit PNG."""
+    if isinstance(image, Tensor):
+        image = (image.detach().clamp(0, 1) * 255.0 + 0.5).to(torch.uint8).permute(1, 2, 0).cpu().numpy()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.ascontiguousarray(image)).save(path, compress_level=1)
+
+
+def write_depth_png(path: Path | str, depth: Float[Tensor, "H W"] | np.ndarray, scale: float = DEPTH_PNG_SCALE) -> None:
+    """Save metric depth as a 16-bit PNG; depths beyond the 16-bit range or non-finite become 0."""
+    d = depth.detach().cpu().numpy() if isinstance(depth, Tensor) else np.asarray(depth)
+    d = np.nan_to_num(d.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0) * scale
+    d = np.where((d > 0) & (d < 65535.5), np.round(d), 0).astype(np.uint16)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(d).save(path, compress_level=1)
+
+
+def read_matrix_txt(path: Path | str, shape: tuple[int, ...]) -> np.ndarray:
+    """Whitespace-separated numbers (e.g. ``rot.txt`` 3x3, ``tran.txt`` 3) reshaped to ``shape``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"missing file: {path}")
+    try:
+        values = np.array(path.read_text().split(), dtype=np.float64)
+    except ValueError as exc:
+        raise ValueError(f"{path}: not a list of numbers ({exc})") from exc
+    if values.size != int(np.prod(shape)):
+        raise ValueError(f"{path}: expected {int(np.prod(shape))} numbers for shape {shape}, got {values.size}")
+    if not np.isfinite(values).all():
+        raise ValueError(f"{path}: contains non-finite values")
+    return values.reshape(shape)
+
+
+def resize_depth(depth: Float[Tensor, "*b H W"], size: tuple[int, int], mode: str = "area") -> Tensor:
+    """Resize depth maps; see the module docstring for ``"area"`` vs ``"nearest"``."""
+    h, w = depth.shape[-2:]
+    out_h, out_w = size
+    if (h, w) == (out_h, out_w):
+        return depth
+    if mode not in ("area", "nearest"):
+        raise ValueError(f"unknown depth resize mode {mode!r} (use 'area' or 'nearest')")
+    if mode == "area" and h % out_h == 0 and w % out_w == 0:
+        fh, fw = h // out_h, w // out_w
+        blocks = depth.reshape(*depth.shape[:-2], out_h, fh, out_w, fw)
+        valid = (blocks > 0) & torch.isfinite(blocks)
+        total = torch.where(valid, blocks, torch.zeros_like(blocks)).sum(dim=(-3, -1))
+        count = valid.sum(dim=(-3, -1))
+        return torch.where(count > 0, total / count.clamp(min=1), torch.zeros_like(total))
+    rows = ((torch.arange(out_h) + 0.5) * h / out_h).floor().long().clamp(max=h - 1)
+    cols = ((torch.arange(out_w) + 0.5) * w / out_w).floor().long().clamp(max=w - 1)
+    return depth[..., rows[:, None], cols[None, :]]

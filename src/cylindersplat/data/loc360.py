@@ -1,0 +1,98 @@
+"""360Loc panoramic sequences, as PanSplat uses them.
+
+Layout (checked in PanSplat's ``src/dataset/dataset_360loc.py``, repository chengzhag/PanSplat)::
+
+    ROOT/<location>/{mapping,query_360}/<sequence with "360" in its name>/
+        camera_pose.json   {frame file name: 4x4 camera-to-world, OpenCV camera}, in frame order
+        image/<frame file name>
+
+PanSplat uses the poses as stored (no axis change), trains on ``concourse``, ``hall``,
+``piatrium`` and tests on ``atrium``. Its test sampler (``view_sampler_bounded.py`` with the
+360Loc gaps min 2 / max 5) takes two contexts ``gap = (2 + 5) // 2 = 3`` frames apart (~1.4 m) at
+``times_per_sequence = 100`` evenly spaced starts, and renders every frame between them, the
+contexts included (:func:`cylindersplat.data.views.all_between`). There is no ground-truth depth.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .base import ExampleRef, FrameRef, PanoramaDataset
+from .views import all_between, all_between_starts
+
+__all__ = ["Loc360Dataset", "LOC360_SPLITS", "read_camera_pose_json"]
+
+LOC360_SPLITS = {"train": ("concourse", "hall", "piatrium"), "test": ("atrium",)}
+
+
+def read_camera_pose_json(path: Path) -> list[tuple[str, torch.Tensor]]:
+    """``camera_pose.json`` -> ``[(frame name, c2w 4x4 float32)]`` in file order."""
+    if not path.is_file():
+        raise FileNotFoundError(f"missing file: {path}")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: invalid JSON ({exc})") from exc
+    if not isinstance(data, dict) or not data:
+        raise ValueError(f"{path}: expected a non-empty object {{frame name: 4x4 matrix}}")
+    out = []
+    for name, matrix in data.items():
+        arr = np.asarray(matrix, dtype=np.float64)
+        if arr.shape != (4, 4):
+            raise ValueError(f"{path}: pose of {name!r} must be 4x4, got shape {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise ValueError(f"{path}: pose of {name!r} contains non-finite values")
+        out.append((name, torch.from_numpy(arr).float()))
+    return out
+
+
+class Loc360Dataset(PanoramaDataset):
+    """360Loc examples: ``split`` picks the locations (or pass ``locations``)."""
+
+    dataset_name = "360loc"
+
+    def __init__(
+        self,
+        root: str | Path,
+        *,
+        split: str = "test",
+        locations: tuple[str, ...] | None = None,
+        gap: int = 3,
+        times_per_sequence: int = 100,
+        resolution: tuple[int, int] | None = None,
+        depth_prior=None,
+    ) -> None:
+        super().__init__(resolution, depth_prior)
+        root = Path(root)
+        if not root.is_dir():
+            raise FileNotFoundError(f"missing dataset folder: {root}")
+        locations = locations or LOC360_SPLITS.get(split)
+        if locations is None:
+            raise ValueError(f"unknown 360Loc split {split!r}; use one of {sorted(LOC360_SPLITS)} or pass locations")
+        self.root, self.gap = root, gap
+        self.sequences: list[tuple[str, Path, list[tuple[str, torch.Tensor]]]] = []
+        self.index: list[tuple[int, int]] = []
+        for location in locations:
+            for folder in ("mapping", "query_360"):
+                for seq in sorted((root / location / folder).glob("*360*")):
+                    if not seq.is_dir():
+                        continue
+                    poses = read_camera_pose_json(seq / "camera_pose.json")
+                    seq_id = len(self.sequences)
+                    self.sequences.append((f"{location}-{seq.name}", seq, poses))
+                    self.index += [(seq_id, s) for s in all_between_starts(len(poses), gap, times_per_sequence)]
+        if not self.sequences:
+            raise ValueError(f"{root}: no 360Loc sequences (<location>/{{mapping,query_360}}/*360*/) for {locations}")
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def example(self, index: int) -> ExampleRef:
+        seq_id, start = self.index[index]
+        scene, seq, poses = self.sequences[seq_id]
+        frames = [FrameRef(name, seq / "image" / name, c2w) for name, c2w in poses]
+        return ExampleRef(scene, frames, all_between(start, self.gap), {"start": start, "gap": self.gap})

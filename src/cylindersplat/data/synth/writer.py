@@ -1,0 +1,70 @@
+"""Write generated sequences to disk in the synthetic layout (see ``docs/data.md``)::
+
+    DIR/meta.json                      generator settings + list of scene ids
+    DIR/<8-digit scene id>/meta.json   layout kind, spacing, frame names, resolution, seed
+    DIR/<id>/poses.json                {"00": 4x4 OpenCV c2w, ...}
+    DIR/<id>/NN/rgb.png                8-bit RGB panorama
+    DIR/<id>/NN/depth.png              16-bit radial depth in millimetres, 0 = sky / none
+
+A scene's ``meta.json`` is written last, so an interrupted run is resumed by running it again:
+complete scenes are skipped.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+from tqdm import tqdm
+
+from ..io import DEPTH_PNG_SCALE, write_depth_png, write_rgb
+from .sequence import SequenceConfig, generate_sequence, render_sequence
+
+__all__ = ["SYNTH_FORMAT", "write_synthetic_dataset", "scene_id"]
+
+SYNTH_FORMAT = "cylindersplat-synth-v1"
+
+
+def scene_id(index: int) -> str:
+    return f"{index:08d}"
+
+
+def write_synthetic_dataset(
+    out: str | Path,
+    scenes: int,
+    resolution: tuple[int, int] = (256, 512),
+    cfg: SequenceConfig = SequenceConfig(),
+    seed: int = 0,
+    progress: bool = True,
+) -> Path:
+    """Generate ``scenes`` sequences into ``out``; returns ``out``."""
+    height, width = resolution
+    if width != 2 * height:
+        raise ValueError(f"resolution must be HxW with W == 2H, got {height}x{width}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    ids = [scene_id(i) for i in range(scenes)]
+    settings = {
+        "format": SYNTH_FORMAT, "seed": seed, "resolution": [height, width],
+        "depth_scale": DEPTH_PNG_SCALE, "config": asdict(cfg), "scenes": ids,
+    }
+    (out / "meta.json").write_text(json.dumps(settings, indent=1))
+    for index in tqdm(range(scenes), desc="synth scenes", unit="scene", disable=not progress):
+        folder = out / ids[index]
+        if (folder / "meta.json").is_file():
+            continue
+        seq = generate_sequence(seed, index, cfg)
+        rgb, depth = render_sequence(seq, height, width)
+        names = [f"{k:02d}" for k in range(cfg.frames)]
+        for k, name in enumerate(names):
+            write_rgb(folder / name / "rgb.png", rgb[k])
+            write_depth_png(folder / name / "depth.png", depth[k])
+        (folder / "poses.json").write_text(json.dumps({n: p.tolist() for n, p in zip(names, seq.poses)}, indent=1))
+        meta = {
+            "scene": ids[index], "index": index, "seed": seed, "kind": seq.scene.kind,
+            "spacing": seq.spacing, "frames": names, "resolution": [height, width],
+            "depth_scale": DEPTH_PNG_SCALE, "sky": seq.scene.sky is not None,
+        }
+        (folder / "meta.json").write_text(json.dumps(meta, indent=1))
+    return out
