@@ -157,3 +157,18 @@ def test_invalid_inputs_raise(tiny_model):
         tiny_model.set_mode("voxels")
     with pytest.raises(ValueError):
         from_config("huge")
+
+
+def test_end_to_end_render_backpropagates_to_every_parameter():
+    """Model -> render_equirect -> loss: the whole network is trainable through the renderer."""
+    render = pytest.importorskip("cylindersplat.render").render_equirect
+    torch.manual_seed(6)
+    model = from_config("tiny")
+    images, depth, c2w = make_inputs(1)
+    out = model(images, depth, c2w)
+    rendered = render(out.gaussians, c2w, 16, 32)
+    assert rendered.rgb.shape == (1, 1, 3, 16, 32) and rendered.depth.shape == (1, 1, 16, 32)
+    assert torch.isfinite(rendered.rgb).all() and torch.isfinite(rendered.depth).all()
+    (rendered.rgb.mean() + 0.1 * rendered.depth.mean()).backward()
+    missing = [n for n, p in model.named_parameters() if p.grad is None or p.grad.abs().sum() == 0]
+    assert not missing, f"no gradient through the renderer for {missing}"

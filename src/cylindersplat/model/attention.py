@@ -7,7 +7,6 @@ attention). Nothing depends on ``V``, so any number of views works with the same
 
 from __future__ import annotations
 
-import torch
 import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor, nn

@@ -7,7 +7,6 @@ Normalisation is GroupNorm: feed-forward batches are 1-2 scenes, too few for bat
 
 from __future__ import annotations
 
-import torch
 import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor, nn

@@ -21,7 +21,6 @@ from jaxtyping import Float
 from torch import Tensor, nn
 
 from ..gaussians import Gaussians
-from ..geometry import camera_to_world
 from .config import ModelConfig, get_config
 from .fusion import fuse_gaussians
 from .pixel_branch import PixelBranch, PixelBranchOutput

@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor, nn
 
-from ..geometry import camera_to_world, equirect_rays, invert_rigid, pixel_centers, uv_to_ray
+from ..geometry import camera_to_world, equirect_rays, invert_rigid
 from .attention import AlternatingAttention, Mlp
 from .backbone import ConvNormAct, PanoConv2d, ResNetBackbone, pano_pad
 from .config import ModelConfig

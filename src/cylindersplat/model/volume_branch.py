@@ -32,7 +32,7 @@ from .config import ModelConfig
 from .gaussian_heads import VolumeGaussianHead, local_to_cartesian_scales
 from .rgb_retrieval import RGBRetrieval
 from .rotations import matrix_to_quaternion, quaternion_multiply
-from .triplane import PLANE_AXES, grid_features, plane_shape, scatter_points_to_triplanes
+from .triplane import grid_features, plane_shape, scatter_points_to_triplanes
 from .triplane_attention import TriplaneRefinementLayer
 
 __all__ = ["TriplaneInitializer", "VolumeBranchOutput", "VolumeBranch"]
