@@ -64,12 +64,23 @@ class AlternatingAttention(nn.Module):
     def block_kind(index: int) -> str:
         return "frame" if index % 2 == 0 else "global"
 
-    def forward(self, tokens: Float[Tensor, "B V T D"]) -> Float[Tensor, "B V T D"]:
+    def forward(self, tokens: Float[Tensor, "B V T D"]) -> list[Float[Tensor, "B V T D"]]:
+        """Normalised outputs of every global block (the last one is the final output).
+
+        Like DPT/VGGT, the decoder reads several depths of the stack, not only the last.
+        """
         b, v, t, d = tokens.shape
         x = tokens
+        outputs = []
         for index, block in enumerate(self.blocks):
             if self.block_kind(index) == "frame":
                 x = block(x.reshape(b * v, t, d)).view(b, v, t, d)
             else:
                 x = block(x.reshape(b, v * t, d)).view(b, v, t, d)
-        return self.norm(x)
+                outputs.append(self.norm(x))
+        if not outputs:  # a stack without global blocks (L = 1)
+            outputs.append(self.norm(x))
+        return outputs
+
+    def num_outputs(self) -> int:
+        return max(1, sum(self.block_kind(i) == "global" for i in range(len(self.blocks))))

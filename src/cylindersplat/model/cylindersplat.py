@@ -46,7 +46,7 @@ class ModelOutput:
 class CylinderSplat(nn.Module):
     def __init__(self, config: ModelConfig):
         super().__init__()
-        self.config = config
+        self.config = config.validate()
         self.pixel_branch = PixelBranch(config)
         self.volume_branch = VolumeBranch(config)
         self.mode = config.mode

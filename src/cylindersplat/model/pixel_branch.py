@@ -10,8 +10,9 @@ Pipeline for ``V`` posed views ``(B, V, 3, H, W)`` with depth priors ``(B, V, H,
    enter the attention, tells global attention where each view is, depends on no fixed ``V``,
    and is continuous across the panorama seam;
 4. :class:`~.attention.AlternatingAttention` - L blocks of frame / global attention;
-5. :class:`PanoDecoder` - U-Net / DPT-style upsampling with the ResNet skips back to full
-   resolution; predicts a bounded log-depth residual (``D = prior * exp(m * tanh(.))``) and F_pano;
+5. :class:`PanoDecoder` - DPT-style: the outputs of all global blocks are concatenated and
+   upsampled with the ResNet skips (U-Net style) back to full resolution; predicts a bounded
+   log-depth residual (``D = prior * exp(m * tanh(.))``) and F_pano;
 6. unprojection along the equirect rays -> feature point cloud, and per-pixel Gaussians.
 """
 
@@ -128,7 +129,7 @@ class PixelBranch(nn.Module):
         # skips coarse-to-fine: backbone features below the token map, then a full-res input conv
         skip_channels = list(reversed(self.backbone.out_channels[:-1])) + [cfg.pixel.decoder_widths[-1]]
         self.full_res = ConvNormAct(bb.in_channels, cfg.pixel.decoder_widths[-1], 3, groups=bb.groups)
-        self.decoder = PanoDecoder(att.dim, skip_channels, cfg.pixel.decoder_widths, bb.groups)
+        self.decoder = PanoDecoder(att.dim * self.attention.num_outputs(), skip_channels, cfg.pixel.decoder_widths, bb.groups)
         self.out = PanoConv2d(cfg.pixel.decoder_widths[-1], 1 + cfg.pixel.feature_dim, 3)
         self.gaussian_head = PixelGaussianHead(cfg.pixel.feature_dim, cfg.pixel.head_hidden, cfg.pixel.scale_range)
         self.token_stride = bb.token_stride
@@ -150,8 +151,8 @@ class PixelBranch(nn.Module):
         token_map = feats[-1]
         th, tw = token_map.shape[-2:]
         tokens = self.to_tokens(token_map.flatten(2).transpose(1, 2)).view(b, v, th * tw, -1)
-        tokens = self.attention(tokens + self.ray_embedding(c2w, th, tw))
-        token_map = tokens.reshape(b * v, th, tw, -1).permute(0, 3, 1, 2)
+        layers = self.attention(tokens + self.ray_embedding(c2w, th, tw))
+        token_map = torch.cat(layers, dim=-1).reshape(b * v, th, tw, -1).permute(0, 3, 1, 2)
         skips = list(reversed(feats[:-1])) + [self.full_res(x)]
         out = self.out(self.decoder(token_map, skips))
         log_offset = self.cfg.max_log_depth_offset * torch.tanh(out[:, 0])

@@ -93,6 +93,13 @@ class TriplaneImageAttention(nn.Module):
         unit[..., a], unit[..., b], unit[..., c] = grids
         return unit
 
+    def sample_locations(self, k: int, height: int, width: int, device=None, dtype=torch.float32) -> tuple[Tensor, Tensor]:
+        """Unit coordinates ``(A, B, M, 3)`` of plane ``k``'s samples and their panorama pixels ``(A, B, M, 2)``."""
+        unit = self.sample_units(k, device, dtype)
+        points = self.coords.to_cartesian(self.coords.from_unit(unit))
+        uv, _ = project_equirect(points, height, width)
+        return unit, uv
+
     def forward(self, planes: list[Tensor], image_features: Float[Tensor, "N Cf H W"]) -> list[Tensor]:
         n = planes[0].shape[0]
         h, w = image_features.shape[-2:]
@@ -100,10 +107,8 @@ class TriplaneImageAttention(nn.Module):
         coarse = resample_planes(planes, self.image_grid, periodic)
         updated = []
         for k, (a, b) in enumerate(PLANE_AXES):
-            unit = self.sample_units(k, image_features.device, image_features.dtype)  # (A, B, M, 3)
+            unit, uv = self.sample_locations(k, h, w, image_features.device, image_features.dtype)
             na, nb, m = unit.shape[:3]
-            points = self.coords.to_cartesian(self.coords.from_unit(unit))
-            uv, _ = project_equirect(points, h, w)
             samples = sample_panorama(image_features, uv.reshape(1, -1, 2).expand(n, -1, -1))
             code = encode_unit_coordinates(unit, periodic).reshape(1, -1, 6).expand(n, -1, -1)
             keys, values = self.kv(self.kv_in(torch.cat((samples, code), dim=-1))).chunk(2, dim=-1)
