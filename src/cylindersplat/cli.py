@@ -12,6 +12,7 @@ import importlib
 import sys
 
 SUBCOMMAND_MODULES = [
+    "cylindersplat.commands.data",
     "cylindersplat.commands.demo",
 ]
 

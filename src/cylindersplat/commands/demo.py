@@ -52,8 +52,10 @@ def run(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - start
     for i in range(args.views):
         iio.imwrite(args.out / f"rgb_{i:02d}.png", to_uint8(out.rgb[i]))
+        # Radial expected depth is alpha-weighted; normalise it and blank out barely covered pixels.
         depth = out.depth[i] / out.alpha[i].clamp_min(1e-6)
-        iio.imwrite(args.out / f"depth_{i:02d}.png", colorize_depth(depth, valid=out.alpha[i] > 0.5))
+        depth = torch.where(out.alpha[i] > 0.5, depth, torch.zeros_like(depth))
+        iio.imwrite(args.out / f"depth_{i:02d}.png", colorize_depth(depth, as_uint8=True))
     ply = save_ply(gaussians, args.out / "demo_room.ply")
     print(
         f"rendered {len(gaussians)} Gaussians into {args.views} panoramas of {args.height}x{2 * args.height} "
