@@ -2,19 +2,23 @@
 
 Each subcommand lives in its own module exposing ``register(subparsers)``, which adds an argparse
 sub-parser whose ``func`` attribute runs the command with the parsed namespace. Add a subcommand by
-appending its module path to ``SUBCOMMAND_MODULES``.
+adding a module to ``cylindersplat/commands/``: every module there is registered, in name order.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import pkgutil
 import sys
 
-SUBCOMMAND_MODULES = [
-    "cylindersplat.commands.data",
-    "cylindersplat.commands.demo",
-]
+
+def subcommand_modules() -> list[str]:
+    """Every module of ``cylindersplat.commands`` (those starting with ``_`` are helpers)."""
+    from . import commands
+
+    names = sorted(m.name for m in pkgutil.iter_modules(commands.__path__) if not m.name.startswith("_"))
+    return [f"{commands.__name__}.{name}" for name in names]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -26,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"cylindersplat {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for module in SUBCOMMAND_MODULES:
+    for module in subcommand_modules():
         importlib.import_module(module).register(sub)
     return parser
 
