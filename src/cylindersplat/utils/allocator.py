@@ -18,15 +18,21 @@ __all__ = ["keep_freed_memory"]
 _M_TRIM_THRESHOLD = -1
 _M_TOP_PAD = -2
 _M_MMAP_THRESHOLD = -3
+_M_MMAP_MAX = -4
 
 
-def keep_freed_memory(trim_threshold: int = 4 << 30, top_pad: int = 256 << 20, mmap_threshold: int = 32 << 20) -> bool:
-    """Tune glibc malloc to keep freed memory (Linux only). Returns whether it took effect."""
+def keep_freed_memory(trim_threshold: int = 1 << 40, top_pad: int = 1 << 30) -> bool:
+    """Tune glibc malloc to keep freed memory (Linux only). Returns whether it took effect.
+
+    Large blocks normally bypass the heap via mmap; ``mallopt`` caps the mmap threshold at 32 MB,
+    below our buffers, so mmap is switched off instead (``M_MMAP_MAX = 0``) and the heap is never
+    trimmed below ``trim_threshold``.
+    """
     if not sys.platform.startswith("linux"):
         return False
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        ok = libc.mallopt(_M_MMAP_THRESHOLD, mmap_threshold)
+        ok = libc.mallopt(_M_MMAP_MAX, 0)
         ok &= libc.mallopt(_M_TRIM_THRESHOLD, trim_threshold)
         ok &= libc.mallopt(_M_TOP_PAD, top_pad)
         return bool(ok)
