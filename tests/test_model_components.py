@@ -11,7 +11,7 @@ from cylindersplat.model.config import get_config
 from cylindersplat.model.fusion import depth_confidence
 from cylindersplat.model.gaussian_heads import local_to_cartesian_scales
 from cylindersplat.model.rgb_retrieval import retrieve_colors
-from cylindersplat.model.rotations import matrix_to_quaternion, quaternion_multiply, quaternion_to_matrix
+from cylindersplat.geometry.rotations import matrix_to_quaternion, quaternion_multiply, quaternion_to_matrix
 from cylindersplat.model.sampling import bilinear_sample
 from cylindersplat.model.triplane import sample_plane, sample_triplane, scatter_points_to_triplanes
 from cylindersplat.model.triplane_attention import CrossPlaneAttention

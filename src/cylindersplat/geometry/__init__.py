@@ -1,4 +1,4 @@
-"""Panoramic geometry: equirect mapping, poses, triplane coordinate systems, cubemap cameras."""
+"""Panoramic geometry: equirect mapping, poses, rotations, triplane coordinate systems, cubemap cameras."""
 
 from .cubemap import CUBEMAP_FACES, cubemap_face_c2w, cubemap_intrinsics, cubemap_rotations
 from .equirect import (
@@ -22,6 +22,7 @@ from .poses import (
     validate_c2w,
     world_to_camera,
 )
+from .rotations import matrix_to_quaternion, quaternion_multiply, quaternion_to_matrix
 from .triplane_coords import (
     CartesianCoords,
     CylindricalCoords,

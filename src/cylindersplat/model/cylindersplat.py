@@ -24,7 +24,7 @@ from ..gaussians import Gaussians
 from .config import ModelConfig, get_config
 from .fusion import fuse_gaussians
 from .pixel_branch import PixelBranch, PixelBranchOutput
-from .rotations import matrix_to_quaternion, quaternion_multiply
+from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
 from .volume_branch import VolumeBranch
 
 __all__ = ["ModelOutput", "CylinderSplat", "from_config", "MODES"]

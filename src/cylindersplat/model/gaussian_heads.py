@@ -24,7 +24,7 @@ from jaxtyping import Float
 from torch import Tensor, nn
 
 from ..geometry import TriplaneCoordinates
-from .rotations import matrix_to_quaternion, quaternion_multiply
+from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
 
 __all__ = [
     "IDENTITY_QUATERNION",

@@ -31,7 +31,7 @@ from ..geometry import TriplaneCoordinates, camera_to_world, make_coordinates
 from .config import ModelConfig
 from .gaussian_heads import VolumeGaussianHead, local_to_cartesian_scales
 from .rgb_retrieval import RGBRetrieval
-from .rotations import matrix_to_quaternion, quaternion_multiply
+from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
 from .triplane import grid_features, plane_shape, scatter_points_to_triplanes
 from .triplane_attention import TriplaneRefinementLayer
 

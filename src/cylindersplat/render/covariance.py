@@ -6,24 +6,14 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-__all__ = ["quaternion_to_rotation", "covariance_3d", "eval_sh"]
+from ..geometry.rotations import quaternion_to_matrix
 
-
-def quaternion_to_rotation(quat: Float[Tensor, "*batch 4"], eps: float = 1e-12) -> Float[Tensor, "*batch 3 3"]:
-    """Rotation matrices from (not necessarily normalised) ``(w, x, y, z)`` quaternions."""
-    q = quat / torch.linalg.vector_norm(quat, dim=-1, keepdim=True).clamp_min(eps)
-    w, x, y, z = q.unbind(-1)
-    rows = (
-        torch.stack((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)), dim=-1),
-        torch.stack((2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)), dim=-1),
-        torch.stack((2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)), dim=-1),
-    )
-    return torch.stack(rows, dim=-2)
+__all__ = ["covariance_3d", "eval_sh"]
 
 
 def covariance_3d(scales: Float[Tensor, "*batch 3"], quat: Float[Tensor, "*batch 4"]) -> Float[Tensor, "*batch 3 3"]:
     """``Sigma = R diag(s^2) R^T`` with ``s`` the standard deviations."""
-    rot = quaternion_to_rotation(quat)
+    rot = quaternion_to_matrix(quat)
     m = rot * scales[..., None, :]
     return m @ m.transpose(-1, -2)
 

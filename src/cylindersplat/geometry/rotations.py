@@ -1,4 +1,6 @@
-"""Quaternion helpers (``w, x, y, z``, Hamilton convention) used to express Gaussian frames."""
+"""Unit quaternions (``w, x, y, z``, Hamilton convention) <-> rotation matrices, and their product.
+
+Shared by the renderer (Gaussian covariances) and the model (Gaussian frames in world space)."""
 
 from __future__ import annotations
 
@@ -24,8 +26,9 @@ def quaternion_multiply(a: Float[Tensor, "*B 4"], b: Float[Tensor, "*B 4"]) -> F
     )
 
 
-def quaternion_to_matrix(q: Float[Tensor, "*B 4"]) -> Float[Tensor, "*B 3 3"]:
-    w, x, y, z = torch.nn.functional.normalize(q, dim=-1).unbind(-1)
+def quaternion_to_matrix(q: Float[Tensor, "*B 4"], eps: float = 1e-12) -> Float[Tensor, "*B 3 3"]:
+    """Rotation matrices from (not necessarily normalised) quaternions; a zero quaternion gives 0."""
+    w, x, y, z = (q / torch.linalg.vector_norm(q, dim=-1, keepdim=True).clamp_min(eps)).unbind(-1)
     rows = (
         torch.stack((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)), dim=-1),
         torch.stack((2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)), dim=-1),
