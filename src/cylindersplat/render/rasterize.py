@@ -177,6 +177,13 @@ class _Composite(torch.autograd.Function):
         weight = alpha * trans * alive
         out = torch.zeros(num_pixels, 5, dtype=packed.dtype, device=packed.device)
         out.index_add_(0, frag_pixel, f[:, 6:] * weight[:, None])
+        # Skipped (alpha < alpha_min) and terminated fragments have zero weight and zero gradient:
+        # keep only the contributing ones for backward (exact; often most fragments are dead).
+        used = alive & (alpha > 0)
+        used_idx = used.nonzero().squeeze(1)
+        if len(used_idx) < len(used):
+            frag_gaussian, frag_pixel = frag_gaussian[used_idx], frag_pixel[used_idx]
+            alpha, trans, alive, raw = alpha[used_idx], trans[used_idx], alive[used_idx], raw[used_idx]
         ctx.save_for_backward(packed, frag_gaussian, frag_pixel, alpha, trans, alive, raw)
         ctx.height, ctx.width, ctx.wrap_u, ctx.settings = height, width, wrap_u, settings
         return out
