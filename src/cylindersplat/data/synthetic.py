@@ -31,6 +31,7 @@ class SyntheticDataset(PanoramaDataset):
     ``views``: protocol of :func:`cylindersplat.data.views.select_views`. ``depth_prior`` defaults
     to :class:`SimulatedPrior` (ground truth degraded reproducibly) because that is what synthetic
     data is for; pass :class:`~cylindersplat.data.depth_prior.NoPrior` to disable it.
+    ``scenes`` restricts the dataset to these scene ids (e.g. a train/test split), in that order.
     """
 
     dataset_name = "synthetic"
@@ -43,6 +44,7 @@ class SyntheticDataset(PanoramaDataset):
         resolution: tuple[int, int] | None = None,
         depth_prior: DepthPrior | None = None,
         depth_resize: str = "area",
+        scenes: list[str] | tuple[str, ...] | None = None,
     ) -> None:
         root = Path(root)
         meta = _read_json(root / "meta.json")
@@ -55,6 +57,11 @@ class SyntheticDataset(PanoramaDataset):
         self.scenes = [s for s in meta.get("scenes", []) if (root / s / "meta.json").is_file()]
         if not self.scenes:
             raise ValueError(f"{root}: no complete scenes (each needs <id>/meta.json)")
+        if scenes is not None:
+            missing = [s for s in scenes if s not in self.scenes]
+            if missing:
+                raise ValueError(f"{root}: no complete scene(s) {missing}; available: {self.scenes}")
+            self.scenes = list(scenes)
 
     def __len__(self) -> int:
         return len(self.scenes)

@@ -1,0 +1,91 @@
+"""Training checkpoints: inference weights (safetensors) + full resume state.
+
+Layout under ``<output_dir>/checkpoints/``::
+
+    step_0001500/model.safetensors   # cylindersplat.model.save_model: weights + model config
+    step_0001500/state.pt            # optimizer, scheduler, curriculum position, RNG states, config
+    latest                           # text file: name of the newest complete checkpoint folder
+
+The ``latest`` pointer is written last, so a crash while saving leaves the previous one valid.
+"""
+
+from __future__ import annotations
+
+import random
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..model import CylinderSplat, save_model
+
+__all__ = ["capture_rng", "restore_rng", "save_checkpoint", "resolve_checkpoint", "read_state", "prune_checkpoints"]
+
+MODEL_FILE = "model.safetensors"
+STATE_FILE = "state.pt"
+
+
+def capture_rng() -> dict[str, Any]:
+    np_state = np.random.get_state()
+    return {
+        "torch": torch.get_rng_state(),
+        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
+        # numpy's state as plain types so the file loads with torch.load(weights_only=True)
+        "numpy": [np_state[0], torch.from_numpy(np_state[1].copy()), int(np_state[2]), int(np_state[3]), float(np_state[4])],
+        "python": random.getstate(),
+    }
+
+
+def restore_rng(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    if state.get("cuda") and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
+    name, keys, pos, has_gauss, cached = state["numpy"]
+    np.random.set_state((name, keys.numpy().astype(np.uint32), pos, has_gauss, cached))
+    version, internal, gauss = state["python"]
+    random.setstate((version, tuple(internal), gauss))
+
+
+def save_checkpoint(folder: str | Path, model: CylinderSplat, state: dict[str, Any]) -> Path:
+    """Write ``folder/step_<global_step>/`` and point ``folder/latest`` at it."""
+    root = Path(folder)
+    target = root / f"step_{state['global_step']:07d}"
+    target.mkdir(parents=True, exist_ok=True)
+    save_model(model, target / MODEL_FILE)
+    torch.save(state, target / STATE_FILE)
+    pointer = root / "latest.tmp"
+    pointer.write_text(target.name + "\n")
+    pointer.replace(root / "latest")
+    return target
+
+
+def resolve_checkpoint(path: str | Path) -> Path:
+    """A checkpoint folder, its ``state.pt``, or a run/checkpoints folder (-> its latest)."""
+    path = Path(path)
+    if path.is_file() and path.name == STATE_FILE:
+        path = path.parent
+    for pointer in (path / "latest", path / "checkpoints" / "latest"):
+        if pointer.is_file():
+            path = pointer.parent / pointer.read_text().strip()
+            break
+    if not (path / STATE_FILE).is_file() or not (path / MODEL_FILE).is_file():
+        raise FileNotFoundError(f"no training checkpoint at {path} (expected {STATE_FILE} and {MODEL_FILE})")
+    return path
+
+
+def read_state(folder: Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    return torch.load(folder / STATE_FILE, map_location=map_location, weights_only=True)
+
+
+def prune_checkpoints(folder: str | Path, keep: int) -> None:
+    """Delete all but the newest ``keep`` step folders (never the one ``latest`` names)."""
+    root = Path(folder)
+    if keep <= 0 or not root.is_dir():
+        return
+    latest = (root / "latest").read_text().strip() if (root / "latest").is_file() else None
+    steps = sorted(p for p in root.glob("step_*") if p.is_dir())
+    for old in steps[:-keep]:
+        if old.name != latest:
+            shutil.rmtree(old, ignore_errors=True)

@@ -1,0 +1,212 @@
+"""Typed experiment configuration: YAML presets + ``key=value`` overrides.
+
+One mechanism for every experiment: a preset (``cylindersplat/configs/<name>.yaml`` or any YAML path) is read into
+a nested dict, each ``dotted.key=value`` override is written into that dict (values parsed as YAML,
+so ``train.lr=3e-4``, ``train.stages=[3]``, ``model.volume.init=isolated`` all work), and the
+result is turned into :class:`ExperimentConfig`. Unknown keys are errors (typos must not be
+silently ignored). The model section names a preset of :mod:`cylindersplat.model.config` plus
+field changes: ``model: {preset: tiny, attention: {depth: 4}}``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+
+from ..model.config import ModelConfig, config_to_dict, get_config
+from .losses import LossConfig
+
+__all__ = [
+    "DataConfig",
+    "TrainConfig",
+    "ExperimentConfig",
+    "CONFIG_DIR",
+    "available_presets",
+    "load_config",
+    "parse_overrides",
+    "config_as_dict",
+]
+
+# YAML presets ship inside the package (cylindersplat/configs/*.yaml).
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+
+
+@dataclass
+class DataConfig:
+    format: Literal["synthetic", "pano_grf", "loc360"] = "synthetic"
+    root: str | None = None  # dataset folder (see docs/data.md)
+    resolution: tuple[int, int] | None = None  # (H, W) resize on load; None = stored size
+    split: str = "train"  # pano_grf / loc360 split
+    views: str = "two_view"  # protocol of cylindersplat.data.select_views
+    depth_prior: str = "default"  # "default" (the dataset's) or a name of cylindersplat.data.depth_prior
+    options: dict[str, Any] = field(default_factory=dict)  # extra loader kwargs, e.g. {dist: 1.0}
+    batch_size: int = 1  # per process
+    num_workers: int = 0
+
+
+@dataclass
+class TrainConfig:
+    stages: tuple[int, ...] = (1, 2, 3)  # curriculum stages run in order (1 pixel, 2 volume, 3 joint)
+    steps_per_stage: tuple[int, ...] = (1000, 1000, 1000)  # one entry per stage in `stages`, or one for all
+    epochs_per_stage: float | None = None  # if set, overrides steps_per_stage (paper: 10 epochs)
+    lr: float = 1e-4
+    weight_decay: float = 0.01
+    betas: tuple[float, float] = (0.9, 0.999)
+    warmup_steps: int = 0  # linear warm-up before the cosine decay
+    min_lr_ratio: float = 0.0  # cosine decays to lr * min_lr_ratio
+    grad_clip: float = 1.0  # max global grad norm; 0 disables
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    amp: Literal["auto", "bf16", "off"] = "auto"  # auto: bf16 network forward on CUDA, fp32 on CPU
+    device: str = "auto"  # auto: cuda when available
+    seed: int = 0
+    log_every: int = 10
+    image_every: int = 100  # steps between logged image grids (render | target, rgb and depth); 0 = never
+    init: str | None = None  # model.safetensors to start from (fine-tuning); ignored when resuming
+    checkpoint_every: int = 500  # steps; a checkpoint is also written at the end of every stage
+    keep_checkpoints: int = 3  # older step checkpoints are deleted (0 keeps all)
+    tensorboard: bool = True  # used only if the tensorboard package is importable
+    progress: bool = True  # tqdm bar
+
+
+@dataclass
+class ExperimentConfig:
+    name: str = "experiment"
+    output_dir: str = "outputs/train"
+    model: ModelConfig = field(default_factory=lambda: get_config("tiny"))
+    data: DataConfig = field(default_factory=DataConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+
+    def steps_for(self, stage: int, batches_per_epoch: int | None = None) -> int:
+        """Optimizer steps of curriculum ``stage``."""
+        if self.train.epochs_per_stage is not None:
+            if not batches_per_epoch:
+                raise ValueError("train.epochs_per_stage needs a non-empty dataset")
+            return max(1, round(self.train.epochs_per_stage * batches_per_epoch))
+        steps = self.train.steps_per_stage
+        if len(steps) == 1:
+            return int(steps[0])
+        if len(steps) != len(self.train.stages):
+            raise ValueError(f"train.steps_per_stage {steps} needs one entry per stage in {self.train.stages} (or one)")
+        return int(steps[list(self.train.stages).index(stage)])
+
+
+def available_presets() -> list[str]:
+    return sorted(p.stem for p in CONFIG_DIR.glob("*.yaml")) if CONFIG_DIR.is_dir() else []
+
+
+def _read_preset(preset: str | Path) -> dict[str, Any]:
+    path = Path(preset)
+    if not path.suffix:
+        path = CONFIG_DIR / f"{preset}.yaml"
+    if not path.is_file():
+        raise FileNotFoundError(f"config {preset!r} not found (presets: {available_presets()}; or give a YAML path)")
+    data = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: top level must be a mapping")
+    return data
+
+
+def parse_overrides(overrides: list[str] | tuple[str, ...]) -> dict[str, Any]:
+    """``["train.lr=3e-4", "model.preset=paper"]`` -> nested dict (values parsed as YAML)."""
+    nested: dict[str, Any] = {}
+    for item in overrides:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"override {item!r} must look like section.key=value")
+        target = nested
+        *path, last = key.strip().split(".")
+        for part in path:
+            target = target.setdefault(part, {})
+            if not isinstance(target, dict):
+                raise ValueError(f"override {item!r} conflicts with another override of {part!r}")
+        target[last] = yaml.safe_load(raw) if raw.strip() else None
+    return nested
+
+
+def _merge(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _coerce(value: Any, current: Any, where: str) -> Any:
+    """Match YAML scalars/lists to the type of the field's current value."""
+    if value is None:
+        return None
+    if isinstance(current, str) and isinstance(value, bool):
+        return "on" if value else "off"  # YAML 1.1 reads on/off as booleans
+    if isinstance(current, bool):
+        if not isinstance(value, bool):
+            raise ValueError(f"{where} must be true/false, got {value!r}")
+        return value
+    if isinstance(current, float) and isinstance(value, str):
+        try:  # YAML 1.1 reads "1e-4" (no dot) as a string
+            return float(value)
+        except ValueError:
+            raise ValueError(f"{where} must be a number, got {value!r}") from None
+    if isinstance(current, float) and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(current, int) and isinstance(value, float) and value.is_integer():
+        return int(value)
+    if isinstance(value, list):
+        return tuple(value)
+    return value
+
+
+def _update(obj: Any, values: dict[str, Any], prefix: str) -> None:
+    names = {f.name for f in dataclasses.fields(obj)}
+    for key, value in values.items():
+        where = f"{prefix}{key}"
+        if key not in names:
+            raise ValueError(f"unknown config key {where!r}; known: {sorted(names)}")
+        current = getattr(obj, key)
+        if dataclasses.is_dataclass(current):
+            if not isinstance(value, dict):
+                raise ValueError(f"{where} is a section; set its fields, e.g. {where}.<field>=...")
+            _update(current, value, f"{where}.")
+        else:
+            setattr(obj, key, _coerce(value, current, where))
+
+
+def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
+    data = dict(data)
+    model_data = dict(data.pop("model", None) or {})
+    cfg = ExperimentConfig(model=get_config(model_data.pop("preset", "tiny")))
+    _update(cfg.model, model_data, "model.")
+    _update(cfg, data, "")
+    if cfg.data.resolution is not None:
+        cfg.data.resolution = tuple(int(x) for x in cfg.data.resolution)
+    bad = [s for s in cfg.train.stages if s not in (1, 2, 3)]
+    if bad or not cfg.train.stages:
+        raise ValueError(f"train.stages must be a non-empty list of 1, 2, 3; got {cfg.train.stages}")
+    return cfg
+
+
+def load_config(preset: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> ExperimentConfig:
+    """Preset name (``cylindersplat/configs/<name>.yaml``), YAML path or None (defaults), then overrides."""
+    data = _read_preset(preset) if preset is not None else {}
+    return _from_dict(_merge(data, parse_overrides(overrides)))
+
+
+def config_as_dict(cfg: ExperimentConfig) -> dict[str, Any]:
+    """Plain dict (YAML/JSON-safe) that :func:`load_config` turns back into an equal config."""
+    out = dataclasses.asdict(cfg)
+    out["model"] = config_to_dict(cfg.model)  # every field explicit, so the base preset is irrelevant
+
+    def plain(x):
+        if isinstance(x, dict):
+            return {k: plain(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [plain(v) for v in x]
+        return x
+
+    return plain(out)

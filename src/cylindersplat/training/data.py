@@ -1,0 +1,83 @@
+"""Datasets from :class:`DataConfig` and a batch order that can be resumed mid-epoch.
+
+The batch order is a pure function of ``(seed, stage, epoch)``, so resuming at step ``k`` of a
+stage replays exactly the batches an uninterrupted run would have seen from step ``k`` on, with no
+sampler state in the checkpoint. Under DDP each rank takes every ``world_size``-th index of the
+same permutation (the tail that does not fill a global batch is dropped).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import torch
+from torch.utils.data import DataLoader, Dataset, Sampler
+
+from ..data import Loc360Dataset, PanoGRFDataset, SyntheticDataset, collate_samples, make_depth_prior
+from .config import DataConfig
+
+__all__ = ["build_dataset", "ResumableBatchSampler", "build_loader"]
+
+
+def build_dataset(cfg: DataConfig) -> Dataset:
+    if not cfg.root:
+        raise ValueError("data.root is not set: give a dataset folder (e.g. from `cylindersplat data synth`)")
+    kwargs = dict(cfg.options)
+    if cfg.resolution is not None:
+        kwargs["resolution"] = tuple(cfg.resolution)
+    if cfg.depth_prior != "default":
+        kwargs["depth_prior"] = make_depth_prior(cfg.depth_prior)
+    if cfg.format == "synthetic":
+        return SyntheticDataset(cfg.root, views=cfg.views, **kwargs)
+    if cfg.format == "pano_grf":
+        return PanoGRFDataset(cfg.root, split=cfg.split, views=cfg.views, **kwargs)
+    if cfg.format == "loc360":
+        return Loc360Dataset(cfg.root, split=cfg.split, **kwargs)
+    raise ValueError(f"unknown data.format {cfg.format!r}; expected synthetic, pano_grf or loc360")
+
+
+class ResumableBatchSampler(Sampler[list[int]]):
+    """Index batches for steps ``start_step .. start_step + num_steps - 1`` of one curriculum stage."""
+
+    def __init__(
+        self,
+        dataset_size: int,
+        batch_size: int,
+        *,
+        seed: int,
+        stage: int,
+        start_step: int,
+        num_steps: int,
+        rank: int = 0,
+        world_size: int = 1,
+    ) -> None:
+        self.global_batch = batch_size * world_size
+        if dataset_size < self.global_batch:
+            raise ValueError(f"dataset has {dataset_size} samples, fewer than one global batch ({self.global_batch})")
+        self.dataset_size, self.batch_size = dataset_size, batch_size
+        self.seed, self.stage = seed, stage
+        self.start_step, self.num_steps = start_step, num_steps
+        self.rank, self.world_size = rank, world_size
+
+    @property
+    def batches_per_epoch(self) -> int:
+        return self.dataset_size // self.global_batch
+
+    def _permutation(self, epoch: int) -> torch.Tensor:
+        generator = torch.Generator().manual_seed(self.seed * 1_000_003 + self.stage * 10_007 + epoch)
+        return torch.randperm(self.dataset_size, generator=generator)
+
+    def __len__(self) -> int:
+        return self.num_steps
+
+    def __iter__(self) -> Iterator[list[int]]:
+        per_epoch = self.batches_per_epoch
+        for step in range(self.start_step, self.start_step + self.num_steps):
+            epoch, slot = divmod(step, per_epoch)
+            order = self._permutation(epoch)
+            chunk = order[slot * self.global_batch : (slot + 1) * self.global_batch]
+            yield chunk[self.rank :: self.world_size].tolist()
+
+
+def build_loader(dataset: Dataset, sampler: ResumableBatchSampler, num_workers: int = 0) -> DataLoader:
+    return DataLoader(dataset, batch_sampler=sampler, collate_fn=collate_samples, num_workers=num_workers)

@@ -1,0 +1,65 @@
+"""Training metrics to ``metrics.jsonl`` and image grids to ``images/*.png`` (always), and both to
+TensorBoard (only if it is installed)."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+__all__ = ["MetricLogger"]
+
+
+class MetricLogger:
+    """Append-only log; safe to reopen when resuming (lines after the resume step are kept as is)."""
+
+    def __init__(self, folder: str | Path, tensorboard: bool = True, enabled: bool = True) -> None:
+        self.enabled = enabled
+        self.folder = Path(folder)
+        self.writer = None
+        if not enabled:
+            return
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.jsonl = (self.folder / "metrics.jsonl").open("a")
+        if tensorboard:
+            try:
+                from torch.utils.tensorboard import SummaryWriter  # needs the optional `tensorboard` package
+            except ImportError:
+                SummaryWriter = None
+            if SummaryWriter is not None:
+                self.writer = SummaryWriter(str(self.folder / "tensorboard"))
+
+    @property
+    def backends(self) -> list[str]:
+        return (["jsonl"] + (["tensorboard"] if self.writer else [])) if self.enabled else []
+
+    def log(self, step: int, values: dict[str, float], **context) -> None:
+        if not self.enabled:
+            return
+        record = {"step": step, "time": round(time.time(), 3), **context, **values}
+        self.jsonl.write(json.dumps(record) + "\n")
+        self.jsonl.flush()
+        if self.writer is not None:
+            for key, value in values.items():
+                self.writer.add_scalar(key, value, step)
+
+    def log_image(self, step: int, name: str, image) -> None:
+        """``image``: float ``(3, H, W)`` in [0, 1] (a grid); written as PNG and to TensorBoard."""
+        if not self.enabled:
+            return
+        import numpy as np
+        from PIL import Image
+
+        array = (image.detach().float().clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255 + 0.5).astype(np.uint8)
+        folder = self.folder / "images"
+        folder.mkdir(exist_ok=True)
+        Image.fromarray(array).save(folder / f"{name}_{step:07d}.png")
+        if self.writer is not None:
+            self.writer.add_image(name, image.detach().float().clamp(0, 1).cpu(), step)
+
+    def close(self) -> None:
+        if not self.enabled:
+            return
+        self.jsonl.close()
+        if self.writer is not None:
+            self.writer.close()

@@ -1,0 +1,105 @@
+"""The paper's rendering loss (Sec. 3.4, Eq. 7)::
+
+    L_render = |I_hat - I_gt|_1 + 0.05 * LPIPS(I_hat, I_gt) + 0.1 * |D_hat - D_ref|_1
+
+``D_hat`` is the rendered radial depth, ``D_ref`` the reference depth of the target view (UniK3D in
+the paper; whatever the dataset puts in ``Sample.target_depths`` here). The depth term is averaged
+over pixels where the reference is valid (> 0). The LPIPS term needs VGG/LPIPS weights on disk
+(:func:`cylindersplat.metrics.load_lpips`); ``lpips="auto"`` uses it only when they are found.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+from jaxtyping import Float
+from torch import Tensor, nn
+
+__all__ = ["LossConfig", "RenderLoss", "LossTerms"]
+
+
+@dataclass
+class LossConfig:
+    rgb_l1: float = 1.0
+    lpips: float = 0.05
+    depth_l1: float = 0.1
+    use_lpips: Literal["auto", "on", "off"] = "auto"  # on: fail when weights are missing
+    lpips_weights: str | None = None  # file; None = $CYLINDERSPLAT_LPIPS_WEIGHTS
+    # Rendered depth is alpha-composited (sum_i w_i d_i, not divided by alpha) so the depth term
+    # also pushes coverage up where the reference sees a surface; True divides by alpha first.
+    normalize_depth: bool = False
+
+
+@dataclass
+class LossTerms:
+    total: Tensor  # scalar, differentiable
+    parts: dict[str, float]  # unweighted terms, detached, for logging
+
+
+class RenderLoss(nn.Module):
+    """``forward(rgb, depth, alpha, target_rgb, reference_depth)`` on ``(*B, V, ...)`` renders."""
+
+    def __init__(self, config: LossConfig | None = None, device: torch.device | str = "cpu") -> None:
+        super().__init__()
+        self.config = config or LossConfig()
+        self.lpips_net = self._build_lpips(device)
+
+    @property
+    def uses_lpips(self) -> bool:
+        return self.lpips_net is not None
+
+    def _build_lpips(self, device) -> nn.Module | None:
+        cfg = self.config
+        if cfg.use_lpips == "off" or cfg.lpips == 0:
+            return None
+        if cfg.use_lpips not in ("auto", "on"):
+            raise ValueError(f"loss.use_lpips must be 'auto', 'on' or 'off', got {cfg.use_lpips!r}")
+        from ..metrics import LPIPS_WEIGHTS_ENV, load_lpips
+
+        available = cfg.lpips_weights is not None or os.environ.get(LPIPS_WEIGHTS_ENV)
+        if not available and cfg.use_lpips == "auto":
+            warnings.warn(
+                f"LPIPS loss term disabled: no weights (set loss.lpips_weights=... or ${LPIPS_WEIGHTS_ENV}); "
+                "training with L1 + depth only",
+                stacklevel=3,
+            )
+            return None
+        try:
+            net = load_lpips(cfg.lpips_weights, device=device)
+        except FileNotFoundError as exc:
+            raise FileNotFoundError(
+                f"loss.use_lpips=on but the LPIPS weights could not be loaded: {exc}. "
+                "Point loss.lpips_weights (or the environment variable) at the file, or set loss.use_lpips=off."
+            ) from exc
+        return net.requires_grad_(False).eval()
+
+    def forward(
+        self,
+        rgb: Float[Tensor, "*B V 3 H W"],
+        depth: Float[Tensor, "*B V H W"],
+        alpha: Float[Tensor, "*B V H W"],
+        target_rgb: Float[Tensor, "*B V 3 H W"],
+        reference_depth: Float[Tensor, "*B V H W"] | None,
+    ) -> LossTerms:
+        cfg = self.config
+        rgb_l1 = (rgb - target_rgb).abs().mean()
+        total = cfg.rgb_l1 * rgb_l1
+        parts = {"rgb_l1": float(rgb_l1.detach())}
+        if self.lpips_net is not None:
+            # LPIPS expects (B, 3, H, W); fold every leading dim into the batch.
+            perceptual = self.lpips_net(rgb.flatten(0, -4), target_rgb.flatten(0, -4)).mean()
+            total = total + cfg.lpips * perceptual
+            parts["lpips"] = float(perceptual.detach())
+        if reference_depth is not None and cfg.depth_l1 > 0:
+            valid = reference_depth > 0
+            rendered = depth / alpha.clamp_min(1e-4) if cfg.normalize_depth else depth
+            error = (rendered - reference_depth).abs() * valid
+            depth_l1 = error.sum() / valid.sum().clamp_min(1)
+            total = total + cfg.depth_l1 * depth_l1
+            parts["depth_l1"] = float(depth_l1.detach())
+        parts["total"] = float(total.detach())
+        return LossTerms(total, parts)

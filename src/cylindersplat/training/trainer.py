@@ -1,0 +1,284 @@
+"""The training loop: three-stage curriculum, AdamW + cosine, checkpoints with exact resume.
+
+Stages (paper Sec. 3.3 / App. "Training and Supervision"): 1 trains the pixel branch and renders
+its Gaussians; 2 trains the volume branch with the pixel branch frozen and renders volume Gaussians;
+3 trains both and renders the fused set. Each stage gets a fresh AdamW (its trainable parameters
+differ) with its own cosine schedule over the stage's steps. ``train.stages`` picks which stages
+run, so ``[1, 2, 3]`` is the full curriculum and ``[3]`` the paper's fine-tuning protocol.
+
+Precision: the network forward runs under bf16 autocast on CUDA (``train.amp``); the Gaussians are
+cast to fp32 and rasterised, and the loss computed, in fp32. On a CPU everything is fp32.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import torch
+import yaml
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from ..data import Sample
+from ..model import CylinderSplat, load_model, save_model
+from ..render import render_equirect
+from .checkpoint import capture_rng, prune_checkpoints, read_state, resolve_checkpoint, restore_rng, save_checkpoint
+from .config import ExperimentConfig, config_as_dict
+from .data import ResumableBatchSampler, build_dataset, build_loader
+from .distributed import DistInfo, cleanup_distributed, init_distributed, unwrap, wrap_ddp
+from .logger import MetricLogger
+from .losses import LossTerms, RenderLoss
+from .schedule import cosine_schedule
+
+__all__ = ["Trainer", "batch_to_device", "select_device"]
+
+
+def select_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def batch_to_device(batch: Sample, device: torch.device) -> Sample:
+    """Move a collated (batched) Sample. ``Sample.to`` re-validates unbatched shapes, so not that."""
+    moved = object.__new__(Sample)
+    moved.__dict__.update({k: v.to(device) if isinstance(v, Tensor) else v for k, v in batch.__dict__.items()})
+    return moved
+
+
+class Trainer:
+    """``Trainer(cfg).fit()`` runs the configured curriculum; ``resume=`` continues a checkpoint.
+
+    Args:
+        config: the experiment.
+        dataset: a ready dataset (else built from ``config.data``).
+        resume: checkpoint folder / run folder to continue from, or None.
+    """
+
+    def __init__(self, config: ExperimentConfig, dataset=None, resume: str | Path | None = None) -> None:
+        self.config = config
+        tcfg = config.train
+        self.dist, self.device = init_distributed(select_device(tcfg.device))
+        torch.manual_seed(tcfg.seed + self.dist.rank)
+        self.output_dir = Path(config.output_dir)
+        self.model = CylinderSplat(config.model).to(self.device)
+        self.loss_fn = RenderLoss(config.loss, self.device)
+        self.dataset = dataset if dataset is not None else build_dataset(config.data)
+        if len(self.dataset) == 0:
+            raise ValueError("the training dataset is empty")
+        self.use_bf16 = self._autocast_enabled()
+
+        # Curriculum position: index into train.stages, optimizer steps done in that stage, total.
+        self.stage_index = 0
+        self.stage_step = 0
+        self.global_step = 0
+        self.optimizer: torch.optim.Optimizer | None = None
+        self.scheduler = None
+        self._pending_optim_state: dict[str, Any] | None = None
+        if resume is not None:
+            self._load(resolve_checkpoint(resume))
+        elif tcfg.init:
+            self.model.load_state_dict(load_model(tcfg.init, map_location=self.device).state_dict())
+        self._last_render = None
+        self.logger = MetricLogger(self.output_dir, tcfg.tensorboard, enabled=self.dist.is_main)
+
+    # -- setup --------------------------------------------------------------------------------
+    def _autocast_enabled(self) -> bool:
+        amp = self.config.train.amp
+        if amp == "off":
+            return False
+        if self.device.type != "cuda":
+            if amp == "bf16":
+                warnings.warn("train.amp=bf16 is only used on CUDA; running fp32 on the CPU", stacklevel=3)
+            return False
+        return True
+
+    @property
+    def stage(self) -> int:
+        return self.config.train.stages[self.stage_index]
+
+    def batches_per_epoch(self) -> int:
+        return max(1, len(self.dataset) // (self.config.data.batch_size * self.dist.world_size))
+
+    def stage_steps(self, stage: int | None = None) -> int:
+        return self.config.steps_for(self.stage if stage is None else stage, self.batches_per_epoch())
+
+    def _begin_stage(self) -> None:
+        """Set the model's branch mode/freezing and a fresh optimizer + schedule for this stage."""
+        tcfg = self.config.train
+        self.model.configure_stage(self.stage)
+        self.train_model = wrap_ddp(self.model, self.dist, self.device)
+        params = [p for p in self.model.parameters() if p.requires_grad]
+        self.optimizer = torch.optim.AdamW(params, lr=tcfg.lr, betas=tuple(tcfg.betas), weight_decay=tcfg.weight_decay)
+        self.scheduler = cosine_schedule(self.optimizer, self.stage_steps(), tcfg.warmup_steps, tcfg.min_lr_ratio)
+        if self._pending_optim_state is not None:
+            self.optimizer.load_state_dict(self._pending_optim_state["optimizer"])
+            self.scheduler.load_state_dict(self._pending_optim_state["scheduler"])
+            self._pending_optim_state = None
+
+    # -- one step -----------------------------------------------------------------------------
+    def compute_loss(self, batch: Sample) -> LossTerms:
+        """Forward the contexts, render the targets, compare. Batch tensors ``(B, V|T, ...)``."""
+        autocast = (
+            torch.autocast("cuda", dtype=torch.bfloat16) if self.use_bf16 else contextlib.nullcontext()
+        )
+        with autocast:
+            out = self.train_model(batch.context_images, batch.context_depths, batch.context_poses)
+        gaussians = out.gaussians.to(torch.float32)
+        height, width = batch.target_images.shape[-2:]
+        with torch.autocast(self.device.type, enabled=False):
+            render = render_equirect(
+                gaussians, batch.target_poses.float(), height, width, background=tuple(self.config.train.background)
+            )
+            self._last_render = (render, batch)
+            return self.loss_fn(render.rgb, render.depth, render.alpha, batch.target_images, batch.target_depths)
+
+    def train_step(self, batch: Sample) -> dict[str, float]:
+        self.model.train()
+        terms = self.compute_loss(batch_to_device(batch, self.device))
+        self.optimizer.zero_grad(set_to_none=True)
+        terms.total.backward()
+        params = [p for group in self.optimizer.param_groups for p in group["params"]]
+        if self.config.train.grad_clip > 0:
+            grad_norm = torch.nn.utils.clip_grad_norm_(params, self.config.train.grad_clip)
+            terms.parts["grad_norm"] = float(grad_norm)
+        terms.parts["lr"] = self.optimizer.param_groups[0]["lr"]
+        self.optimizer.step()
+        self.scheduler.step()
+        self.stage_step += 1
+        self.global_step += 1
+        return terms.parts
+
+    # -- loop ---------------------------------------------------------------------------------
+    def fit(self, max_steps: int | None = None) -> dict[str, Any]:
+        """Run the remaining curriculum (or ``max_steps`` more optimizer steps, then checkpoint).
+
+        Returns a summary: per-step losses of this call, mean step time, final paths.
+        """
+        tcfg = self.config.train
+        if self.dist.is_main:
+            self.output_dir.mkdir(parents=True, exist_ok=True)
+            (self.output_dir / "config.yaml").write_text(yaml.safe_dump(config_as_dict(self.config), sort_keys=False))
+        history: list[dict[str, float]] = []
+        step_times: list[float] = []
+        budget = max_steps
+        try:
+            while self.stage_index < len(tcfg.stages):
+                total = self.stage_steps()
+                if self.stage_step >= total:  # resumed from the end-of-stage checkpoint
+                    self._pending_optim_state = None
+                    self._next_stage()
+                    continue
+                self._begin_stage()
+                todo = total - self.stage_step if budget is None else min(budget, total - self.stage_step)
+                sampler = ResumableBatchSampler(
+                    len(self.dataset), self.config.data.batch_size, seed=tcfg.seed, stage=self.stage,
+                    start_step=self.stage_step, num_steps=todo, rank=self.dist.rank, world_size=self.dist.world_size,
+                )
+                bar = tqdm(
+                    total=total, initial=self.stage_step, desc=f"stage {self.stage}", unit="step",
+                    disable=not (tcfg.progress and self.dist.is_main), dynamic_ncols=True,
+                )
+                for batch in build_loader(self.dataset, sampler, self.config.data.num_workers):
+                    start = time.perf_counter()
+                    parts = self.train_step(batch)
+                    step_times.append(time.perf_counter() - start)
+                    parts["step_time"] = step_times[-1]
+                    history.append({"stage": self.stage, **parts})
+                    bar.update(1)
+                    bar.set_postfix(loss=f"{parts['total']:.4f}")
+                    if self.global_step % tcfg.log_every == 0 or self.stage_step == total:
+                        self.logger.log(self.global_step, {f"train/{k}": v for k, v in parts.items()}, stage=self.stage)
+                    if tcfg.image_every > 0 and self.global_step % tcfg.image_every == 0:
+                        self.log_images()
+                    if tcfg.checkpoint_every > 0 and self.global_step % tcfg.checkpoint_every == 0 and self.stage_step < total:
+                        self.save_checkpoint()
+                bar.close()
+                if budget is not None:
+                    budget -= todo
+                if self.stage_step >= total:
+                    self.save_checkpoint()
+                    if self.dist.is_main:
+                        save_model(self.model, self.output_dir / f"model_stage{self.stage}.safetensors")
+                    self._next_stage()
+                if budget is not None and budget <= 0:
+                    if self.stage_step > 0:
+                        self.save_checkpoint()
+                    break
+            finished = self.stage_index >= len(tcfg.stages)
+            if finished and self.dist.is_main:
+                save_model(self.model, self.output_dir / "model.safetensors")
+        finally:
+            self.logger.close()
+            cleanup_distributed()
+        return {
+            "history": history,
+            "mean_step_time": sum(step_times) / len(step_times) if step_times else float("nan"),
+            "global_step": self.global_step,
+            "finished": self.stage_index >= len(tcfg.stages),
+            "weights": str(self.output_dir / "model.safetensors"),
+        }
+
+    def log_images(self) -> None:
+        """Grid of the last step's first target: rendered | ground truth, RGB over depth."""
+        if self._last_render is None or not self.dist.is_main:
+            return
+        from ..utils.colormap import colorize_depth
+
+        render, batch = self._last_render
+        rgb = render.rgb[0, 0].detach().clamp(0, 1).cpu()
+        depth = (render.depth[0, 0] / render.alpha[0, 0].clamp_min(1e-4)).detach().cpu()
+        target = batch.target_images[0, 0].cpu()
+        ref = batch.target_depths[0, 0].cpu() if batch.target_depths is not None else torch.zeros_like(depth)
+        valid = ref > 0
+        near, far = (float(ref[valid].min()), float(ref[valid].max())) if valid.any() else (None, None)
+        top = torch.cat((rgb, target), dim=-1)
+        bottom = torch.cat((colorize_depth(depth, near, far), colorize_depth(ref, near, far)), dim=-1)
+        self.logger.log_image(self.global_step, f"stage{self.stage}", torch.cat((top, bottom), dim=-2))
+
+    def _next_stage(self) -> None:
+        self.stage_index += 1
+        self.stage_step = 0
+        self.optimizer = self.scheduler = None
+
+    # -- checkpoints --------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "global_step": self.global_step,
+            "stage_index": self.stage_index,
+            "stage": self.stage if self.stage_index < len(self.config.train.stages) else None,
+            "stage_step": self.stage_step,
+            "stages": list(self.config.train.stages),
+            "optimizer": self.optimizer.state_dict() if self.optimizer is not None else None,
+            "scheduler": self.scheduler.state_dict() if self.scheduler is not None else None,
+            "rng": capture_rng(),
+            "config": config_as_dict(self.config),
+        }
+
+    def save_checkpoint(self) -> Path | None:
+        if not self.dist.is_main:
+            return None
+        folder = self.output_dir / "checkpoints"
+        path = save_checkpoint(folder, unwrap(self.model), self.state_dict())
+        prune_checkpoints(folder, self.config.train.keep_checkpoints)
+        return path
+
+    def _load(self, folder: Path) -> None:
+        state = read_state(folder)
+        if list(state["stages"]) != list(self.config.train.stages):
+            raise ValueError(
+                f"checkpoint {folder} was trained with train.stages={state['stages']}, "
+                f"this run has {list(self.config.train.stages)}; they must match to resume"
+            )
+        weights = load_model(folder / "model.safetensors", map_location=self.device)
+        self.model.load_state_dict(weights.state_dict())
+        self.global_step = state["global_step"]
+        self.stage_index = state["stage_index"]
+        self.stage_step = state["stage_step"]
+        if state["optimizer"] is not None and self.stage_step > 0:
+            self._pending_optim_state = {"optimizer": state["optimizer"], "scheduler": state["scheduler"]}
+        restore_rng(state["rng"])
