@@ -22,7 +22,9 @@ CONFIG_KEY = "cylindersplat_config"
 
 def save_model(model: CylinderSplat, path: str | Path) -> None:
     state = {k: v.detach().contiguous().cpu() for k, v in model.state_dict().items()}
-    save_file(state, str(path), metadata={CONFIG_KEY: json.dumps(config_to_dict(model.config))})
+    # The branch mode in use (e.g. "pixel" after curriculum stage 1) travels with the weights.
+    config = model.config.replace(mode=model.mode)
+    save_file(state, str(path), metadata={CONFIG_KEY: json.dumps(config_to_dict(config))})
 
 
 def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> CylinderSplat:

@@ -1,0 +1,103 @@
+"""``cylindersplat eval``: the paper's protocols on a dataset -> Markdown + JSON tables and pictures."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def _resolution(text: str) -> tuple[int, int]:
+    h, _, w = text.lower().partition("x")
+    try:
+        size = int(h), int(w)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"resolution must be HxW, e.g. 256x512, got {text!r}") from None
+    if size[1] != 2 * size[0]:
+        raise argparse.ArgumentTypeError(f"equirect resolution needs W == 2H, got {text!r}")
+    return size
+
+
+def open_eval_dataset(args, protocol: str):
+    from ..data import Loc360Dataset, PanoGRFDataset, SyntheticDataset, make_depth_prior
+
+    kwargs = {"resolution": args.resolution}
+    if args.depth_prior != "default":
+        kwargs["depth_prior"] = make_depth_prior(args.depth_prior)
+    if args.format == "synthetic":
+        scenes = args.scenes.split(",") if args.scenes else None
+        return SyntheticDataset(args.data, views=protocol, scenes=scenes, **kwargs)
+    if args.format == "pano_grf":
+        return PanoGRFDataset(args.data, split=args.split, views=protocol, **kwargs)
+    if protocol != "all_between":
+        raise ValueError("360Loc is evaluated with its own protocol; use --protocols all_between")
+    return Loc360Dataset(args.data, split=args.split, **kwargs)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..evaluation import evaluate, forward_warp_method, model_method, results_to_markdown
+    from ..metrics import DepthRange, load_lpips
+    from ..model import load_model
+
+    methods = []
+    if args.checkpoint:
+        methods.append(model_method(load_model(args.checkpoint, map_location=args.device), "CylinderSplat", device=args.device))
+    if not args.no_baseline:
+        methods.append(forward_warp_method())
+    if not methods:
+        raise ValueError("nothing to evaluate: give --checkpoint and/or drop --no-baseline")
+    lpips_net = None
+    if args.lpips_weights or args.lpips == "on":
+        lpips_net = load_lpips(args.lpips_weights)
+    else:
+        try:
+            lpips_net = load_lpips(None) if args.lpips == "auto" else None
+        except FileNotFoundError:
+            print("LPIPS: no local weights (set $CYLINDERSPLAT_LPIPS_WEIGHTS or --lpips-weights); column shown as n/a")
+    depth_range = DepthRange(*args.depth_range) if args.depth_range else (
+        DepthRange() if args.format == "pano_grf" else DepthRange(0.05, 1000.0))
+    args.out.mkdir(parents=True, exist_ok=True)
+    results, details = {}, {}
+    for protocol in args.protocols.split(","):
+        dataset = open_eval_dataset(args, protocol)
+        result = evaluate(dataset, methods, lpips_net, args.max_examples, args.out / "examples" / protocol,
+                          num_pictures=args.pictures, depth_range=depth_range)
+        key = f"{Path(args.data).name} — {protocol} ({result.num_examples} examples)"
+        results[key] = {name: {k: m.get(k) for k in ("pcc", "ws_psnr", "ssim", "lpips", "abs_rel", "rmse", "delta1", "lrce", "time_s")}
+                        for name, m in result.means.items()}
+        details[protocol] = result.rows
+    table = results_to_markdown(results, title="Evaluation")
+    (args.out / "results.md").write_text(table)
+    (args.out / "results.json").write_text(json.dumps({"means": results, "views": details}, indent=1))
+    print(table)
+    print(f"wrote {args.out}/results.md, results.json and examples/")
+    return 0
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "eval", help="evaluate a checkpoint (and the forward-warp baseline) on a dataset",
+        description=(
+            "Run the paper's protocols (two_view: first+last frame in, middle out; one_view: middle "
+            "in, outer out; n_view: all but the middle in; all_between: 360Loc) and write a table "
+            "(PCC, WS-PSNR, SSIM, LPIPS, AbsRel, RMSE, delta1, LRCE, time) as Markdown and JSON plus "
+            "comparison pictures (ground truth / methods; RGB | depth). See docs/evaluation.md."
+        ),
+    )
+    parser.add_argument("--data", required=True, help="dataset folder (synthetic output, png_render_* folder or 360Loc root)")
+    parser.add_argument("--format", default="synthetic", choices=["synthetic", "pano_grf", "loc360"], help="dataset layout (default synthetic)")
+    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train); omit to score only the baseline")
+    parser.add_argument("--protocols", default="two_view", help="comma list of two_view, one_view, n_view, all_between (default two_view)")
+    parser.add_argument("--out", type=Path, default=Path("outputs/eval"), help="output folder (default outputs/eval)")
+    parser.add_argument("--resolution", type=_resolution, help="evaluate at HxW (default: stored size)")
+    parser.add_argument("--split", default="test", help="split of pano_grf / loc360 data (default test)")
+    parser.add_argument("--scenes", help="synthetic data: comma list of scene ids to use")
+    parser.add_argument("--depth-prior", default="default", help="depth prior given to the methods: default (the dataset's), none, gt, simulated, files")
+    parser.add_argument("--depth-range", type=float, nargs=2, metavar=("NEAR", "FAR"), help="valid reference depth (default 0.45 10 for pano_grf, else 0.05 1000)")
+    parser.add_argument("--max-examples", type=int, help="score only the first N examples")
+    parser.add_argument("--pictures", type=int, default=4, help="comparison pictures per protocol (default 4)")
+    parser.add_argument("--lpips", default="auto", choices=["auto", "on", "off"], help="LPIPS column: auto uses local weights when found")
+    parser.add_argument("--lpips-weights", help="LPIPS-VGG weights file (else $CYLINDERSPLAT_LPIPS_WEIGHTS)")
+    parser.add_argument("--no-baseline", action="store_true", help="do not score the forward-warp baseline")
+    parser.add_argument("--device", default="cpu", help="device for the model (default cpu)")
+    parser.set_defaults(func=run)

@@ -1,0 +1,62 @@
+"""Methods under evaluation: a callable ``Sample -> RenderOutput`` of the sample's target views.
+
+Every method sees the same inputs (context images, depth priors, poses) and returns the target
+renders as :class:`~cylindersplat.render.RenderOutput` with rgb ``(T, 3, H, W)``, depth and alpha
+``(T, H, W)`` (depth alpha-weighted, as the renderer gives it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+
+from ..baselines import forward_warp
+from ..data import Sample
+from ..render import render_equirect
+from ..render.api import RenderOutput
+
+__all__ = ["Method", "model_method", "forward_warp_method", "reconstruct"]
+
+
+@dataclass
+class Method:
+    name: str
+    run: Callable[[Sample], RenderOutput]
+
+
+@torch.no_grad()
+def reconstruct(model, sample: Sample, device: torch.device | str = "cpu"):
+    """Gaussians (world frame, unbatched) of a sample's context views."""
+    model.eval()
+    out = model(
+        sample.context_images[None].to(device),
+        sample.context_depths[None].to(device),
+        sample.context_poses[None].to(device),
+    )
+    return out.gaussians.detach()
+
+
+def model_method(model, name: str = "CylinderSplat", device: torch.device | str = "cpu", background=(0.0, 0.0, 0.0)) -> Method:
+    model = model.to(device)
+
+    @torch.no_grad()
+    def run(sample: Sample) -> RenderOutput:
+        gaussians = reconstruct(model, sample, device)
+        h, w = sample.target_images.shape[-2:]
+        out = render_equirect(gaussians, sample.target_poses[None].to(device), h, w, background=background)
+        return RenderOutput(out.rgb[0].cpu(), out.depth[0].cpu(), out.alpha[0].cpu())
+
+    return Method(name, run)
+
+
+def forward_warp_method(name: str = "Forward warp", background=(0.0, 0.0, 0.0)) -> Method:
+    """Nearest input panorama warped with its depth prior (the prior, not ground truth)."""
+
+    def run(sample: Sample) -> RenderOutput:
+        h, w = sample.target_images.shape[-2:]
+        return forward_warp(sample.context_images, sample.context_depths, sample.context_poses, sample.target_poses,
+                            h, w, background=background)
+
+    return Method(name, run)

@@ -1,0 +1,145 @@
+"""Evaluation: per-view scores equal direct metric calls, tables are shaped like the paper's, the CLI runs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from cylindersplat.cli import main
+from cylindersplat.data import SyntheticDataset
+from cylindersplat.data.synth import SequenceConfig, write_synthetic_dataset
+from cylindersplat.evaluation import evaluate, forward_warp_method, model_method, results_to_markdown
+from cylindersplat.evaluation.evaluate import comparison_image, normalized_depth
+from cylindersplat.metrics import DepthRange, abs_rel, delta1, lrce, pcc, psnr, rmse, ssim, ws_psnr
+from cylindersplat.model import from_config, save_model
+
+
+@pytest.fixture(scope="module")
+def synth_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("synth_eval")
+    write_synthetic_dataset(root, 2, (32, 64), SequenceConfig(frames=3, spacing=(0.3, 0.5)), seed=3, progress=False)
+    return root
+
+
+@pytest.fixture(scope="module")
+def tiny_model():
+    torch.manual_seed(0)
+    return from_config("tiny").eval()
+
+
+def test_scores_equal_direct_metric_calls(synth_root, tiny_model, tmp_path):
+    dataset = SyntheticDataset(synth_root, views="two_view")
+    methods = [model_method(tiny_model, "tiny"), forward_warp_method()]
+    depth_range = DepthRange(0.05, 1000.0)
+    result = evaluate(dataset, methods, max_examples=2, example_dir=tmp_path, num_pictures=3,
+                      depth_range=depth_range, progress=False)
+    assert result.num_examples == 2
+    assert set(result.means) == {"tiny", "Forward warp"}
+    for method in methods:
+        per_view = []
+        for index in range(2):
+            sample = dataset[index]
+            out = method.run(sample)
+            rgb, gt = out.rgb.clamp(0, 1), sample.target_images
+            depth = normalized_depth(out.depth, out.alpha)
+            ref = sample.target_depths
+            for view in range(gt.shape[0]):
+                per_view.append({
+                    "ws_psnr": ws_psnr(rgb, gt)[view], "psnr": psnr(rgb, gt)[view], "ssim": ssim(rgb, gt)[view],
+                    "lrce": lrce(rgb)[view], "pcc": pcc(depth, ref, depth_range=depth_range)[view],
+                    "abs_rel": abs_rel(depth, ref, depth_range=depth_range)[view],
+                    "rmse": rmse(depth, ref, depth_range=depth_range)[view],
+                    "delta1": delta1(depth, ref, depth_range=depth_range)[view],
+                })
+        means = result.means[method.name]
+        for key in per_view[0]:
+            expected = float(np.mean([float(v[key]) for v in per_view]))
+            assert means[key] == pytest.approx(expected, rel=1e-5, abs=1e-6), (method.name, key)
+        assert means["time_s"] > 0
+        assert "lpips" not in means  # no LPIPS network given
+    rows = [r for r in result.rows if r["method"] == "tiny"]
+    assert len(rows) == 2  # two_view: one target per example
+    pictures = sorted(tmp_path.glob("example_*.png"))
+    assert len(pictures) == 2  # one target per example, fewer than the 3 asked for
+    sheet = np.asarray(Image.open(pictures[0]))
+    assert sheet.shape == (3 * 32 + 2 * 4, 2 * 64 + 4, 3)  # ground truth + 2 methods; RGB | depth
+
+
+def test_known_values_of_an_oracle(synth_root):
+    # A method that returns ground truth + 0.01 and depth x 1.1 has closed-form scores.
+    from cylindersplat.evaluation import Method
+    from cylindersplat.render.api import RenderOutput
+
+    def run(sample):
+        rgb = sample.target_images
+        rgb = torch.where(rgb < 0.5, rgb + 0.01, rgb - 0.01)  # error exactly 0.01 everywhere
+        depth = sample.target_depths * 1.1
+        return RenderOutput(rgb, depth, torch.ones_like(depth))
+
+    dataset = SyntheticDataset(synth_root, views="one_view")
+    means = evaluate(dataset, [Method("oracle", run)], depth_range=DepthRange(0.05, 1000.0), progress=False).means["oracle"]
+    assert means["psnr"] == pytest.approx(40.0, abs=1e-3)
+    assert means["ws_psnr"] == pytest.approx(40.0, abs=1e-3)
+    assert means["abs_rel"] == pytest.approx(0.1, rel=1e-4)
+    assert means["delta1"] == 1.0
+    assert means["pcc"] == pytest.approx(1.0, abs=1e-5)
+
+
+def test_comparison_image_rows_are_the_inputs():
+    rgb = torch.rand(3, 8, 16)
+    depth = torch.rand(8, 16) + 1
+    sheet = comparison_image(rgb, depth, {"a": (rgb * 0, depth, torch.ones(8, 16))})
+    np.testing.assert_array_equal(sheet[:8, :16], (rgb.permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8))
+    np.testing.assert_array_equal(sheet[12:20, :16], 0)  # the method's black render
+    np.testing.assert_array_equal(sheet[:8, 20:], sheet[12:20, 20:])  # same depth -> same colours
+
+
+def test_markdown_table():
+    results = {"synthetic — two_view": {
+        "A": {"pcc": 0.9, "ws_psnr": 20.0, "ssim": 0.7, "lpips": None, "lrce": 0.01, "time_s": 1.0},
+        "B": {"pcc": 0.8, "ws_psnr": 25.0, "ssim": 0.6, "lpips": None, "lrce": 0.02, "time_s": 0.1},
+    }}
+    text = results_to_markdown(results, title="T")
+    lines = text.splitlines()
+    header = next(line for line in lines if line.startswith("| Method"))
+    assert header == "| Method | PCC ↑ | WS-PSNR ↑ | SSIM ↑ | LRCE ↓ | Time (s) ↓ |"
+    row_a = next(line for line in lines if line.startswith("| A "))
+    row_b = next(line for line in lines if line.startswith("| B "))
+    assert row_a == "| A | **0.900** | 20.00 | **0.700** | **0.0100** | 1.00 |"
+    assert row_b == "| B | 0.800 | **25.00** | 0.600 | 0.0200 | **0.10** |"
+    assert "Not available here: LPIPS, AbsRel, RMSE, δ1" in text
+
+
+def test_eval_cli_writes_tables_and_pictures(synth_root, tiny_model, tmp_path, capsys):
+    checkpoint = tmp_path / "model.safetensors"
+    save_model(tiny_model, checkpoint)
+    out = tmp_path / "eval"
+    assert main(["eval", "--data", str(synth_root), "--checkpoint", str(checkpoint), "--out", str(out),
+                 "--protocols", "two_view,one_view", "--pictures", "1", "--lpips", "off"]) == 0
+    table = (out / "results.md").read_text()
+    assert table.count("| CylinderSplat |") == 2 and table.count("| Forward warp |") == 2
+    data = json.loads((out / "results.json").read_text())
+    assert len(data["means"]) == 2
+    one_view = next(v for k, v in data["means"].items() if "one_view" in k)
+    assert set(one_view) == {"CylinderSplat", "Forward warp"}
+    assert 0 < one_view["Forward warp"]["ssim"] <= 1
+    assert len(data["views"]["one_view"]) == 2 * 2 * 2  # examples x outer targets x methods
+    assert len(list((out / "examples" / "two_view").glob("*.png"))) == 1
+
+
+def test_eval_cli_errors(synth_root, tmp_path, capsys):
+    with pytest.raises(SystemExit):  # argparse: W != 2H
+        main(["eval", "--data", str(synth_root), "--resolution", "32x32"])
+    assert "W == 2H" in capsys.readouterr().err
+    # User errors: exit code 1 and one line naming the problem.
+    assert main(["eval", "--data", str(synth_root), "--checkpoint", str(tmp_path / "nope.safetensors"),
+                 "--out", str(tmp_path / "e")]) == 1
+    assert "nope.safetensors" in capsys.readouterr().err
+    assert main(["eval", "--data", str(synth_root), "--no-baseline", "--out", str(tmp_path / "e")]) == 1
+    assert "nothing to evaluate" in capsys.readouterr().err
+    assert main(["eval", "--data", str(tmp_path / "missing"), "--out", str(tmp_path / "e")]) == 1
+    assert "missing" in capsys.readouterr().err
