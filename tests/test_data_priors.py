@@ -1,5 +1,7 @@
 """Depth priors: simulated (seeded degradation), files, registry and foundation-model adapters."""
 
+import sys
+
 import numpy as np
 import pytest
 import torch
@@ -11,8 +13,11 @@ from cylindersplat.data.depth_prior import (
     PriorQuery,
     SimulatedPrior,
     SimulatedPriorConfig,
+    DepthAnywhereAdapter,
+    ExportedDepthPrior,
     UniK3DAdapter,
     make_depth_prior,
+    parse_depth_prior,
 )
 from cylindersplat.data.io import write_depth_png
 
@@ -78,12 +83,108 @@ def test_registry_and_adapters(tmp_path):
 
 
 def test_adapter_weight_checks(tmp_path, monkeypatch):
-    monkeypatch.setattr(UniK3DAdapter, "package", "json")  # pretend the package is importable
+    monkeypatch.setattr(DepthAnywhereAdapter, "package", "json")  # pretend the package is importable
     with pytest.raises(FileNotFoundError, match="local weights"):
-        UniK3DAdapter()
+        DepthAnywhereAdapter()
     with pytest.raises(FileNotFoundError, match="not found"):
-        UniK3DAdapter(weights=tmp_path / "missing.pth")
+        DepthAnywhereAdapter(weights=tmp_path / "missing.pth")
     (tmp_path / "w.pth").write_bytes(b"")
-    adapter = UniK3DAdapter(weights=tmp_path / "w.pth")
-    with pytest.raises(NotImplementedError, match="file"):
+    adapter = DepthAnywhereAdapter(weights=tmp_path / "w.pth")
+    with pytest.raises(NotImplementedError, match="exported"):
         adapter(_query())
+
+
+_FAKE_UNIK3D = {
+    "unik3d/__init__.py": "",
+    "unik3d/utils/__init__.py": "",
+    "unik3d/utils/camera.py": (
+        "class Spherical:\n"
+        "    def __init__(self, params):\n"
+        "        self.params = params\n"
+    ),
+    "unik3d/models.py": (
+        "import torch\n"
+        "class UniK3D(torch.nn.Module):\n"
+        "    loaded_from = None\n"
+        "    @classmethod\n"
+        "    def from_pretrained(cls, path):\n"
+        "        model = cls(); model.loaded_from = path; return model\n"
+        "    def infer(self, rgb, camera, normalize=True):\n"
+        "        assert rgb.dtype == torch.uint8 and rgb.ndim == 3 and normalize\n"
+        "        self.params = camera.params\n"
+        "        # half resolution, like a network with a fixed internal size; distance = 1 + mean/100\n"
+        "        x = rgb.float().mean(0)[::2, ::2]\n"
+        "        return {'distance': (1 + x / 100)[None, None], 'depth': -torch.ones(1, 1, 1, 1)}\n"
+    ),
+}
+
+
+def test_unik3d_adapter_calls_the_documented_api(tmp_path, monkeypatch):
+    # A stand-in package with UniK3D's inference API (from_pretrained, Spherical camera, infer()["distance"]).
+    for rel, text in _FAKE_UNIK3D.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text(text)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for name in [m for m in sys.modules if m == "unik3d" or m.startswith("unik3d.")]:
+        monkeypatch.delitem(sys.modules, name)
+    weights = tmp_path / "unik3d-vitl"
+    weights.mkdir()
+    prior = parse_depth_prior(f"unik3d:{weights}")
+    assert isinstance(prior, UniK3DAdapter)
+    query = _query()
+    depth = prior(query)
+    assert prior._model.loaded_from == str(weights)
+    params = prior._model.params
+    assert params[4:6].tolist() == [128.0, 64.0] and params[6:].tolist() == pytest.approx([np.pi, np.pi / 2])
+    rgb8 = (query.image * 255 + 0.5).to(torch.uint8).float().mean(0)
+    expected = (1 + rgb8[::2, ::2] / 100).repeat_interleave(2, 0).repeat_interleave(2, 1)  # nearest up-sampling
+    torch.testing.assert_close(depth, expected)
+
+
+class _InverseDepthNet(torch.nn.Module):
+    def forward(self, x):
+        return (0.25 + x.mean(1, keepdim=True))  # "inverse depth", (1, 1, h, w)
+
+
+def test_exported_prior_torchscript(tmp_path):
+    path = tmp_path / "net.pt"
+    with pytest.warns(DeprecationWarning):
+        torch.jit.save(torch.jit.script(_InverseDepthNet()), str(path))
+    query = _query()
+    prior = parse_depth_prior(f"exported:{path}", output="inverse_depth", scale=2.0)
+    torch.testing.assert_close(prior(query), 2.0 / (0.25 + query.image.mean(0)))
+    # Run at a lower size: the image is resized first, the output comes back at the query size.
+    small = ExportedDepthPrior(path, input_size=(32, 64))
+    out = small(query)
+    assert out.shape == (64, 128) and torch.isfinite(out).all()
+    expected = 0.25 + torch.nn.functional.interpolate(query.image[None], size=(32, 64), mode="bilinear",
+                                                      antialias=True).mean(1)[0]
+    torch.testing.assert_close(out[::2, ::2], expected)
+    with pytest.raises(FileNotFoundError, match="no exported model"):
+        ExportedDepthPrior(tmp_path / "missing.pt")
+    (tmp_path / "junk.pt").write_bytes(b"not a model")
+    with pytest.raises(ValueError, match="junk.pt"):
+        ExportedDepthPrior(tmp_path / "junk.pt")
+
+
+def test_exported_prior_torch_export(tmp_path):
+    path = tmp_path / "net.pt2"
+    torch.export.save(torch.export.export(_InverseDepthNet(), (torch.rand(1, 3, 32, 64),)), str(path))
+    query = _query()
+    out = ExportedDepthPrior(path, input_size=(32, 64), output="inverse_depth")(query)
+    small = torch.nn.functional.interpolate(query.image[None], size=(32, 64), mode="bilinear", antialias=True)
+    torch.testing.assert_close(out[::2, ::2], 1 / (0.25 + small.mean(1)[0]))
+    (tmp_path / "junk.pt2").write_bytes(b"not a model")
+    with pytest.raises(ValueError, match="junk.pt2"):
+        ExportedDepthPrior(tmp_path / "junk.pt2")
+
+
+def test_depth_prior_specs():
+    assert parse_depth_prior("constant:2.5")(_query()).eq(2.5).all()
+    assert isinstance(parse_depth_prior("simulated:4"), SimulatedPrior)
+    with pytest.raises(ValueError, match="not a valid depth"):
+        parse_depth_prior("constant:far")
+    with pytest.raises(ValueError, match="positive"):
+        parse_depth_prior("constant:-1")
+    with pytest.raises(ValueError, match="takes no"):
+        parse_depth_prior("gt:1")

@@ -41,6 +41,11 @@ def results_to_markdown(results: dict[str, dict[str, dict[str, float | None]]], 
                 cells.append(f"**{text}**" if value is not None and value == best[key] and len(by_method) > 1 else text)
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
         if missing:
-            lines += ["", f"Not available here: {', '.join(missing)} (LPIPS needs local weights; depth metrics need reference depth)."]
+            why = []
+            if "LPIPS" in missing:
+                why.append("LPIPS needs local VGG weights")
+            if set(missing) & {"PCC", "AbsRel", "RMSE", "δ1"}:
+                why.append("depth metrics need reference depth")
+            lines += ["", f"Not available here: {', '.join(missing)}" + (f" ({'; '.join(why)})." if why else ".")]
         lines.append("")
     return "\n".join(lines)

@@ -9,7 +9,7 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-__all__ = ["PriorQuery", "DepthPrior", "NoPrior", "GroundTruthPrior"]
+__all__ = ["PriorQuery", "DepthPrior", "NoPrior", "GroundTruthPrior", "ConstantPrior"]
 
 
 @dataclass
@@ -58,3 +58,17 @@ class GroundTruthPrior(DepthPrior):
         if query.gt_depth is None:
             raise ValueError(f"{query.key}: the 'gt' depth prior needs ground-truth depth, which this view lacks")
         return query.gt_depth.clone()
+
+
+class ConstantPrior(DepthPrior):
+    """Every pixel at ``depth`` metres (a sphere around the camera): a last resort for inputs with no depth."""
+
+    name = "constant"
+
+    def __init__(self, depth: float = 2.0) -> None:
+        if not (depth > 0 and depth < float("inf")):
+            raise ValueError(f"constant depth prior needs a positive finite depth, got {depth}")
+        self.depth = float(depth)
+
+    def __call__(self, query: PriorQuery) -> Tensor:
+        return torch.full(query.size, self.depth)

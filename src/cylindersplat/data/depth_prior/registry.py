@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from typing import Callable
 
-from .adapters import DepthAnywhereAdapter, UniFuseAdapter, UniK3DAdapter
-from .base import DepthPrior, GroundTruthPrior, NoPrior
+from .adapters import DepthAnywhereAdapter, ExportedDepthPrior, UniFuseAdapter, UniK3DAdapter
+from .base import ConstantPrior, DepthPrior, GroundTruthPrior, NoPrior
 from .files import FilePrior
 from .simulated import SimulatedPrior
 
-__all__ = ["DEPTH_PRIORS", "register_depth_prior", "make_depth_prior"]
+__all__ = ["DEPTH_PRIORS", "register_depth_prior", "make_depth_prior", "parse_depth_prior"]
 
 DEPTH_PRIORS: dict[str, Callable[..., DepthPrior]] = {}
 
@@ -28,5 +28,27 @@ def make_depth_prior(name: str, **kwargs) -> DepthPrior:
     return DEPTH_PRIORS[name](**kwargs)
 
 
-for _cls in (NoPrior, GroundTruthPrior, SimulatedPrior, FilePrior, UniK3DAdapter, DepthAnywhereAdapter, UniFuseAdapter):
+# The one positional argument a "name:value" spec fills in, per prior.
+_SPEC_ARGUMENT = {"constant": ("depth", float), "file": ("name", str), "simulated": ("seed", int),
+                  "exported": ("weights", str), "unik3d": ("weights", str), "depth_anywhere": ("weights", str),
+                  "unifuse": ("weights", str)}
+
+
+def parse_depth_prior(spec: str, **kwargs) -> DepthPrior:
+    """A prior from a command-line spec: ``name`` or ``name:value`` (``constant:2.5``, ``exported:net.pt2``,
+    ``unik3d:/models/unik3d-vitl``)."""
+    name, sep, value = spec.partition(":")
+    if sep:
+        if name not in _SPEC_ARGUMENT:
+            raise ValueError(f"depth prior {name!r} takes no ':value' (spec {spec!r})")
+        key, kind = _SPEC_ARGUMENT[name]
+        try:
+            kwargs[key] = kind(value)
+        except ValueError:
+            raise ValueError(f"depth prior spec {spec!r}: {value!r} is not a valid {key}") from None
+    return make_depth_prior(name, **kwargs)
+
+
+for _cls in (NoPrior, GroundTruthPrior, ConstantPrior, SimulatedPrior, FilePrior, ExportedDepthPrior, UniK3DAdapter,
+             DepthAnywhereAdapter, UniFuseAdapter):
     register_depth_prior(_cls.name, _cls)
