@@ -1,0 +1,51 @@
+"""Options and steps shared by ``render`` and ``export``: model + a folder of posed panoramas -> Gaussians."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+
+def resolution(text: str) -> tuple[int, int]:
+    h, _, w = text.lower().partition("x")
+    try:
+        size = int(h), int(w)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"resolution must be HxW, e.g. 256x512, got {text!r}") from None
+    if size[1] != 2 * size[0] or size[0] < 8:
+        raise argparse.ArgumentTypeError(f"equirect resolution needs W == 2H (H >= 8), got {text!r}")
+    return size
+
+
+def add_input_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--input", required=True, type=Path,
+                        help="folder of equirect panoramas + poses.json (OpenCV c2w; see docs/inference.md)")
+    parser.add_argument("--checkpoint", required=True, type=Path, help="model .safetensors (from cylindersplat train / demo)")
+    parser.add_argument("--poses-file", type=Path, help="poses file (default INPUT/poses.json)")
+    parser.add_argument("--resolution", type=resolution,
+                        help="HxW the model runs at (default: the model's nominal input height x 2)")
+    parser.add_argument("--depth-prior",
+                        help="for frames without a depth file: constant:METRES, exported:NET.pt2 (any exported depth "
+                             "network), unik3d:WEIGHTS_DIR, ... (default: every frame needs <stem>_depth.png/.npy)")
+    parser.add_argument("--min-opacity", type=float, default=0.005, help="drop Gaussians at or below this opacity (default 0.005)")
+    parser.add_argument("--device", default="cpu", help="torch device (default cpu)")
+
+
+def reconstruct_from_args(args: argparse.Namespace):
+    """-> (inputs, gaussians, model) for the parsed options; prints what it did."""
+    from ..data.depth_prior import parse_depth_prior
+    from ..inference import load_panorama_folder, reconstruct_gaussians
+    from ..model import load_model
+
+    if not args.checkpoint.is_file():
+        raise FileNotFoundError(f"checkpoint not found: {args.checkpoint} (train one with `cylindersplat train` or run the demo)")
+    model = load_model(args.checkpoint, map_location=args.device)
+    size = args.resolution or (model.config.image_height, 2 * model.config.image_height)
+    prior = parse_depth_prior(args.depth_prior) if args.depth_prior else None
+    inputs = load_panorama_folder(args.input, size, depth_prior=prior, poses_file=args.poses_file)
+    start = time.perf_counter()
+    gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, args.min_opacity)
+    print(f"reconstructed {len(gaussians):,} Gaussians from {len(inputs.names)} panoramas at "
+          f"{size[0]}x{size[1]} in {time.perf_counter() - start:.2f} s on {args.device}")
+    return inputs, gaussians, model

@@ -1,0 +1,204 @@
+"""A user's own panoramas: a folder of equirect images plus ``poses.json`` -> model inputs.
+
+Format (see ``docs/inference.md``)::
+
+    my_scene/
+      poses.json
+      pano_a.jpg                 # equirect, W == 2H, any size (resized to the model's input size)
+      pano_a_depth.png           # optional depth prior: 16-bit, `depth_scale` units per metre, 0 = unknown
+      pano_b.jpg                 #   (or a float .npy in metres)
+      ...
+
+``poses.json`` either lists frames explicitly::
+
+    {"frames": [{"image": "pano_a.jpg", "c2w": [[r00, r01, r02, tx], ..., [0, 0, 0, 1]],
+                 "depth": "pano_a_depth.png"}, ...],
+     "depth_scale": 1000}
+
+or gives only poses, matched to the folder's images in name order::
+
+    {"poses": [[[...4x4...]], ...]}
+
+Poses are OpenCV camera-to-world (+x right, +y down, +z forward; 3x4 or 4x4) in metres. Every
+problem (missing/corrupt file, non-2:1 image, count mismatch, non-finite or non-rigid pose, depth
+of the wrong size) raises an error naming the file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from jaxtyping import Float
+from torch import Tensor
+
+from ..data.depth_prior import DepthPrior, PriorQuery
+from ..data.io import DEPTH_PNG_SCALE, open_image, read_depth_npy, read_depth_png, read_rgb
+from ..geometry import validate_c2w
+
+__all__ = ["PanoramaInputs", "load_panorama_folder", "write_panorama_folder", "read_poses_file", "IMAGE_SUFFIXES"]
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".bmp", ".tif", ".tiff")
+POSES_FILE = "poses.json"
+
+
+@dataclass
+class PanoramaInputs:
+    """Context views of one reconstruction: images ``(V, 3, H, W)``, depth prior ``(V, H, W)``, c2w ``(V, 4, 4)``."""
+
+    images: Float[Tensor, "V 3 H W"]
+    depths: Float[Tensor, "V H W"]
+    c2w: Float[Tensor, "V 4 4"]
+    names: list[str] = field(default_factory=list)
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return tuple(self.images.shape[-2:])
+
+
+def _parse_pose(value, where: str) -> Tensor:
+    try:
+        pose = torch.tensor(value, dtype=torch.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: pose must be a 3x4 or 4x4 list of numbers ({exc})") from None
+    if pose.shape == (3, 4):
+        pose = torch.cat((pose, torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=pose.dtype)))
+    if pose.shape != (4, 4):
+        raise ValueError(f"{where}: pose must be 3x4 or 4x4, got shape {tuple(pose.shape)}")
+    validate_c2w(pose, name=where)  # finite, orthonormal rotation, last row 0 0 0 1
+    return pose.float()
+
+
+def read_poses_file(path: str | Path) -> list[tuple[str | None, Tensor, str | None]]:
+    """``[(image name or None, c2w (4, 4), depth file or None), ...]`` from a poses file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"missing poses file: {path}")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    if isinstance(data, list):
+        data = {"poses": data}
+    if not isinstance(data, dict) or not ({"frames", "poses"} & set(data)):
+        raise ValueError(f'{path}: expected {{"frames": [...]}} or {{"poses": [...]}} (see docs/inference.md)')
+    entries = []
+    if "frames" in data:
+        for i, frame in enumerate(data["frames"]):
+            where = f"{path} frame {i}"
+            if not isinstance(frame, dict) or "c2w" not in frame:
+                raise ValueError(f'{where}: each frame needs "c2w" (and "image" for input folders)')
+            entries.append((frame.get("image"), _parse_pose(frame["c2w"], where), frame.get("depth")))
+    else:
+        entries = [(None, _parse_pose(p, f"{path} pose {i}"), None) for i, p in enumerate(data["poses"])]
+    if not entries:
+        raise ValueError(f"{path}: no poses")
+    return entries
+
+
+def _depth_scale(path: Path) -> float:
+    data = json.loads(path.read_text())
+    scale = data.get("depth_scale", DEPTH_PNG_SCALE) if isinstance(data, dict) else DEPTH_PNG_SCALE
+    if not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
+        raise ValueError(f"{path}: depth_scale must be a positive number, got {scale!r}")
+    return float(scale)
+
+
+def _folder_images(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and not p.stem.endswith("_depth"))
+
+
+def _find_depth(image: Path) -> Path | None:
+    for suffix in (".png", ".npy"):
+        candidate = image.with_name(f"{image.stem}_depth{suffix}")
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+def load_panorama_folder(
+    folder: str | Path,
+    resolution: tuple[int, int],
+    depth_prior: DepthPrior | None = None,
+    poses_file: str | Path | None = None,
+) -> PanoramaInputs:
+    """Read the panoramas, poses and depth priors of ``folder`` at ``resolution`` ``(H, W)``.
+
+    The depth prior of a frame is its depth file (``"depth"`` in ``poses.json``, else
+    ``<image stem>_depth.png|.npy``); frames without one get ``depth_prior(query)`` when a prior is
+    given (e.g. a depth foundation model) and are an error otherwise.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"input folder not found: {folder}")
+    poses_path = Path(poses_file) if poses_file is not None else folder / POSES_FILE
+    entries = read_poses_file(poses_path)
+    scale = _depth_scale(poses_path)
+    if all(name is None for name, _, _ in entries):
+        images = _folder_images(folder)
+        if len(images) != len(entries):
+            listed = ", ".join(p.name for p in images) or "none"
+            raise ValueError(
+                f"{poses_path} has {len(entries)} poses but {folder} has {len(images)} panoramas ({listed}); "
+                'give one pose per image (matched in name order) or list "frames" with "image" names'
+            )
+        entries = [(p.name, pose, None) for p, (_, pose, _) in zip(images, entries)]
+    elif any(name is None for name, _, _ in entries):
+        raise ValueError(f'{poses_path}: every frame needs an "image" name')
+    h, w = resolution
+    rgbs, depths, poses, names, missing = [], [], [], [], []
+    for name, pose, depth_name in entries:
+        image_path = folder / name
+        rgb = read_rgb(image_path, size=(h, w))
+        depth_path = folder / depth_name if depth_name else _find_depth(image_path)
+        if depth_path is not None:
+            if depth_path.suffix.lower() == ".npy":
+                depth = read_depth_npy(depth_path, size=(h, w))
+            else:
+                open_image(depth_path)  # clear error when missing/corrupt
+                depth = read_depth_png(depth_path, size=(h, w), scale=scale)
+        elif depth_prior is not None:
+            depth = depth_prior(PriorQuery(image=rgb, gt_depth=None, rgb_path=image_path, key=f"input/{image_path.stem}"))
+            if tuple(depth.shape) != (h, w):
+                raise ValueError(f"depth prior {depth_prior.name!r} returned {tuple(depth.shape)} for {image_path}, expected {(h, w)}")
+        else:
+            missing.append(name)
+            depth = None
+        rgbs.append(rgb)
+        depths.append(depth)
+        poses.append(pose)
+        names.append(name)
+    if missing:
+        raise FileNotFoundError(
+            f"no depth prior for {', '.join(missing)} in {folder}: add <image stem>_depth.png (16-bit, "
+            f"{scale:g} per metre) or .npy (metres), or choose --depth-prior (e.g. constant:2.0 or exported:depth_net.pt2)"
+        )
+    return PanoramaInputs(torch.stack(rgbs), torch.stack(depths).float(), torch.stack(poses), names)
+
+
+def write_panorama_folder(
+    folder: str | Path,
+    images: Float[Tensor, "V 3 H W"],
+    c2w: Float[Tensor, "V 4 4"],
+    depths: Float[Tensor, "V H W"] | None = None,
+    names: list[str] | None = None,
+) -> Path:
+    """Write panoramas (PNG), optional depth priors (16-bit mm PNG) and ``poses.json`` in the input format."""
+    from ..data.io import write_depth_png, write_rgb
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    names = names or [f"pano_{i:02d}" for i in range(len(images))]
+    frames = []
+    for i, name in enumerate(names):
+        write_rgb(folder / f"{name}.png", images[i])
+        frame = {"image": f"{name}.png", "c2w": c2w[i].tolist()}
+        if depths is not None:
+            write_depth_png(folder / f"{name}_depth.png", depths[i])
+            frame["depth"] = f"{name}_depth.png"
+        frames.append(frame)
+    (folder / POSES_FILE).write_text(json.dumps({"convention": "opencv_c2w", "depth_scale": DEPTH_PNG_SCALE, "frames": frames}, indent=1))
+    return folder

@@ -1,0 +1,81 @@
+"""Reconstruct Gaussians from posed panoramas with a trained model and render them anywhere."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from ..gaussians import Gaussians
+from ..render import render_equirect
+from ..render.api import RenderOutput
+from ..utils.colormap import colorize_depth
+
+__all__ = ["reconstruct_gaussians", "render_views", "normalized_depth", "depth_limits", "view_picture", "to_uint8"]
+
+
+@torch.no_grad()
+def reconstruct_gaussians(
+    model,
+    images: Float[Tensor, "V 3 H W"],
+    depths: Float[Tensor, "V H W"],
+    c2w: Float[Tensor, "V 4 4"],
+    device: torch.device | str = "cpu",
+    min_opacity: float = 0.0,
+) -> Gaussians:
+    """World-frame Gaussians (unbatched, on ``device``) of one scene; drops those with opacity <= ``min_opacity``."""
+    model.eval()
+    out = model(images[None].to(device), depths[None].to(device), c2w[None].to(device))
+    gaussians = out.gaussians.detach().batch(0)
+    if min_opacity > 0:
+        gaussians = gaussians[gaussians.opacities > min_opacity]
+    return gaussians
+
+
+@torch.no_grad()
+def render_views(
+    gaussians: Gaussians,
+    c2w: Float[Tensor, "K 4 4"],
+    height: int,
+    width: int,
+    background=(0.0, 0.0, 0.0),
+    chunk: int = 4,
+    progress: bool = False,
+    desc: str = "render",
+) -> RenderOutput:
+    """Render ``K`` panoramas in chunks of ``chunk`` cameras (bounded memory); results on the CPU."""
+    device = gaussians.device
+    parts = []
+    for start in tqdm(range(0, len(c2w), chunk), desc=desc, unit="chunk", disable=not progress):
+        out = render_equirect(gaussians, c2w[start:start + chunk].to(device), height, width, background=background)
+        parts.append(RenderOutput(out.rgb.cpu(), out.depth.cpu(), out.alpha.cpu()))
+    return RenderOutput(*(torch.cat([getattr(p, k) for p in parts]) for k in ("rgb", "depth", "alpha")))
+
+
+def normalized_depth(depth: Tensor, alpha: Tensor, min_alpha: float = 0.5) -> Tensor:
+    """Expected depth divided by coverage; 0 where the render is (nearly) empty."""
+    return torch.where(alpha > min_alpha, depth / alpha.clamp_min(1e-6), torch.zeros_like(depth))
+
+
+def depth_limits(depths: Tensor, low: float = 0.02, high: float = 0.98) -> tuple[float | None, float | None]:
+    """Robust colormap range (quantiles of the valid depths) so every picture of a scene shares colours."""
+    valid = depths[depths > 0].float()
+    if valid.numel() == 0:
+        return None, None
+    if valid.numel() > 1_000_000:  # quantile() has an input size limit; a strided subset is plenty
+        valid = valid[:: valid.numel() // 1_000_000 + 1]
+    return float(valid.quantile(low)), float(valid.quantile(high))
+
+
+def to_uint8(image: Float[Tensor, "3 H W"]) -> np.ndarray:
+    """``(3, H, W)`` float in [0, 1] -> ``(H, W, 3)`` uint8."""
+    return (image.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255 + 0.5).astype(np.uint8)
+
+
+def view_picture(rgb: Tensor, depth: Tensor, alpha: Tensor, near=None, far=None, gap: int = 4) -> np.ndarray:
+    """RGB above its depth colormap (uint8 ``(2H + gap, W, 3)``)."""
+    top = to_uint8(rgb)
+    bottom = colorize_depth(normalized_depth(depth, alpha), near, far, as_uint8=True)
+    return np.concatenate((top, np.full((gap, top.shape[1], 3), 255, np.uint8), bottom), axis=0)
