@@ -11,6 +11,7 @@ import torch
 from PIL import Image
 from tqdm.auto import tqdm
 
+from ..inference.pipeline import normalized_depth, to_uint8
 from ..metrics import DepthRange, abs_rel, delta1, lrce, pcc, psnr, rmse, ssim, ws_psnr
 from ..utils.colormap import colorize_depth
 from .methods import Method
@@ -25,11 +26,6 @@ class EvalResult:
     means: dict[str, dict[str, float | None]]
     rows: list[dict] = field(default_factory=list)
     num_examples: int = 0
-
-
-def normalized_depth(depth: torch.Tensor, alpha: torch.Tensor, min_alpha: float = 0.5) -> torch.Tensor:
-    """Expected depth divided by coverage; 0 where the render is (nearly) empty."""
-    return torch.where(alpha > min_alpha, depth / alpha.clamp_min(1e-6), torch.zeros_like(depth))
 
 
 def score_views(render, target_images, target_depths, lpips_net=None, depth_range: DepthRange = DepthRange()) -> list[dict]:
@@ -55,22 +51,18 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
     return [{k: float(v[i]) for k, v in scores.items()} for i in range(rgb.shape[0])]
 
 
-def _to_uint8(image: torch.Tensor) -> np.ndarray:
-    return (image.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255 + 0.5).astype(np.uint8)
-
-
 def comparison_image(target_rgb, target_depth, renders: dict, labels: bool = True) -> np.ndarray:
     """uint8 grid, one row per source (ground truth first, then each method): RGB | depth colormap."""
     valid = target_depth is not None and bool((target_depth > 0).any())
     near = float(target_depth[target_depth > 0].quantile(0.02)) if valid else None
     far = float(target_depth[target_depth > 0].quantile(0.98)) if valid else None
     rows = []
-    blank = np.zeros_like(_to_uint8(target_rgb))
+    blank = np.zeros_like(to_uint8(target_rgb))
     gt_depth = colorize_depth(target_depth, near, far, as_uint8=True) if target_depth is not None else blank
-    rows.append(("ground truth", _to_uint8(target_rgb), gt_depth))
+    rows.append(("ground truth", to_uint8(target_rgb), gt_depth))
     for name, (rgb, depth, alpha) in renders.items():
         d = normalized_depth(depth, alpha)
-        rows.append((name, _to_uint8(rgb), colorize_depth(d, near, far, as_uint8=True)))
+        rows.append((name, to_uint8(rgb), colorize_depth(d, near, far, as_uint8=True)))
     gap = 4
     h, w = rows[0][1].shape[:2]
     sheet = np.full((len(rows) * (h + gap) - gap, 2 * w + gap, 3), 255, np.uint8)

@@ -14,6 +14,7 @@ import torch
 
 from ..baselines import forward_warp
 from ..data import Sample
+from ..inference.pipeline import reconstruct_gaussians
 from ..render import render_equirect
 from ..render.api import RenderOutput
 
@@ -26,16 +27,9 @@ class Method:
     run: Callable[[Sample], RenderOutput]
 
 
-@torch.no_grad()
 def reconstruct(model, sample: Sample, device: torch.device | str = "cpu"):
     """Gaussians (world frame, unbatched) of a sample's context views."""
-    model.eval()
-    out = model(
-        sample.context_images[None].to(device),
-        sample.context_depths[None].to(device),
-        sample.context_poses[None].to(device),
-    )
-    return out.gaussians.detach()
+    return reconstruct_gaussians(model, sample.context_images, sample.context_depths, sample.context_poses, device)
 
 
 def model_method(model, name: str = "CylinderSplat", device: torch.device | str = "cpu", background=(0.0, 0.0, 0.0)) -> Method:
@@ -45,8 +39,8 @@ def model_method(model, name: str = "CylinderSplat", device: torch.device | str 
     def run(sample: Sample) -> RenderOutput:
         gaussians = reconstruct(model, sample, device)
         h, w = sample.target_images.shape[-2:]
-        out = render_equirect(gaussians, sample.target_poses[None].to(device), h, w, background=background)
-        return RenderOutput(out.rgb[0].cpu(), out.depth[0].cpu(), out.alpha[0].cpu())
+        out = render_equirect(gaussians, sample.target_poses.to(device), h, w, background=background)
+        return RenderOutput(out.rgb.cpu(), out.depth.cpu(), out.alpha.cpu())
 
     return Method(name, run)
 

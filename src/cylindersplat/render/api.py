@@ -9,6 +9,7 @@ CUDA); a fast GPU backend registers as ``"triton"`` when its module imports.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Callable
 
@@ -20,6 +21,7 @@ from ..geometry.equirect import check_equirect_shape
 from ..geometry.poses import validate_c2w
 from .projection import RasterSettings, project_equirect_gaussians
 from .rasterize import rasterize
+from .triton_backend import triton_available, triton_backend
 
 __all__ = ["RenderOutput", "render_equirect", "available_backends", "register_backend"]
 
@@ -43,7 +45,10 @@ def _torch_backend(gaussians, c2w, height, width, background, settings):
 
 
 _BACKENDS: dict[str, Backend] = {"torch": _torch_backend}
+if triton_available():
+    _BACKENDS["triton"] = triton_backend
 _AUTO_ORDER = ("triton", "torch")
+_AUTO_DISABLED: set = set()  # fast backends that failed here; "auto" skips them
 
 
 def register_backend(name: str, fn: Backend) -> None:
@@ -57,7 +62,7 @@ def available_backends() -> list[str]:
 def _pick_backend(name: str, device: torch.device) -> Backend:
     if name == "auto":
         for cand in _AUTO_ORDER:
-            if cand in _BACKENDS and (cand == "torch" or device.type == "cuda"):
+            if cand in _BACKENDS and (cand == "torch" or device.type == "cuda") and _BACKENDS[cand] not in _AUTO_DISABLED:
                 return _BACKENDS[cand]
     if name not in _BACKENDS:
         raise ValueError(f"unknown render backend {name!r}; available: {available_backends()} or 'auto'")
@@ -109,7 +114,16 @@ def render_equirect(
     c2w = c2w.to(device=gaussians.device)
     out_shape = _output_shape(gaussians, c2w)
     fn = _pick_backend(backend, gaussians.device)
-    rgb, depth, alpha = fn(gaussians, c2w, height, width, background, settings)
+    try:
+        rgb, depth, alpha = fn(gaussians, c2w, height, width, background, settings)
+    except Exception as exc:  # noqa: BLE001
+        if backend != "auto" or fn is _torch_backend:
+            raise
+        # The fast backend compiles at first use; if that fails on this machine, keep working.
+        _AUTO_DISABLED.add(fn)
+        warnings.warn(f"fast render backend failed ({type(exc).__name__}: {exc}); using the PyTorch reference from "
+                      "now on (pass backend='triton' to see the error)", RuntimeWarning, stacklevel=2)
+        rgb, depth, alpha = _torch_backend(gaussians, c2w, height, width, background, settings)
     return RenderOutput(
         rgb=rgb.reshape(*out_shape, 3, height, width),
         depth=depth.reshape(*out_shape, height, width),

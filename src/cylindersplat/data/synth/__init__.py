@@ -10,6 +10,6 @@ from .materials import Lighting, Material, Sky
 from .raycast import cast_rays, render_equirect_scene
 from .scene import SceneBuilder, SynthScene
 from .sequence import SequenceConfig, SynthSequence, generate_sequence, render_sequence, sample_camera_line, scene_rng
-from .writer import SYNTH_FORMAT, write_synthetic_dataset
+from .writer import SYNTH_FORMAT, scene_id, write_synthetic_dataset
 
 __all__ = [name for name in dir() if not name.startswith("_")]

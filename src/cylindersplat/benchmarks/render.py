@@ -1,0 +1,151 @@
+"""Benchmark the equirect rasterizer: forward and forward+backward, median ms and peak memory.
+
+    cylindersplat bench render                       # 100k Gaussians, 256x512, CPU (+CUDA if present)
+    cylindersplat bench render --num 1300000 --height 512 --device cuda --backend auto --cubemap
+
+Scenes come from :func:`cylindersplat.scenes.random_indoor` (Gaussians on the walls of an 8 x 3 x 6 m
+room plus 20% scattered inside). ``--stages`` also prints where the time goes (projection, tile
+binning, fragment expansion + sort, compositing, backward) for the PyTorch reference.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import resource
+import statistics
+import time
+
+import torch
+
+from cylindersplat.render import render_cubemap, render_equirect
+from cylindersplat.render.projection import RasterSettings, project_equirect_gaussians
+from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
+from cylindersplat.scenes import random_indoor
+from cylindersplat.utils.allocator import keep_freed_memory
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+
+
+def _peak_mb(device: torch.device) -> float:
+    if device.type == "cuda":
+        return torch.cuda.max_memory_allocated() / 2**20
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # peak RSS of the process
+
+
+def _time(fn, device, repeats: int, warmup: int = 1) -> float:
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        _sync(device)
+        t0 = time.perf_counter()
+        fn()
+        _sync(device)
+        times.append((time.perf_counter() - t0) * 1000)
+    return statistics.median(times)
+
+
+def bench(num: int, height: int, device: torch.device, backend: str, repeats: int, cubemap: bool, stages: bool) -> dict:
+    g = random_indoor(num).to(device)
+    params = [t.requires_grad_() for t in g.tensors().values()]
+    c2w = torch.eye(4, device=device)
+    width = 2 * height
+
+    def forward():
+        with torch.no_grad():
+            render_equirect(g, c2w, height, width, backend=backend)
+
+    def forward_backward():
+        out = render_equirect(g, c2w, height, width, backend=backend)
+        (out.rgb.sum() + out.depth.sum()).backward()
+        for p in params:
+            p.grad = None
+
+    if device.type == "cuda":
+        torch.cuda.reset_peak_memory_stats()
+    row = {"num": num, "size": f"{height}x{width}", "device": str(device), "backend": backend}
+    row["forward_ms"] = _time(forward, device, repeats)
+    row["fwd_bwd_ms"] = _time(forward_backward, device, repeats)
+    row["peak_mb"] = _peak_mb(device)
+    if cubemap:
+
+        def cube_forward():
+            with torch.no_grad():
+                render_cubemap(g, c2w, height, width)
+
+        def cube_fwd_bwd():
+            out = render_cubemap(g, c2w, height, width)
+            (out.rgb.sum() + out.depth.sum()).backward()
+            for p in params:
+                p.grad = None
+
+        row["cubemap_forward_ms"] = _time(cube_forward, device, repeats)
+        row["cubemap_fwd_bwd_ms"] = _time(cube_fwd_bwd, device, repeats)
+    if stages:
+        row["stages_ms"] = stage_breakdown(g, c2w, height, width, device, repeats)
+    return row
+
+
+def stage_breakdown(g, c2w, height, width, device, repeats: int) -> dict:
+    """Median time of each stage of the PyTorch reference."""
+    settings = RasterSettings()
+    acc: dict[str, list[float]] = {k: [] for k in ("project", "bin", "fragments", "composite", "backward")}
+    for it in range(repeats + 1):
+        marks = [time.perf_counter()]
+
+        def mark():
+            _sync(device)
+            marks.append(time.perf_counter())
+
+        proj, _ = project_equirect_gaussians(g, c2w, height, width, settings)
+        mark()
+        bins = bin_to_tiles(proj, settings.tile_size)
+        mark()
+        fg, fp = expand_fragments(proj, bins, settings.sigma_extent)
+        mark()
+        rgb, depth, _ = composite(proj, fg, fp, settings)
+        mark()
+        (rgb.sum() + depth.sum()).backward()
+        mark()
+        for p in g.tensors().values():
+            p.grad = None
+        if it > 0:  # first iteration is warm-up
+            for k, (a, b) in zip(acc, zip(marks[:-1], marks[1:])):
+                acc[k].append((b - a) * 1000)
+    out = {k: round(statistics.median(v), 1) for k, v in acc.items()}
+    out["num_pairs"], out["num_fragments"] = len(bins.tile), len(fg)
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="cylindersplat bench render", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--num", type=int, nargs="+", default=[100_000], help="numbers of Gaussians")
+    parser.add_argument("--height", type=int, default=256)
+    parser.add_argument("--device", nargs="+", default=None, help="devices (default: cpu, and cuda when present)")
+    parser.add_argument("--backend", default="torch", help="render backend (torch, auto, ...)")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--cubemap", action="store_true", help="also time the cubemap route")
+    parser.add_argument("--stages", action="store_true", help="print the per-stage breakdown")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    parser.add_argument("--default-malloc", action="store_true", help="skip the glibc allocator tuning")
+    args = parser.parse_args(argv)
+    if not args.default_malloc:
+        keep_freed_memory()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    devices = args.device or (["cpu", "cuda"] if torch.cuda.is_available() else ["cpu"])
+    print(f"# {platform.processor() or platform.machine()}, {torch.get_num_threads()} torch threads, torch {torch.__version__}")
+    if torch.cuda.is_available():
+        print(f"# GPU: {torch.cuda.get_device_name()}")
+    for dev in devices:
+        for num in args.num:
+            row = bench(num, args.height, torch.device(dev), args.backend, args.repeats, args.cubemap, args.stages)
+            print(row)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,92 @@
+"""The fast backend: PyTorch projection and tile binning, Triton per-tile compositing (fwd + bwd).
+
+Needs no compile step from the user: Triton ships with CUDA builds of PyTorch and compiles the
+kernels (:mod:`.triton_kernels`) at first use. Projection (EWA, seam and pole safeguards) and the
+(tile, depth) sort are the reference's own code (:mod:`.projection`, :func:`.rasterize.bin_to_tiles`),
+so only compositing differs, and it follows the same rules; gradients reach the Gaussian
+parameters through the projection's autograd graph.
+
+On a CPU, ``TRITON_INTERPRET=1`` (set before the first render) runs the same kernels in Triton's
+interpreter; that is how the test suite checks them on machines without a GPU.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+import torch
+from torch import Tensor
+
+from ..gaussians import Gaussians
+from .projection import ProjectedGaussians, RasterSettings, project_equirect_gaussians
+from .rasterize import TileBins, bin_to_tiles
+
+__all__ = ["triton_available", "triton_backend", "composite_triton"]
+
+
+def triton_available() -> bool:
+    return importlib.util.find_spec("triton") is not None
+
+
+class _TritonComposite(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, packed, pair_gaussian, rows, cols, tile_start, num_pixels, height, width, tiles_x, tiles_y, wrap_u, settings):
+        from . import triton_kernels as kernels
+
+        out = torch.zeros(num_pixels, 5, dtype=torch.float32, device=packed.device)
+        final_t = torch.empty(num_pixels, dtype=torch.float32, device=packed.device)
+        grid = (len(tile_start) - 1,)
+        args = (height, width, tiles_x, tiles_x * tiles_y, settings.sigma_extent**2, settings.alpha_max,
+                settings.alpha_min, settings.transmittance_min)
+        if grid[0] > 0:
+            kernels.composite_forward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out, final_t, *args,
+                                                   TILE=settings.tile_size, WRAP_U=bool(wrap_u))
+        ctx.save_for_backward(packed, pair_gaussian, rows, cols, tile_start, out)
+        ctx.args, ctx.tile, ctx.wrap_u = args, settings.tile_size, bool(wrap_u)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad_out):
+        from . import triton_kernels as kernels
+
+        packed, pair_gaussian, rows, cols, tile_start, out = ctx.saved_tensors
+        grad_packed = torch.zeros_like(packed)
+        grid = (len(tile_start) - 1,)
+        if grid[0] > 0:
+            kernels.composite_backward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out,
+                                                    grad_out.float().contiguous(), grad_packed, *ctx.args,
+                                                    TILE=ctx.tile, WRAP_U=ctx.wrap_u)
+        return (grad_packed,) + (None,) * 11
+
+
+def composite_triton(
+    proj: ProjectedGaussians, bins: TileBins, settings: RasterSettings, background: Tensor | None = None
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Stage 4 on Triton. Returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
+    tile = settings.tile_size
+    if tile & (tile - 1):
+        raise ValueError(f"the Triton backend needs a power-of-two tile size, got {tile}")
+    h, w, c = proj.height, proj.width, proj.num_cameras
+    num_tiles = c * bins.tiles_x * bins.tiles_y
+    counts = torch.bincount(bins.tile, minlength=num_tiles)
+    tile_start = torch.zeros(num_tiles + 1, dtype=torch.int64, device=counts.device)
+    tile_start[1:] = torch.cumsum(counts, 0)
+    ones = torch.ones_like(proj.depth)[:, None]
+    packed = torch.cat((proj.uv, proj.conic, proj.opacity[:, None], proj.color, proj.depth[:, None], ones), dim=-1)
+    dtype = packed.dtype
+    out = _TritonComposite.apply(
+        packed.float().contiguous(), bins.gaussian.contiguous(), bins.rows.contiguous(), bins.cols.contiguous(),
+        tile_start, c * h * w, h, w, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings,
+    ).to(dtype)
+    out = out.view(c, h, w, 5)
+    rgb = out[..., :3].permute(0, 3, 1, 2)
+    depth, acc = out[..., 3], out[..., 4]
+    if background is not None:
+        rgb = rgb + (1 - acc)[:, None] * background.to(rgb.dtype).view(-1, 3, 1, 1)
+    return rgb, depth, acc
+
+
+def triton_backend(gaussians: Gaussians, c2w: Tensor, height: int, width: int, background, settings: RasterSettings):
+    proj, _ = project_equirect_gaussians(gaussians, c2w, height, width, settings)
+    bins = bin_to_tiles(proj, settings.tile_size)
+    return composite_triton(proj, bins, settings, background)

@@ -1,0 +1,173 @@
+"""Triton kernels of the fast backend: per-tile front-to-back compositing and its backward pass.
+
+Imported lazily by :mod:`.triton_backend` (only when the Triton backend is used), so that
+``TRITON_INTERPRET=1`` set by a test before the first call selects Triton's CPU interpreter.
+
+One program per (camera, tile): its ``TILE x TILE`` pixels walk the tile's (Gaussian, tile) pairs in
+depth order. The rules are the reference's (:mod:`.rasterize`): a pixel gets a fragment of pair
+``p`` only inside the pair's pixel rectangle and the ``sigma_extent`` ellipse; ``du`` wraps into
+``[-W/2, W/2)`` across the seam; ``alpha = min(alpha_max, o exp(-m/2))``, skipped below
+``alpha_min``; the fragment that would bring the transmittance below ``transmittance_min`` and
+all later ones are dropped. A tile stops early once all its pixels have terminated.
+
+Packed Gaussian rows (``M x 11``, float32): ``[u, v, A, B, C, opacity, r, g, b, depth, 1]``.
+"""
+
+from __future__ import annotations
+
+import triton
+import triton.language as tl
+
+
+@triton.jit
+def _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE: tl.constexpr):
+    camera = tile // tiles_per_camera
+    local = tile % tiles_per_camera
+    ty = local // tiles_x
+    tx = local % tiles_x
+    offs = tl.arange(0, TILE * TILE)
+    row = ty * TILE + offs // TILE
+    col = tx * TILE + offs % TILE
+    inside = (row < height) & (col < width)
+    pixel = (camera * height + row) * width + col
+    return row, col, inside, pixel
+
+
+@triton.jit
+def _fragment(packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U: tl.constexpr):
+    """Offsets, alpha and the support mask of pair ``p`` (Gaussian ``g``) at the tile's pixels."""
+    base = packed_ptr + g * 11
+    u = tl.load(base + 0)
+    v = tl.load(base + 1)
+    a = tl.load(base + 2)
+    b = tl.load(base + 3)
+    c = tl.load(base + 4)
+    o = tl.load(base + 5)
+    r0 = tl.load(rows_ptr + 2 * p)
+    r1 = tl.load(rows_ptr + 2 * p + 1)
+    c0 = tl.load(cols_ptr + 2 * p)
+    c1 = tl.load(cols_ptr + 2 * p + 1)
+    du = col.to(tl.float32) + 0.5 - u
+    if WRAP_U:
+        half = width * 0.5
+        du = du + half
+        du = du - width * tl.floor(du / width) - half
+    dv = row.to(tl.float32) + 0.5 - v
+    mahal = a * du * du + 2.0 * b * du * dv + c * dv * dv
+    raw = o * tl.exp(-0.5 * mahal)
+    alpha = tl.minimum(raw, alpha_max)
+    support = (row >= r0) & (row <= r1) & (col >= c0) & (col <= c1) & (mahal <= sigma2) & (alpha >= alpha_min)
+    return du, dv, alpha, raw, support, a, b, c, o
+
+
+@triton.jit
+def composite_forward_kernel(
+    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr, final_t_ptr,
+    height, width, tiles_x, tiles_per_camera,
+    sigma2, alpha_max, alpha_min, t_min,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr,
+):
+    tile = tl.program_id(0)
+    row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
+    start = tl.load(tile_start_ptr + tile)
+    end = tl.load(tile_start_ptr + tile + 1)
+    trans = tl.where(inside, 1.0, 0.0)
+    alive = inside
+    acc_r = tl.zeros([TILE * TILE], dtype=tl.float32)
+    acc_g = tl.zeros([TILE * TILE], dtype=tl.float32)
+    acc_b = tl.zeros([TILE * TILE], dtype=tl.float32)
+    acc_d = tl.zeros([TILE * TILE], dtype=tl.float32)
+    acc_a = tl.zeros([TILE * TILE], dtype=tl.float32)
+    p = start
+    n_alive = tl.sum(alive.to(tl.int32), axis=0)
+    while (p < end) & (n_alive > 0):
+        g = tl.load(pair_gaussian_ptr + p)
+        du, dv, alpha, raw, support, a, b, c, o = _fragment(
+            packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U)
+        frag = support & alive
+        after = trans * (1.0 - alpha)
+        stop = frag & (after < t_min)  # this fragment and all later ones are dropped
+        use = frag & (after >= t_min)
+        w = tl.where(use, alpha * trans, 0.0)
+        base = packed_ptr + g * 11
+        acc_r += w * tl.load(base + 6)
+        acc_g += w * tl.load(base + 7)
+        acc_b += w * tl.load(base + 8)
+        acc_d += w * tl.load(base + 9)
+        acc_a += w
+        trans = tl.where(use, after, trans)
+        alive = alive & (stop == 0)
+        n_alive = tl.sum(alive.to(tl.int32), axis=0)
+        p += 1
+    optr = out_ptr + pixel * 5
+    tl.store(optr + 0, acc_r, mask=inside)
+    tl.store(optr + 1, acc_g, mask=inside)
+    tl.store(optr + 2, acc_b, mask=inside)
+    tl.store(optr + 3, acc_d, mask=inside)
+    tl.store(optr + 4, acc_a, mask=inside)
+    tl.store(final_t_ptr + pixel, trans, mask=inside)
+
+
+@triton.jit
+def composite_backward_kernel(
+    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr, grad_out_ptr, grad_packed_ptr,
+    height, width, tiles_x, tiles_per_camera,
+    sigma2, alpha_max, alpha_min, t_min,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr,
+):
+    """Front to back again: ``dL/dalpha_i = T_i s_i - (S - P_i) / (1 - alpha_i)`` with ``s_i = g . f_i``,
+    ``S = g . out`` (all contributions) and ``P_i`` the running sum of ``s_k w_k`` up to ``i``.
+    Per-pair gradients are summed over the tile's pixels and added atomically per Gaussian."""
+    tile = tl.program_id(0)
+    row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
+    start = tl.load(tile_start_ptr + tile)
+    end = tl.load(tile_start_ptr + tile + 1)
+    gptr = grad_out_ptr + pixel * 5
+    g_r = tl.load(gptr + 0, mask=inside, other=0.0)
+    g_g = tl.load(gptr + 1, mask=inside, other=0.0)
+    g_b = tl.load(gptr + 2, mask=inside, other=0.0)
+    g_d = tl.load(gptr + 3, mask=inside, other=0.0)
+    g_a = tl.load(gptr + 4, mask=inside, other=0.0)
+    optr = out_ptr + pixel * 5
+    total = (g_r * tl.load(optr + 0, mask=inside, other=0.0) + g_g * tl.load(optr + 1, mask=inside, other=0.0)
+             + g_b * tl.load(optr + 2, mask=inside, other=0.0) + g_d * tl.load(optr + 3, mask=inside, other=0.0)
+             + g_a * tl.load(optr + 4, mask=inside, other=0.0))
+    trans = tl.where(inside, 1.0, 0.0)
+    alive = inside
+    prefix = tl.zeros([TILE * TILE], dtype=tl.float32)
+    p = start
+    n_alive = tl.sum(alive.to(tl.int32), axis=0)
+    while (p < end) & (n_alive > 0):
+        g = tl.load(pair_gaussian_ptr + p)
+        du, dv, alpha, raw, support, a, b, c, o = _fragment(
+            packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U)
+        frag = support & alive
+        after = trans * (1.0 - alpha)
+        stop = frag & (after < t_min)
+        use = frag & (after >= t_min)
+        base = packed_ptr + g * 11
+        cr = tl.load(base + 6)
+        cg = tl.load(base + 7)
+        cb = tl.load(base + 8)
+        cd = tl.load(base + 9)
+        w = tl.where(use, alpha * trans, 0.0)
+        s = g_r * cr + g_g * cg + g_b * cb + g_d * cd + g_a
+        prefix += s * w
+        d_alpha = trans * s - (total - prefix) / (1.0 - alpha)
+        d_alpha = tl.where(use & (raw < alpha_max), d_alpha, 0.0)
+        d_mahal = -0.5 * alpha * d_alpha
+        gp = grad_packed_ptr + g * 11
+        tl.atomic_add(gp + 0, tl.sum(-2.0 * d_mahal * (a * du + b * dv), axis=0))
+        tl.atomic_add(gp + 1, tl.sum(-2.0 * d_mahal * (b * du + c * dv), axis=0))
+        tl.atomic_add(gp + 2, tl.sum(d_mahal * du * du, axis=0))
+        tl.atomic_add(gp + 3, tl.sum(2.0 * d_mahal * du * dv, axis=0))
+        tl.atomic_add(gp + 4, tl.sum(d_mahal * dv * dv, axis=0))
+        tl.atomic_add(gp + 5, tl.sum(d_alpha * alpha, axis=0) / tl.maximum(o, 1e-30))
+        tl.atomic_add(gp + 6, tl.sum(g_r * w, axis=0))
+        tl.atomic_add(gp + 7, tl.sum(g_g * w, axis=0))
+        tl.atomic_add(gp + 8, tl.sum(g_b * w, axis=0))
+        tl.atomic_add(gp + 9, tl.sum(g_d * w, axis=0))
+        trans = tl.where(use, after, trans)
+        alive = alive & (stop == 0)
+        n_alive = tl.sum(alive.to(tl.int32), axis=0)
+        p += 1

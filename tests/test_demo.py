@@ -1,0 +1,51 @@
+"""The main job end to end at toy size, its reuse of a trained checkpoint, and the bench command."""
+
+from __future__ import annotations
+
+import json
+
+from PIL import Image
+
+from cylindersplat.cli import main
+from cylindersplat.gaussians import load_ply
+
+
+def test_demo_end_to_end_and_reuse(tmp_path, capsys):
+    out = tmp_path / "demo"
+    args = ["demo", "--out", str(out), "--scenes", "3", "--held-out", "1", "--resolution", "16x32",
+            "--steps", "3,2", "--frames", "3"]
+    assert main(args) == 0
+    for name in ("comparison.png", "novel_view_rgb.png", "novel_view_depth.png", "flythrough.gif",
+                 "gaussians.ply", "results.md", "results.json", "input/poses.json", "train/model.safetensors"):
+        assert (out / name).is_file(), name
+    table = (out / "results.md").read_text()
+    assert "| CylinderSplat (tiny) |" in table and "| Forward warp |" in table
+    means = next(iter(json.loads((out / "results.json").read_text())["means"].values()))
+    assert set(means) == {"CylinderSplat (tiny)", "Forward warp"}
+    # comparison: 3 rows (ground truth, ours, baseline) x (RGB | depth), shown at 2x
+    assert Image.open(out / "comparison.png").size == (2 * (2 * 32 + 4), 2 * (3 * 16 + 2 * 4))
+    assert Image.open(out / "flythrough.gif").n_frames == 3
+    assert len(load_ply(out / "gaussians.ply")) > 0
+    assert "training the tiny model" in capsys.readouterr().out
+    # A second run reuses the trained weights instead of training again.
+    assert main(args) == 0
+    assert "reusing" in capsys.readouterr().out
+
+
+def test_demo_rejects_bad_options(tmp_path, capsys):
+    assert main(["demo", "--out", str(tmp_path), "--scenes", "2", "--held-out", "2"]) == 1
+    assert "held-out" in capsys.readouterr().err
+    assert main(["demo", "--out", str(tmp_path), "--scenes", "2", "--held-out", "1", "--resolution", "16x32",
+                 "--steps", "5"]) == 1
+    assert "--steps" in capsys.readouterr().err
+
+
+def test_demo_room(tmp_path):
+    assert main(["demo", "--room", "--out", str(tmp_path)]) == 0
+    assert Image.open(tmp_path / "room_rgb_00.png").size == (512, 256)
+    assert (tmp_path / "demo_room.ply").is_file()
+
+
+def test_bench_command(capsys):
+    assert main(["bench", "synth", "--scenes", "1", "--resolution", "16x32", "--threads", "1", "--repeats", "1"]) == 0
+    assert "pano" in capsys.readouterr().out.lower()
