@@ -1,7 +1,7 @@
 """Benchmark the equirect rasterizer: forward and forward+backward, median ms and peak memory.
 
     cylindersplat bench render                       # 100k Gaussians, 256x512, CPU (+CUDA if present)
-    cylindersplat bench render --num 1300000 --height 512 --device cuda --backend auto --cubemap
+    cylindersplat bench render --num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --cubemap
 
 Scenes come from :func:`cylindersplat.scenes.random_indoor` (Gaussians on the walls of an 8 x 3 x 6 m
 room plus 20% scattered inside). ``--stages`` also prints where the time goes (projection, tile
@@ -11,6 +11,7 @@ binning, fragment expansion + sort, compositing, backward) for the PyTorch refer
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import resource
 import statistics
@@ -126,7 +127,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--num", type=int, nargs="+", default=[100_000], help="numbers of Gaussians")
     parser.add_argument("--height", type=int, default=256)
     parser.add_argument("--device", nargs="+", default=None, help="devices (default: cpu, and cuda when present)")
-    parser.add_argument("--backend", default="torch", help="render backend (torch, auto, ...)")
+    parser.add_argument("--backend", nargs="+", default=["torch"],
+                        help="render backends, timed in one run; ratios are printed against the first (torch, triton, auto)")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--cubemap", action="store_true", help="also time the cubemap route")
     parser.add_argument("--stages", action="store_true", help="print the per-stage breakdown")
@@ -143,8 +145,21 @@ def main(argv: list[str] | None = None) -> None:
         print(f"# GPU: {torch.cuda.get_device_name()}")
     for dev in devices:
         for num in args.num:
-            row = bench(num, args.height, torch.device(dev), args.backend, args.repeats, args.cubemap, args.stages)
-            print(row)
+            rows = []
+            for backend in args.backend:
+                if backend == "triton" and torch.device(dev).type != "cuda" and os.environ.get("TRITON_INTERPRET") != "1":
+                    print(f"# skipping triton on {dev}: needs CUDA (or TRITON_INTERPRET=1, very slow)")
+                    continue
+                rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, args.cubemap, args.stages))
+                print(rows[-1])
+            for row in rows[1:]:
+                base = rows[0]
+                text = (f"# {row['backend']} vs {base['backend']} ({num} Gaussians, {row['size']}, {dev}): forward "
+                        f"{base['forward_ms'] / row['forward_ms']:.1f}x faster, fwd+bwd {base['fwd_bwd_ms'] / row['fwd_bwd_ms']:.1f}x")
+                if "cubemap_forward_ms" in row:
+                    text += (f"; vs cubemap route: forward {row['cubemap_forward_ms'] / row['forward_ms']:.1f}x, "
+                             f"fwd+bwd {row['cubemap_fwd_bwd_ms'] / row['fwd_bwd_ms']:.1f}x")
+                print(text)
 
 
 if __name__ == "__main__":

@@ -215,7 +215,7 @@ def render_room(args) -> int:
     for i in range(len(poses)):
         iio.imwrite(args.out / f"room_rgb_{i:02d}.png", to_uint8(out.rgb[i]))
         iio.imwrite(args.out / f"room_depth_{i:02d}.png", colorize_depth(normalized_depth(out.depth[i], out.alpha[i]), as_uint8=True))
-    ply = save_ply(gaussians.cpu(), args.out / "demo_room.ply")
+    ply = save_ply(gaussians.to("cpu"), args.out / "demo_room.ply")
     print(f"rendered {len(gaussians)} Gaussians into {len(poses)} panoramas of {height}x{2 * height} in {elapsed:.2f} s "
           f"on {args.device}\nwrote {args.out}/room_rgb_*.png, room_depth_*.png and {ply}")
     return 0
