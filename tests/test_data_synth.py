@@ -3,7 +3,6 @@
 import json
 import math
 
-import numpy as np
 import pytest
 import torch
 
@@ -19,7 +18,6 @@ from cylindersplat.data.synth import (
     render_sequence,
     write_synthetic_dataset,
 )
-from cylindersplat.geometry import make_c2w
 
 torch.set_num_threads(1)
 

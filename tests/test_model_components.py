@@ -22,7 +22,6 @@ TWO_PI = 2 * math.pi
 # -- theta periodicity --------------------------------------------------------------------------
 def test_triplane_feature_at_theta_zero_equals_two_pi():
     torch.manual_seed(0)
-    grid = (4, 12, 6)
     planes = [torch.randn(2, 4, 12, 5), torch.randn(2, 12, 6, 5), torch.randn(2, 6, 4, 5)]
     coords = CylindricalCoords(radius=3.0, height=2.0)
     r, h = torch.rand(2, 7) * 3.0, torch.rand(2, 7) * 2.0 - 1.0

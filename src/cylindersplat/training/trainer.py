@@ -29,7 +29,7 @@ from ..render import render_equirect
 from .checkpoint import capture_rng, prune_checkpoints, read_state, resolve_checkpoint, restore_rng, save_checkpoint
 from .config import ExperimentConfig, config_as_dict
 from .data import ResumableBatchSampler, build_dataset, build_loader
-from .distributed import DistInfo, cleanup_distributed, init_distributed, unwrap, wrap_ddp
+from .distributed import cleanup_distributed, init_distributed, unwrap, wrap_ddp
 from .logger import MetricLogger
 from .losses import LossTerms, RenderLoss
 from .schedule import cosine_schedule
