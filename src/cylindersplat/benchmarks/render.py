@@ -50,42 +50,36 @@ def _time(fn, device, repeats: int, warmup: int = 1) -> float:
     return statistics.median(times)
 
 
+def _forward_and_backward_ms(render, params, device, repeats: int) -> tuple[float, float]:
+    """Median ms of ``render()`` without gradients, and of ``render()`` + backward of rgb and depth."""
+
+    def forward():
+        with torch.no_grad():
+            render()
+
+    def forward_backward():
+        out = render()
+        (out.rgb.sum() + out.depth.sum()).backward()
+        for p in params:
+            p.grad = None
+
+    return _time(forward, device, repeats), _time(forward_backward, device, repeats)
+
+
 def bench(num: int, height: int, device: torch.device, backend: str, repeats: int, cubemap: bool, stages: bool) -> dict:
     g = random_indoor(num).to(device)
     params = [t.requires_grad_() for t in g.tensors().values()]
     c2w = torch.eye(4, device=device)
     width = 2 * height
-
-    def forward():
-        with torch.no_grad():
-            render_equirect(g, c2w, height, width, backend=backend)
-
-    def forward_backward():
-        out = render_equirect(g, c2w, height, width, backend=backend)
-        (out.rgb.sum() + out.depth.sum()).backward()
-        for p in params:
-            p.grad = None
-
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats()
     row = {"num": num, "size": f"{height}x{width}", "device": str(device), "backend": backend}
-    row["forward_ms"] = _time(forward, device, repeats)
-    row["fwd_bwd_ms"] = _time(forward_backward, device, repeats)
+    row["forward_ms"], row["fwd_bwd_ms"] = _forward_and_backward_ms(
+        lambda: render_equirect(g, c2w, height, width, backend=backend), params, device, repeats)
     row["peak_mb"] = _peak_mb(device)
     if cubemap:
-
-        def cube_forward():
-            with torch.no_grad():
-                render_cubemap(g, c2w, height, width)
-
-        def cube_fwd_bwd():
-            out = render_cubemap(g, c2w, height, width)
-            (out.rgb.sum() + out.depth.sum()).backward()
-            for p in params:
-                p.grad = None
-
-        row["cubemap_forward_ms"] = _time(cube_forward, device, repeats)
-        row["cubemap_fwd_bwd_ms"] = _time(cube_fwd_bwd, device, repeats)
+        row["cubemap_forward_ms"], row["cubemap_fwd_bwd_ms"] = _forward_and_backward_ms(
+            lambda: render_cubemap(g, c2w, height, width), params, device, repeats)
     if stages:
         row["stages_ms"] = stage_breakdown(g, c2w, height, width, device, repeats)
     return row

@@ -6,16 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-
-def resolution(text: str) -> tuple[int, int]:
-    h, _, w = text.lower().partition("x")
-    try:
-        size = int(h), int(w)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"resolution must be HxW, e.g. 256x512, got {text!r}") from None
-    if size[1] != 2 * size[0] or size[0] < 8:
-        raise argparse.ArgumentTypeError(f"equirect resolution needs W == 2H (H >= 8), got {text!r}")
-    return size
+from ._arguments import model_resolution
 
 
 def add_input_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,7 +14,7 @@ def add_input_arguments(parser: argparse.ArgumentParser) -> None:
                         help="folder of equirect panoramas + poses.json (OpenCV c2w; see docs/inference.md)")
     parser.add_argument("--checkpoint", required=True, type=Path, help="model .safetensors (from cylindersplat train / demo)")
     parser.add_argument("--poses-file", type=Path, help="poses file (default INPUT/poses.json)")
-    parser.add_argument("--resolution", type=resolution,
+    parser.add_argument("--resolution", type=model_resolution,
                         help="HxW the model runs at (default: the model's nominal input height x 2)")
     parser.add_argument("--depth-prior",
                         help="for frames without a depth file: constant:METRES, exported:NET.pt2 (any exported depth "

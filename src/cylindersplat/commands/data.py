@@ -5,15 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
-
-def _resolution(text: str) -> tuple[int, int]:
-    try:
-        h, w = (int(x) for x in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"resolution must be HxW, e.g. 256x512, got {text!r}") from None
-    if w != 2 * h or h <= 0:
-        raise argparse.ArgumentTypeError(f"equirect resolution needs W == 2H, got {text!r}")
-    return h, w
+from ._arguments import equirect_resolution
 
 
 def _spacing(text: str) -> tuple[float, float]:
@@ -76,7 +68,7 @@ def register(subparsers) -> None:
     )
     synth.add_argument("--out", required=True, help="output folder")
     synth.add_argument("--scenes", type=int, default=10, help="number of scenes (default 10)")
-    synth.add_argument("--resolution", type=_resolution, default=(256, 512), help="HxW with W = 2H (default 256x512)")
+    synth.add_argument("--resolution", type=equirect_resolution, default=(256, 512), help="HxW with W = 2H (default 256x512)")
     synth.add_argument("--frames", type=int, default=3, help="frames per sequence, on a line (default 3)")
     synth.add_argument("--spacing", type=_spacing, default=(0.5, 0.5),
                        help="metres between consecutive frames, or MIN:MAX drawn per scene (default 0.5)")

@@ -19,10 +19,9 @@ import json
 import time
 from pathlib import Path
 
-import imageio.v3 as iio
 import torch
 
-from ._inference import resolution
+from ._arguments import model_resolution
 
 
 def register(subparsers) -> None:
@@ -37,7 +36,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", type=Path, default=Path("outputs/demo"), help="output folder (default outputs/demo)")
     p.add_argument("--scenes", type=int, default=28, help="procedural scenes to generate (default 28)")
     p.add_argument("--held-out", type=int, default=8, help="last N scenes are not trained on and are scored (default 8)")
-    p.add_argument("--resolution", type=resolution, default=(64, 128), help="panorama HxW (default 64x128)")
+    p.add_argument("--resolution", type=model_resolution, default=(64, 128), help="panorama HxW (default 64x128)")
     p.add_argument("--steps", default="500,100", help="training steps of stage 1 (pixel) and stage 3 (joint) (default 500,100)")
     p.add_argument("--lr", type=float, default=2e-3, help="peak learning rate of the short CPU schedule (default 2e-3)")
     p.add_argument("--checkpoint", type=Path, help="use these weights instead of training")
@@ -150,18 +149,14 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
     from ..gaussians import save_ply
     from ..inference import (
         depth_limits,
-        flythrough_path,
         load_panorama_folder,
-        normalized_depth,
         reconstruct_gaussians,
         render_views,
-        to_uint8,
-        view_picture,
+        write_flythrough,
         write_panorama_folder,
-        write_video,
+        write_view,
     )
     from ..model import load_model
-    from ..utils.colormap import colorize_depth
 
     _, held_out = _scene_ids(args)
     sample = SyntheticDataset(data, views="two_view", scenes=held_out[:1])[0]
@@ -178,9 +173,8 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
     warp = forward_warp(sample.context_images, sample.context_depths, sample.context_poses, sample.target_poses, h, w,
                         background=(0.0, 0.0, 0.0))
     near, far = depth_limits(sample.target_depths)
-    iio.imwrite(args.out / "novel_view_rgb.png", to_uint8(ours.rgb[0]))
-    iio.imwrite(args.out / "novel_view_depth.png",
-                colorize_depth(normalized_depth(ours.depth[0], ours.alpha[0]), near, far, as_uint8=True))
+    write_view(args.out / "novel_view_rgb.png", args.out / "novel_view_depth.png", ours.rgb[0], ours.depth[0], ours.alpha[0],
+               near, far)
     sheet = comparison_image(sample.target_images[0], sample.target_depths[0], {
         "CylinderSplat": (ours.rgb[0], ours.depth[0], ours.alpha[0]),
         "Forward warp": (warp.rgb[0], warp.depth[0], warp.alpha[0]),
@@ -190,19 +184,17 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
     print(f"  {len(gaussians):,} Gaussians -> {ply}; comparison (rows: ground truth, CylinderSplat, forward warp; "
           f"RGB | depth) -> {args.out / 'comparison.png'}")
     if args.frames:
-        path = flythrough_path(inputs.c2w, args.frames, loop=True)
-        frames = render_views(gaussians, path, h, w, progress=True, desc="fly-through")
-        pictures = [view_picture(frames.rgb[i], frames.depth[i], frames.alpha[i], near, far) for i in range(len(path))]
-        print(f"  fly-through -> {write_video(args.out / 'flythrough.gif', pictures, fps=8)}")
+        video = write_flythrough(args.out / "flythrough.gif", gaussians, inputs.c2w, h, w, frames=args.frames, fps=8,
+                                 near=near, far=far)
+        print(f"  fly-through -> {video}")
 
 
 def render_room(args) -> int:
     from ..gaussians import save_ply
     from ..geometry import make_c2w
-    from ..inference import normalized_depth, to_uint8
+    from ..inference import write_view
     from ..render import render_equirect
     from ..scenes import demo_room
-    from ..utils.colormap import colorize_depth
 
     args.out.mkdir(parents=True, exist_ok=True)
     gaussians = demo_room().to(args.device)
@@ -213,8 +205,7 @@ def render_room(args) -> int:
     out = render_equirect(gaussians, poses, height, 2 * height, background=(1.0, 1.0, 1.0))
     elapsed = time.perf_counter() - start
     for i in range(len(poses)):
-        iio.imwrite(args.out / f"room_rgb_{i:02d}.png", to_uint8(out.rgb[i]))
-        iio.imwrite(args.out / f"room_depth_{i:02d}.png", colorize_depth(normalized_depth(out.depth[i], out.alpha[i]), as_uint8=True))
+        write_view(args.out / f"room_rgb_{i:02d}.png", args.out / f"room_depth_{i:02d}.png", out.rgb[i], out.depth[i], out.alpha[i])
     ply = save_ply(gaussians.to("cpu"), args.out / "demo_room.ply")
     print(f"rendered {len(gaussians)} Gaussians into {len(poses)} panoramas of {height}x{2 * height} in {elapsed:.2f} s "
           f"on {args.device}\nwrote {args.out}/room_rgb_*.png, room_depth_*.png and {ply}")

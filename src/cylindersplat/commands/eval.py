@@ -6,16 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-
-def _resolution(text: str) -> tuple[int, int]:
-    h, _, w = text.lower().partition("x")
-    try:
-        size = int(h), int(w)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"resolution must be HxW, e.g. 256x512, got {text!r}") from None
-    if size[1] != 2 * size[0]:
-        raise argparse.ArgumentTypeError(f"equirect resolution needs W == 2H, got {text!r}")
-    return size
+from ._arguments import equirect_resolution
 
 
 def open_eval_dataset(args, protocol: str):
@@ -89,7 +80,7 @@ def register(subparsers) -> None:
     parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train); omit to score only the baseline")
     parser.add_argument("--protocols", default="two_view", help="comma list of two_view, one_view, n_view, all_between (default two_view)")
     parser.add_argument("--out", type=Path, default=Path("outputs/eval"), help="output folder (default outputs/eval)")
-    parser.add_argument("--resolution", type=_resolution, help="evaluate at HxW (default: stored size)")
+    parser.add_argument("--resolution", type=equirect_resolution, help="evaluate at HxW (default: stored size)")
     parser.add_argument("--split", default="test", help="split of pano_grf / loc360 data (default test)")
     parser.add_argument("--scenes", help="synthetic data: comma list of scene ids to use")
     parser.add_argument("--depth-prior", default="default", help="depth prior given to the methods: default (the dataset's), none, gt, simulated, files")

@@ -5,26 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._inference import add_input_arguments, reconstruct_from_args, resolution
+from ._arguments import model_resolution
+from ._inference import add_input_arguments, reconstruct_from_args
 
 
 def run(args: argparse.Namespace) -> int:
-    import imageio.v3 as iio
     import torch
 
     from ..gaussians import save_ply
-    from ..inference import (
-        depth_limits,
-        flythrough_path,
-        midpoint_poses,
-        read_poses_file,
-        render_views,
-        to_uint8,
-        view_picture,
-        write_video,
-    )
-    from ..inference.pipeline import normalized_depth
-    from ..utils.colormap import colorize_depth
+    from ..inference import depth_limits, midpoint_poses, read_poses_file, render_views, write_flythrough, write_view
 
     if args.frames < 0:
         raise ValueError("--frames must be >= 0")
@@ -43,17 +32,14 @@ def run(args: argparse.Namespace) -> int:
     view_dir = args.out / "views"
     view_dir.mkdir(exist_ok=True)
     for i in range(len(poses)):
-        iio.imwrite(view_dir / f"view_{i:03d}_rgb.png", to_uint8(views.rgb[i]))
-        depth = normalized_depth(views.depth[i], views.alpha[i])
-        iio.imwrite(view_dir / f"view_{i:03d}_depth.png", colorize_depth(depth, near, far, as_uint8=True))
+        write_view(view_dir / f"view_{i:03d}_rgb.png", view_dir / f"view_{i:03d}_depth.png",
+                   views.rgb[i], views.depth[i], views.alpha[i], near, far)
     print(f"wrote {len(poses)} novel views (RGB + depth colormap, {h}x{w}) to {view_dir}")
 
     if args.frames:
-        path = flythrough_path(inputs.c2w, args.frames, loop=True)
-        frames = render_views(gaussians, path, h, w, background, progress=True, desc="fly-through")
-        pictures = [view_picture(frames.rgb[i], frames.depth[i], frames.alpha[i], near, far) for i in range(len(path))]
-        video = write_video(args.out / f"flythrough.{args.video_format}", pictures, fps=args.fps)
-        print(f"wrote {video} ({len(path)} frames, RGB above depth)")
+        video = write_flythrough(args.out / f"flythrough.{args.video_format}", gaussians, inputs.c2w, h, w,
+                                 frames=args.frames, fps=args.fps, near=near, far=far, background=background)
+        print(f"wrote {video} ({args.frames} frames, RGB above depth)")
     if not args.no_ply:
         ply = save_ply(gaussians.to("cpu"), args.out / "gaussians.ply")
         print(f"wrote {ply}")
@@ -71,7 +57,7 @@ def register(subparsers) -> None:
     add_input_arguments(parser)
     parser.add_argument("--out", type=Path, default=Path("outputs/render"), help="output folder (default outputs/render)")
     parser.add_argument("--views", type=Path, help='JSON of novel-view poses ({"poses": [4x4, ...]} or "frames" with "c2w")')
-    parser.add_argument("--output-resolution", type=resolution,
+    parser.add_argument("--output-resolution", type=model_resolution,
                         help="HxW of the rendered views (default: the input resolution)")
     parser.add_argument("--frames", type=int, default=48, help="fly-through frames; 0 skips the video (default 48)")
     parser.add_argument("--fps", type=int, default=12, help="fly-through frame rate (default 12)")

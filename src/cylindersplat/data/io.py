@@ -30,6 +30,7 @@ __all__ = [
     "read_depth_png",
     "read_depth_npy",
     "write_rgb",
+    "to_uint8",
     "write_depth_png",
     "read_matrix_txt",
     "resize_depth",
@@ -111,10 +112,15 @@ def read_depth_npy(path: Path | str, size: tuple[int, int] | None = None, resize
     return resize_depth(depth, size, mode=resize_mode) if size is not None else depth
 
 
+def to_uint8(image: Float[Tensor, "3 H W"]) -> np.ndarray:
+    """Float ``(3, H, W)`` in ``[0, 1]`` (any device or float dtype) -> uint8 ``(H, W, 3)``, rounded."""
+    return (image.detach().float().clamp(0, 1) * 255.0 + 0.5).to(torch.uint8).permute(1, 2, 0).cpu().numpy()
+
+
 def write_rgb(path: Path | str, image: Float[Tensor, "3 H W"] | np.ndarray) -> None:
     """Save float ``(3, H, W)`` in ``[0, 1]`` (or uint8 ``(H, W, 3)``) as an 8-bit PNG."""
     if isinstance(image, Tensor):
-        image = (image.detach().clamp(0, 1) * 255.0 + 0.5).to(torch.uint8).permute(1, 2, 0).cpu().numpy()
+        image = to_uint8(image)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(np.ascontiguousarray(image)).save(path, compress_level=1)
 

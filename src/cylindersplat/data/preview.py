@@ -8,6 +8,7 @@ import numpy as np
 from PIL import Image
 
 from ..utils.colormap import colorize_depth
+from .io import to_uint8
 from .base import PanoramaDataset
 from .depth_prior.base import NoPrior
 from .pano_grf import PanoGRFDataset
@@ -37,7 +38,7 @@ def contact_sheet(dataset: PanoramaDataset, count: int = 4, gap: int = 4) -> np.
         depths += list(s.target_depths) if s.target_depths is not None else [None] * s.num_target
         tiles = []
         for image, depth in zip(images, depths):
-            tiles.append((image.permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8))
+            tiles.append(to_uint8(image))
             tiles.append(colorize_depth(depth, as_uint8=True) if depth is not None else np.zeros_like(tiles[-1]))
         rows.append(tiles)
     if not rows:

@@ -11,7 +11,8 @@ import torch
 from PIL import Image
 from tqdm.auto import tqdm
 
-from ..inference.pipeline import normalized_depth, to_uint8
+from ..data.io import to_uint8
+from ..inference.pipeline import depth_limits, normalized_depth
 from ..metrics import DepthRange, abs_rel, delta1, lrce, pcc, psnr, rmse, ssim, ws_psnr
 from ..utils.colormap import colorize_depth
 from .methods import Method
@@ -53,9 +54,7 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
 
 def comparison_image(target_rgb, target_depth, renders: dict, labels: bool = True) -> np.ndarray:
     """uint8 grid, one row per source (ground truth first, then each method): RGB | depth colormap."""
-    valid = target_depth is not None and bool((target_depth > 0).any())
-    near = float(target_depth[target_depth > 0].quantile(0.02)) if valid else None
-    far = float(target_depth[target_depth > 0].quantile(0.98)) if valid else None
+    near, far = depth_limits(target_depth) if target_depth is not None else (None, None)
     rows = []
     blank = np.zeros_like(to_uint8(target_rgb))
     gt_depth = colorize_depth(target_depth, near, far, as_uint8=True) if target_depth is not None else blank

@@ -14,8 +14,7 @@ import torch
 
 from ..baselines import forward_warp
 from ..data import Sample
-from ..inference.pipeline import reconstruct_gaussians
-from ..render import render_equirect
+from ..inference.pipeline import reconstruct_gaussians, render_views
 from ..render.api import RenderOutput
 
 __all__ = ["Method", "model_method", "forward_warp_method", "reconstruct"]
@@ -35,12 +34,10 @@ def reconstruct(model, sample: Sample, device: torch.device | str = "cpu"):
 def model_method(model, name: str = "CylinderSplat", device: torch.device | str = "cpu", background=(0.0, 0.0, 0.0)) -> Method:
     model = model.to(device)
 
-    @torch.no_grad()
     def run(sample: Sample) -> RenderOutput:
         gaussians = reconstruct(model, sample, device)
         h, w = sample.target_images.shape[-2:]
-        out = render_equirect(gaussians, sample.target_poses.to(device), h, w, background=background)
-        return RenderOutput(out.rgb.cpu(), out.depth.cpu(), out.alpha.cpu())
+        return render_views(gaussians, sample.target_poses, h, w, background)
 
     return Method(name, run)
 

@@ -2,7 +2,15 @@
 
 from .camera_path import flythrough_path, interpolate_poses, midpoint_poses, slerp
 from .inputs import PanoramaInputs, load_panorama_folder, read_poses_file, write_panorama_folder
-from .pipeline import depth_limits, normalized_depth, reconstruct_gaussians, render_views, to_uint8, view_picture
+from .pipeline import (
+    depth_limits,
+    normalized_depth,
+    reconstruct_gaussians,
+    render_views,
+    view_picture,
+    write_flythrough,
+    write_view,
+)
 from .video import write_video
 
 __all__ = [name for name in dir() if not name.startswith("_")]

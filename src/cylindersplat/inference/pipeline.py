@@ -2,18 +2,24 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import torch
 from jaxtyping import Float
 from torch import Tensor
 from tqdm.auto import tqdm
 
+from ..data.io import to_uint8, write_rgb
 from ..gaussians import Gaussians
 from ..render import render_equirect
 from ..render.api import RenderOutput
 from ..utils.colormap import colorize_depth
+from .camera_path import flythrough_path
+from .video import write_video
 
-__all__ = ["reconstruct_gaussians", "render_views", "normalized_depth", "depth_limits", "view_picture", "to_uint8"]
+__all__ = ["reconstruct_gaussians", "render_views", "normalized_depth", "depth_limits", "view_picture", "write_view",
+           "write_flythrough"]
 
 
 @torch.no_grad()
@@ -69,13 +75,34 @@ def depth_limits(depths: Tensor, low: float = 0.02, high: float = 0.98) -> tuple
     return float(valid.quantile(low)), float(valid.quantile(high))
 
 
-def to_uint8(image: Float[Tensor, "3 H W"]) -> np.ndarray:
-    """``(3, H, W)`` float in [0, 1] -> ``(H, W, 3)`` uint8."""
-    return (image.detach().clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255 + 0.5).astype(np.uint8)
-
-
 def view_picture(rgb: Tensor, depth: Tensor, alpha: Tensor, near=None, far=None, gap: int = 4) -> np.ndarray:
     """RGB above its depth colormap (uint8 ``(2H + gap, W, 3)``)."""
     top = to_uint8(rgb)
     bottom = colorize_depth(normalized_depth(depth, alpha), near, far, as_uint8=True)
     return np.concatenate((top, np.full((gap, top.shape[1], 3), 255, np.uint8), bottom), axis=0)
+
+
+def write_view(rgb_path: str | Path, depth_path: str | Path, rgb: Tensor, depth: Tensor, alpha: Tensor,
+               near: float | None = None, far: float | None = None) -> None:
+    """One rendered view as two PNGs: its RGB and its depth colormap (``near``/``far``: colour range)."""
+    write_rgb(rgb_path, rgb)
+    write_rgb(depth_path, colorize_depth(normalized_depth(depth, alpha), near, far, as_uint8=True))
+
+
+def write_flythrough(
+    path: str | Path,
+    gaussians: Gaussians,
+    c2w: Float[Tensor, "V 4 4"],
+    height: int,
+    width: int,
+    frames: int = 48,
+    fps: int = 12,
+    near: float | None = None,
+    far: float | None = None,
+    background=(0.0, 0.0, 0.0),
+) -> Path:
+    """Render a looped path through the cameras ``c2w`` (RGB above depth per frame) and save it as a video."""
+    poses = flythrough_path(c2w, frames, loop=True)
+    out = render_views(gaussians, poses, height, width, background, progress=True, desc="fly-through")
+    pictures = [view_picture(out.rgb[i], out.depth[i], out.alpha[i], near, far) for i in range(len(poses))]
+    return write_video(path, pictures, fps=fps)

@@ -31,7 +31,7 @@ from torch import Tensor
 
 from .projection import ProjectedGaussians, RasterSettings
 
-__all__ = ["TileBins", "bin_to_tiles", "expand_fragments", "composite", "rasterize"]
+__all__ = ["TileBins", "bin_to_tiles", "expand_fragments", "composite", "rasterize", "pack_projected", "unpack_composited"]
 
 
 @dataclass
@@ -259,10 +259,24 @@ def composite(
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Stage 4: front-to-back compositing. Returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
     h, w, c = proj.height, proj.width, proj.num_cameras
-    ones = torch.ones_like(proj.depth)[:, None]  # accumulates alpha alongside colour and depth
-    packed = torch.cat((proj.uv, proj.conic, proj.opacity[:, None], proj.color, proj.depth[:, None], ones), dim=-1)
-    out = _Composite.apply(packed, frag_gaussian, frag_pixel, c * h * w, h, w, proj.wrap_u, settings)
-    out = out.view(c, h, w, 5)
+    out = _Composite.apply(pack_projected(proj), frag_gaussian, frag_pixel, c * h * w, h, w, proj.wrap_u, settings)
+    return unpack_composited(out, proj, background)
+
+
+def pack_projected(proj: ProjectedGaussians) -> Tensor:
+    """Per-Gaussian compositing inputs, one row of 11: ``u v | conic a b c | opacity | r g b | depth | 1``.
+
+    The trailing 1 accumulates alpha alongside colour and depth; both backends read this layout.
+    """
+    ones = torch.ones_like(proj.depth)[:, None]
+    return torch.cat((proj.uv, proj.conic, proj.opacity[:, None], proj.color, proj.depth[:, None], ones), dim=-1)
+
+
+def unpack_composited(
+    out: Tensor, proj: ProjectedGaussians, background: Tensor | None = None
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Per-pixel sums ``(C*H*W, 5)`` (rgb, depth, alpha) -> ``rgb (C, 3, H, W)`` over ``background``, depth, alpha."""
+    out = out.view(proj.num_cameras, proj.height, proj.width, 5)
     rgb = out[..., :3].permute(0, 3, 1, 2)
     depth, acc = out[..., 3], out[..., 4]
     if background is not None:

@@ -19,7 +19,7 @@ from torch import Tensor
 
 from ..gaussians import Gaussians
 from .projection import ProjectedGaussians, RasterSettings, project_equirect_gaussians
-from .rasterize import TileBins, bin_to_tiles
+from .rasterize import TileBins, bin_to_tiles, pack_projected, unpack_composited
 
 __all__ = ["triton_available", "triton_backend", "composite_triton"]
 
@@ -33,13 +33,13 @@ class _TritonComposite(torch.autograd.Function):
     def forward(ctx, packed, pair_gaussian, rows, cols, tile_start, num_pixels, height, width, tiles_x, tiles_y, wrap_u, settings):
         from . import triton_kernels as kernels
 
-        out = torch.zeros(num_pixels, 5, dtype=torch.float32, device=packed.device)
-        final_t = torch.empty(num_pixels, dtype=torch.float32, device=packed.device)
+        # Every pixel is written: one program per tile of every camera, empty tiles included.
+        out = torch.empty(num_pixels, 5, dtype=torch.float32, device=packed.device)
         grid = (len(tile_start) - 1,)
         args = (height, width, tiles_x, tiles_x * tiles_y, settings.sigma_extent**2, settings.alpha_max,
                 settings.alpha_min, settings.transmittance_min)
         if grid[0] > 0:
-            kernels.composite_forward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out, final_t, *args,
+            kernels.composite_forward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out, *args,
                                                    TILE=settings.tile_size, WRAP_U=bool(wrap_u))
         ctx.save_for_backward(packed, pair_gaussian, rows, cols, tile_start, out)
         ctx.args, ctx.tile, ctx.wrap_u = args, settings.tile_size, bool(wrap_u)
@@ -71,19 +71,12 @@ def composite_triton(
     counts = torch.bincount(bins.tile, minlength=num_tiles)
     tile_start = torch.zeros(num_tiles + 1, dtype=torch.int64, device=counts.device)
     tile_start[1:] = torch.cumsum(counts, 0)
-    ones = torch.ones_like(proj.depth)[:, None]
-    packed = torch.cat((proj.uv, proj.conic, proj.opacity[:, None], proj.color, proj.depth[:, None], ones), dim=-1)
-    dtype = packed.dtype
+    packed = pack_projected(proj)
     out = _TritonComposite.apply(
         packed.float().contiguous(), bins.gaussian.contiguous(), bins.rows.contiguous(), bins.cols.contiguous(),
         tile_start, c * h * w, h, w, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings,
-    ).to(dtype)
-    out = out.view(c, h, w, 5)
-    rgb = out[..., :3].permute(0, 3, 1, 2)
-    depth, acc = out[..., 3], out[..., 4]
-    if background is not None:
-        rgb = rgb + (1 - acc)[:, None] * background.to(rgb.dtype).view(-1, 3, 1, 1)
-    return rgb, depth, acc
+    ).to(packed.dtype)
+    return unpack_composited(out, proj, background)
 
 
 def triton_backend(gaussians: Gaussians, c2w: Tensor, height: int, width: int, background, settings: RasterSettings):

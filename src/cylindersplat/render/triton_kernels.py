@@ -61,8 +61,28 @@ def _fragment(packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alp
 
 
 @triton.jit
+def _colour(packed_ptr, g):
+    """Colour and radial depth of Gaussian ``g`` (columns 6-9 of its packed row)."""
+    base = packed_ptr + g * 11
+    return tl.load(base + 6), tl.load(base + 7), tl.load(base + 8), tl.load(base + 9)
+
+
+@triton.jit
+def _transmittance_step(trans, alpha, support, alive, t_min):
+    """One fragment under the termination rule: ``(used, weight alpha*T, T after, alive after)``.
+
+    The fragment that would bring ``T`` below ``t_min`` and all later ones are dropped."""
+    frag = support & alive
+    after = trans * (1.0 - alpha)
+    use = frag & (after >= t_min)
+    stop = frag & (after < t_min)
+    w = tl.where(use, alpha * trans, 0.0)
+    return use, w, tl.where(use, after, trans), alive & (stop == 0)
+
+
+@triton.jit
 def composite_forward_kernel(
-    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr, final_t_ptr,
+    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr,
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
     TILE: tl.constexpr, WRAP_U: tl.constexpr,
@@ -84,19 +104,13 @@ def composite_forward_kernel(
         g = tl.load(pair_gaussian_ptr + p)
         du, dv, alpha, raw, support, a, b, c, o = _fragment(
             packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U)
-        frag = support & alive
-        after = trans * (1.0 - alpha)
-        stop = frag & (after < t_min)  # this fragment and all later ones are dropped
-        use = frag & (after >= t_min)
-        w = tl.where(use, alpha * trans, 0.0)
-        base = packed_ptr + g * 11
-        acc_r += w * tl.load(base + 6)
-        acc_g += w * tl.load(base + 7)
-        acc_b += w * tl.load(base + 8)
-        acc_d += w * tl.load(base + 9)
+        use, w, trans, alive = _transmittance_step(trans, alpha, support, alive, t_min)
+        cr, cg, cb, cd = _colour(packed_ptr, g)
+        acc_r += w * cr
+        acc_g += w * cg
+        acc_b += w * cb
+        acc_d += w * cd
         acc_a += w
-        trans = tl.where(use, after, trans)
-        alive = alive & (stop == 0)
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
         p += 1
     optr = out_ptr + pixel * 5
@@ -104,8 +118,7 @@ def composite_forward_kernel(
     tl.store(optr + 1, acc_g, mask=inside)
     tl.store(optr + 2, acc_b, mask=inside)
     tl.store(optr + 3, acc_d, mask=inside)
-    tl.store(optr + 4, acc_a, mask=inside)
-    tl.store(final_t_ptr + pixel, trans, mask=inside)
+    tl.store(optr + 4, acc_a, mask=inside)  # = 1 - final transmittance
 
 
 @triton.jit
@@ -141,16 +154,8 @@ def composite_backward_kernel(
         g = tl.load(pair_gaussian_ptr + p)
         du, dv, alpha, raw, support, a, b, c, o = _fragment(
             packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U)
-        frag = support & alive
-        after = trans * (1.0 - alpha)
-        stop = frag & (after < t_min)
-        use = frag & (after >= t_min)
-        base = packed_ptr + g * 11
-        cr = tl.load(base + 6)
-        cg = tl.load(base + 7)
-        cb = tl.load(base + 8)
-        cd = tl.load(base + 9)
-        w = tl.where(use, alpha * trans, 0.0)
+        use, w, next_trans, next_alive = _transmittance_step(trans, alpha, support, alive, t_min)
+        cr, cg, cb, cd = _colour(packed_ptr, g)
         s = g_r * cr + g_g * cg + g_b * cb + g_d * cd + g_a
         prefix += s * w
         d_alpha = trans * s - (total - prefix) / (1.0 - alpha)
@@ -167,7 +172,7 @@ def composite_backward_kernel(
         tl.atomic_add(gp + 7, tl.sum(g_g * w, axis=0))
         tl.atomic_add(gp + 8, tl.sum(g_b * w, axis=0))
         tl.atomic_add(gp + 9, tl.sum(g_d * w, axis=0))
-        trans = tl.where(use, after, trans)
-        alive = alive & (stop == 0)
+        trans = next_trans
+        alive = next_alive
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
         p += 1

@@ -47,13 +47,9 @@ class MetricLogger:
         """``image``: float ``(3, H, W)`` in [0, 1] (a grid); written as PNG and to TensorBoard."""
         if not self.enabled:
             return
-        import numpy as np
-        from PIL import Image
+        from ..data.io import write_rgb
 
-        array = (image.detach().float().clamp(0, 1).permute(1, 2, 0).cpu().numpy() * 255 + 0.5).astype(np.uint8)
-        folder = self.folder / "images"
-        folder.mkdir(exist_ok=True)
-        Image.fromarray(array).save(folder / f"{name}_{step:07d}.png")
+        write_rgb(self.folder / "images" / f"{name}_{step:07d}.png", image)
         if self.writer is not None:
             self.writer.add_image(name, image.detach().float().clamp(0, 1).cpu(), step)
 

@@ -31,6 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from ..io import resize_depth
 from .base import DepthPrior, PriorQuery
 
 __all__ = ["FoundationDepthAdapter", "UniK3DAdapter", "DepthAnywhereAdapter", "UniFuseAdapter", "ExportedDepthPrior"]
@@ -47,7 +48,7 @@ def _clean_depth(depth: Tensor, size: tuple[int, int], where: str) -> Tensor:
     if tuple(depth.shape) != tuple(size):
         if depth.shape[1] != 2 * depth.shape[0]:
             raise ValueError(f"{where}: output {tuple(depth.shape)} is not a 2:1 panorama")
-        depth = F.interpolate(depth[None, None], size=size, mode="nearest")[0, 0]
+        depth = resize_depth(depth, size, mode="nearest")
     return depth
 
 
