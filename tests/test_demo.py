@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 from PIL import Image
 
 from cylindersplat.cli import main
 from cylindersplat.gaussians import load_ply
+from cylindersplat.scenes import demo_room
 
 
 def test_demo_end_to_end_and_reuse(tmp_path, capsys):
@@ -42,8 +44,13 @@ def test_demo_rejects_bad_options(tmp_path, capsys):
 
 def test_demo_room(tmp_path):
     assert main(["demo", "--room", "--out", str(tmp_path)]) == 0
-    assert Image.open(tmp_path / "room_rgb_00.png").size == (512, 256)
-    assert (tmp_path / "demo_room.ply").is_file()
+    rgb = np.asarray(Image.open(tmp_path / "room_rgb_00.png"))
+    assert rgb.shape == (256, 512, 3)
+    # The room fills the view: hardly any white background shows, and the walls are not one flat colour.
+    assert (rgb == 255).all(-1).mean() < 0.05 and rgb.std() > 10
+    depth = np.asarray(Image.open(tmp_path / "room_depth_00.png"))
+    assert depth.shape == (256, 512, 3) and len(np.unique(depth.reshape(-1, 3), axis=0)) > 20
+    assert len(load_ply(tmp_path / "demo_room.ply")) == len(demo_room())
 
 
 def test_bench_command(capsys):
