@@ -198,3 +198,42 @@ def test_pinhole_renderer_centres_a_gaussian_on_its_axis():
     jj, ii = torch.meshgrid(torch.arange(32) + 0.5, torch.arange(32) + 0.5, indexing="xy")
     assert float((a * jj).sum() / a.sum()) == pytest.approx(16.0, abs=1e-4)
     assert float((a * ii).sum() / a.sum()) == pytest.approx(16.0, abs=1e-4)
+
+
+def test_auto_backend_fallback_rules(monkeypatch):
+    """``backend="auto"``: a fast backend that fails to run is replaced by the reference (once, with a
+    warning); one that cannot honour the settings is bypassed for that call only; out of memory is raised."""
+    from cylindersplat.render import api
+    from cylindersplat.render.projection import UnsupportedSettings
+
+    g = shell_scene(10, seed=2, dtype=torch.float32)
+    ref = render_equirect(g, torch.eye(4), 8, 16, backend="torch")
+    calls = []
+
+    def fast(error):
+        def backend(*args):
+            calls.append(error)
+            raise error
+        return backend
+
+    def run_with(backend_fn):
+        monkeypatch.setattr(api, "_pick_backend", lambda name, device: backend_fn)
+        return render_equirect(g, torch.eye(4), 8, 16, backend="auto")
+
+    monkeypatch.setattr(api, "_AUTO_DISABLED", set())
+    unsupported = fast(UnsupportedSettings("tile size"))
+    torch.testing.assert_close(run_with(unsupported).rgb, ref.rgb)
+    assert unsupported not in api._AUTO_DISABLED  # still used for other settings
+
+    broken = fast(RuntimeError("no compiler"))
+    with pytest.warns(RuntimeWarning, match="no compiler"):
+        torch.testing.assert_close(run_with(broken).rgb, ref.rgb)
+    assert broken in api._AUTO_DISABLED
+
+    with pytest.raises(torch.OutOfMemoryError):
+        run_with(fast(torch.OutOfMemoryError("out of memory")))
+    # Asking for a backend by name shows its errors instead of falling back.
+    monkeypatch.setattr(api, "_pick_backend", lambda name, device: broken)
+    with pytest.raises(RuntimeError, match="no compiler"):
+        render_equirect(g, torch.eye(4), 8, 16, backend="triton")
+    assert len(calls) == 4

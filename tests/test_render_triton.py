@@ -149,3 +149,11 @@ def test_triton_batched_rendering_matches_per_item_rendering():
     for i, g in enumerate((a, b)):
         single = render_equirect(g.to(DEVICE), poses[i], 8, 16, backend="triton")
         torch.testing.assert_close(out.rgb[i], single.rgb, atol=1e-6, rtol=0)
+
+
+def test_tile_size_the_kernels_cannot_use_is_refused_by_name():
+    from cylindersplat.render.projection import UnsupportedSettings
+
+    g = shell_scene(10, seed=6, dtype=F32).to(DEVICE)
+    with pytest.raises(UnsupportedSettings, match="power-of-two"):
+        render_equirect(g, torch.eye(4, device=DEVICE), 8, 16, settings=RasterSettings(tile_size=12), backend="triton")

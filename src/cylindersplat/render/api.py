@@ -19,7 +19,7 @@ from torch import Tensor
 from ..gaussians import Gaussians
 from ..geometry.equirect import check_equirect_shape
 from ..geometry.poses import validate_c2w
-from .projection import RasterSettings, project_equirect_gaussians
+from .projection import RasterSettings, UnsupportedSettings, project_equirect_gaussians
 from .rasterize import rasterize
 from .triton_backend import triton_available, triton_backend
 
@@ -116,6 +116,12 @@ def render_equirect(
     fn = _pick_backend(backend, gaussians.device)
     try:
         rgb, depth, alpha = fn(gaussians, c2w, height, width, background, settings)
+    except torch.OutOfMemoryError:
+        raise  # not a broken backend: the reference would need more memory still
+    except UnsupportedSettings:
+        if backend != "auto" or fn is _torch_backend:
+            raise
+        rgb, depth, alpha = _torch_backend(gaussians, c2w, height, width, background, settings)  # this call only
     except Exception as exc:  # noqa: BLE001
         if backend != "auto" or fn is _torch_backend:
             raise

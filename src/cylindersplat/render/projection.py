@@ -30,7 +30,11 @@ from ..gaussians import Gaussians
 from ..geometry.equirect import equirect_jacobian
 from .covariance import covariance_3d, eval_sh
 
-__all__ = ["ProjectedGaussians", "RasterSettings", "project_equirect_gaussians", "project_pinhole_gaussians"]
+__all__ = ["ProjectedGaussians", "RasterSettings", "UnsupportedSettings", "project_equirect_gaussians", "project_pinhole_gaussians"]
+
+
+class UnsupportedSettings(ValueError):
+    """A render backend cannot honour these settings (e.g. a tile size); ``backend="auto"`` uses the reference."""
 
 
 @dataclass(frozen=True)

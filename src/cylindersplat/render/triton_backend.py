@@ -18,7 +18,7 @@ import torch
 from torch import Tensor
 
 from ..gaussians import Gaussians
-from .projection import ProjectedGaussians, RasterSettings, project_equirect_gaussians
+from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings, project_equirect_gaussians
 from .rasterize import TileBins, bin_to_tiles, pack_projected, unpack_composited
 
 __all__ = ["triton_available", "triton_backend", "composite_triton"]
@@ -65,7 +65,7 @@ def composite_triton(
     """Stage 4 on Triton. Returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
     tile = settings.tile_size
     if tile & (tile - 1):
-        raise ValueError(f"the Triton backend needs a power-of-two tile size, got {tile}")
+        raise UnsupportedSettings(f"the Triton backend needs a power-of-two tile size, got {tile}")
     h, w, c = proj.height, proj.width, proj.num_cameras
     num_tiles = c * bins.tiles_x * bins.tiles_y
     counts = torch.bincount(bins.tile, minlength=num_tiles)
