@@ -26,7 +26,7 @@ def open_eval_dataset(args, protocol: str):
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..evaluation import evaluate, forward_warp_method, model_method, results_to_markdown
+    from ..evaluation import METRIC_COLUMNS, evaluate, forward_warp_method, model_method, results_to_markdown
     from ..metrics import DepthRange, load_lpips
     from ..model import load_model
 
@@ -54,8 +54,7 @@ def run(args: argparse.Namespace) -> int:
         result = evaluate(dataset, methods, lpips_net, args.max_examples, args.out / "examples" / protocol,
                           num_pictures=args.pictures, depth_range=depth_range)
         key = f"{Path(args.data).name} — {protocol} ({result.num_examples} examples)"
-        results[key] = {name: {k: m.get(k) for k in ("pcc", "ws_psnr", "ssim", "lpips", "abs_rel", "rmse", "delta1", "lrce", "time_s")}
-                        for name, m in result.means.items()}
+        results[key] = {name: {column[0]: m.get(column[0]) for column in METRIC_COLUMNS} for name, m in result.means.items()}
         details[protocol] = result.rows
     table = results_to_markdown(results, title="Evaluation")
     (args.out / "results.md").write_text(table)
