@@ -8,4 +8,4 @@
 Figures, with the machine that produced them, go to ``benchmarks/RESULTS.md``.
 """
 
-BENCHMARKS = ("render", "model", "synth")
+BENCHMARKS = ("render", "model", "train", "synth")

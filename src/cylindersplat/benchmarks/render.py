@@ -74,21 +74,45 @@ def bench(num: int, height: int, device: torch.device, backend: str, repeats: in
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats()
     row = {"num": num, "size": f"{height}x{width}", "device": str(device), "backend": backend}
-    row["forward_ms"], row["fwd_bwd_ms"] = _forward_and_backward_ms(
-        lambda: render_equirect(g, c2w, height, width, backend=backend), params, device, repeats)
-    row["peak_mb"] = _peak_mb(device)
+    try:
+        row["forward_ms"], row["fwd_bwd_ms"] = _forward_and_backward_ms(
+            lambda: render_equirect(g, c2w, height, width, backend=backend), params, device, repeats)
+        row["peak_mb"] = _peak_mb(device)
+    except torch.OutOfMemoryError:
+        row["error"] = "out of memory"
+        _free(params, device)
     if cubemap:
-        row["cubemap_forward_ms"], row["cubemap_fwd_bwd_ms"] = _forward_and_backward_ms(
-            lambda: render_cubemap(g, c2w, height, width), params, device, repeats)
+        try:
+            if device.type == "cuda":
+                torch.cuda.reset_peak_memory_stats()
+            row["cubemap_forward_ms"], row["cubemap_fwd_bwd_ms"] = _forward_and_backward_ms(
+                lambda: render_cubemap(g, c2w, height, width), params, device, repeats)
+            row["cubemap_peak_mb"] = _peak_mb(device)
+        except torch.OutOfMemoryError:
+            row["cubemap_error"] = "out of memory"
+            _free(params, device)
     if stages:
-        row["stages_ms"] = stage_breakdown(g, c2w, height, width, device, repeats)
+        try:
+            row["stages_ms"] = stage_breakdown(g, c2w, height, width, device, repeats, backend)
+        except torch.OutOfMemoryError:
+            row["stages_error"] = "out of memory"
+            _free(params, device)
     return row
 
 
-def stage_breakdown(g, c2w, height, width, device, repeats: int) -> dict:
-    """Median time of each stage of the PyTorch reference."""
+def _free(params, device) -> None:
+    for p in params:
+        p.grad = None
+    if device.type == "cuda":
+        torch.cuda.empty_cache()
+
+
+def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = "torch") -> dict:
+    """Median time of each stage of one forward + backward (reference, or Triton compositing)."""
     settings = RasterSettings()
-    acc: dict[str, list[float]] = {k: [] for k in ("project", "bin", "fragments", "composite", "backward")}
+    fast = backend == "triton"
+    names = ("project", "bin", "composite", "backward") if fast else ("project", "bin", "fragments", "composite", "backward")
+    acc: dict[str, list[float]] = {k: [] for k in names}
     for it in range(repeats + 1):
         marks = [time.perf_counter()]
 
@@ -100,9 +124,16 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int) -> dict:
         mark()
         bins = bin_to_tiles(proj, settings.tile_size)
         mark()
-        fg, fp = expand_fragments(proj, bins, settings.sigma_extent)
-        mark()
-        rgb, depth, _ = composite(proj, fg, fp, settings)
+        if fast:
+            from cylindersplat.render.triton_backend import composite_triton
+
+            rgb, depth, _ = composite_triton(proj, bins, settings)
+            num_fragments = None
+        else:
+            fg, fp = expand_fragments(proj, bins, settings.sigma_extent)
+            mark()
+            rgb, depth, _ = composite(proj, fg, fp, settings)
+            num_fragments = len(fg)
         mark()
         (rgb.sum() + depth.sum()).backward()
         mark()
@@ -111,8 +142,10 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int) -> dict:
         if it > 0:  # first iteration is warm-up
             for k, (a, b) in zip(acc, zip(marks[:-1], marks[1:])):
                 acc[k].append((b - a) * 1000)
-    out = {k: round(statistics.median(v), 1) for k, v in acc.items()}
-    out["num_pairs"], out["num_fragments"] = len(bins.tile), len(fg)
+    out = {k: round(statistics.median(v), 2) for k, v in acc.items()}
+    out["num_pairs"] = len(bins.tile)
+    if num_fragments is not None:
+        out["num_fragments"] = num_fragments
     return out
 
 
