@@ -6,34 +6,14 @@ import pytest
 import torch
 
 from cylindersplat.gaussians import Gaussians
-from cylindersplat.geometry import make_c2w
 from cylindersplat.render import render_cubemap, render_equirect, render_pinhole
 from cylindersplat.render.brute_force import composite_brute_force
 from cylindersplat.render.projection import RasterSettings, project_equirect_gaussians
 from cylindersplat.render.rasterize import bin_to_tiles, rasterize
 
+from render_scenes import degenerate_scenes, shell_scene, yaw_pose
+
 F64 = torch.float64
-
-
-def shell_scene(n, seed=0, scale=(0.1, 0.3), radius=(1.0, 3.0), sh_degree=0, dtype=F64):
-    """Gaussians on a shell around the origin with distinct radial distances."""
-    gen = torch.Generator().manual_seed(seed)
-    dirs = torch.nn.functional.normalize(torch.randn(n, 3, generator=gen, dtype=dtype), dim=-1)
-    dist = radius[0] + (radius[1] - radius[0]) * torch.rand(n, 1, generator=gen, dtype=dtype)
-    k = (sh_degree + 1) ** 2
-    return Gaussians(
-        means=dirs * dist,
-        scales=scale[0] + (scale[1] - scale[0]) * torch.rand(n, 3, generator=gen, dtype=dtype),
-        rotations=torch.randn(n, 4, generator=gen, dtype=dtype),
-        opacities=0.3 + 0.6 * torch.rand(n, generator=gen, dtype=dtype),
-        sh=torch.randn(n, k, 3, generator=gen, dtype=dtype) * 0.4,
-    )
-
-
-def yaw_pose(angle, translation=(0.0, 0.0, 0.0), dtype=F64):
-    c, s = math.cos(angle), math.sin(angle)
-    rot = torch.tensor([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=dtype)
-    return make_c2w(rot, torch.tensor(translation, dtype=dtype))
 
 
 def test_tiled_rasterizer_matches_brute_force():
@@ -131,20 +111,7 @@ def test_batched_rendering_matches_per_item_rendering():
         torch.testing.assert_close(out.rgb[i], single.rgb)
 
 
-def _degenerate_scenes():
-    one = lambda *v: torch.tensor([v], dtype=torch.float32)  # noqa: E731
-    q = one(1.0, 0.0, 0.0, 0.0)
-    yield "zero scale", Gaussians.from_rgb(one(0.0, 0.0, 2.0), one(0.0, 0.0, 0.0), q, torch.ones(1), one(1, 1, 1))
-    yield "huge scale", Gaussians.from_rgb(one(0.0, 0.0, 2.0), one(1e4, 1e4, 1e4), q, torch.ones(1), one(1, 1, 1))
-    yield "at camera centre", Gaussians.from_rgb(one(0.0, 0.0, 0.0), one(0.1, 0.1, 0.1), q, torch.ones(1), one(1, 1, 1))
-    yield "very close", Gaussians.from_rgb(one(0.0, 0.0, 0.011), one(0.1, 0.1, 0.1), q, torch.ones(1), one(1, 1, 1))
-    yield "north pole", Gaussians.from_rgb(one(0.0, -2.0, 0.0), one(0.1, 0.1, 0.1), q, torch.ones(1), one(1, 1, 1))
-    yield "south pole, flat", Gaussians.from_rgb(one(0.0, 1.0, 0.0), one(1.0, 1e-6, 1.0), q, torch.ones(1), one(1, 1, 1))
-    yield "unnormalised quaternion", Gaussians.from_rgb(one(1.0, 0.0, 2.0), one(0.1, 0.3, 0.1), one(5.0, 1.0, -2.0, 0.5), torch.ones(1), one(1, 1, 1))
-    yield "no gaussians", Gaussians.empty()
-
-
-@pytest.mark.parametrize("name,g", list(_degenerate_scenes()), ids=[n for n, _ in _degenerate_scenes()])
+@pytest.mark.parametrize("name,g", list(degenerate_scenes()), ids=[n for n, _ in degenerate_scenes()])
 def test_degenerate_inputs_give_finite_outputs_and_gradients(name, g):
     params = [t.clone().requires_grad_() for t in g.tensors().values()]
     out = render_equirect(Gaussians(*params), torch.eye(4), 16, 32, background=(0.5, 0.5, 0.5))

@@ -4,20 +4,17 @@ On a machine without a GPU the kernels run in Triton's interpreter (``TRITON_INT
 here before the kernels are first imported); with CUDA they are compiled and run on the GPU.
 """
 
-import os
 
 import pytest
 import torch
 
-if not torch.cuda.is_available():
-    os.environ.setdefault("TRITON_INTERPRET", "1")
-pytest.importorskip("triton")
+pytest.importorskip("triton")  # the test extra installs it; conftest.py selects the interpreter without CUDA
 
 from cylindersplat.gaussians import Gaussians  # noqa: E402
 from cylindersplat.render import available_backends, render_equirect  # noqa: E402
 from cylindersplat.render.projection import RasterSettings  # noqa: E402
 
-from test_render import _degenerate_scenes, shell_scene, yaw_pose  # noqa: E402
+from render_scenes import degenerate_scenes, shell_scene, yaw_pose  # noqa: E402
 
 DEVICE = "cuda" if torch.cuda.is_available() else "cpu"
 F32 = torch.float32
@@ -81,7 +78,7 @@ def test_smaller_tiles_and_opaque_stacks_match_reference():
     _assert_match(*_both(g, yaw_pose(0.3, dtype=F32)[None], 16, 32, settings=RasterSettings(tile_size=8)))
 
 
-@pytest.mark.parametrize("name,g", list(_degenerate_scenes()), ids=[n for n, _ in _degenerate_scenes()])
+@pytest.mark.parametrize("name,g", list(degenerate_scenes()), ids=[n for n, _ in degenerate_scenes()])
 def test_degenerate_inputs_stay_finite(name, g):
     params = [t.clone().to(DEVICE).requires_grad_() for t in g.tensors().values()]
     out = render_equirect(Gaussians(*params), torch.eye(4, device=DEVICE), 16, 32, background=(0.5, 0.5, 0.5),

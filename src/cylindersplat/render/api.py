@@ -1,10 +1,12 @@
-"""Backend-agnostic rendering API.
+"""One rendering entry for every camera model and backend.
 
-``render_equirect`` validates its inputs, picks a backend and reshapes the result. Backends are
-functions ``(gaussians, c2w, height, width, background, settings) -> (rgb, depth, alpha)`` working on
-the flattened layout of :func:`.projection.project_equirect_gaussians` (cameras flattened to
-``C``); they register themselves in ``_BACKENDS``. ``"torch"`` is the PyTorch reference (CPU and
-CUDA); a fast GPU backend registers as ``"triton"`` when its module imports.
+:func:`render` validates its inputs once, lets the camera model project the Gaussians
+(:mod:`.cameras`: equirect, pinhole, cube-map faces) and hands the projected Gaussians to a backend
+that rasterizes them. A backend is a function ``(projected, settings, background) -> (rgb, depth,
+alpha)`` on the flattened layout of :class:`.projection.ProjectedGaussians` (cameras flattened to
+``C``); backends work for every camera model. ``"torch"`` is the PyTorch reference (CPU and CUDA);
+``"triton"`` is the fast GPU backend, registered when Triton imports. :func:`register_backend`
+adds others.
 """
 
 from __future__ import annotations
@@ -17,13 +19,13 @@ import torch
 from torch import Tensor
 
 from ..gaussians import Gaussians
-from ..geometry.equirect import check_equirect_shape
 from ..geometry.poses import validate_c2w
-from .projection import RasterSettings, UnsupportedSettings, project_equirect_gaussians
+from .cameras import CameraModel, Equirect
+from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings
 from .rasterize import rasterize
 from .triton_backend import triton_available, triton_backend
 
-__all__ = ["RenderOutput", "render_equirect", "available_backends", "register_backend"]
+__all__ = ["RenderOutput", "render", "render_equirect", "available_backends", "register_backend", "Backend"]
 
 
 @dataclass
@@ -36,23 +38,33 @@ class RenderOutput:
     alpha: Tensor
 
 
-Backend = Callable[[Gaussians, Tensor, int, int, "Tensor | None", RasterSettings], tuple[Tensor, Tensor, Tensor]]
+Backend = Callable[[ProjectedGaussians, RasterSettings, "Tensor | None"], tuple[Tensor, Tensor, Tensor]]
 
-
-def _torch_backend(gaussians, c2w, height, width, background, settings):
-    proj, _ = project_equirect_gaussians(gaussians, c2w, height, width, settings)
-    return rasterize(proj, settings, background)
-
-
-_BACKENDS: dict[str, Backend] = {"torch": _torch_backend}
-if triton_available():
-    _BACKENDS["triton"] = triton_backend
-_AUTO_ORDER = ("triton", "torch")
+_reference_backend: Backend = rasterize
+_BACKENDS: dict[str, Backend] = {"torch": _reference_backend}
+_AUTO_ORDER: list[str] = []  # fast backends "auto" tries on CUDA, in order, before the reference
 _AUTO_DISABLED: set = set()  # fast backends that failed here; "auto" skips them
 
 
-def register_backend(name: str, fn: Backend) -> None:
+def register_backend(name: str, fn: Backend, auto: bool = False) -> None:
+    """Make ``fn`` available as ``backend=name``.
+
+    ``fn(projected, settings, background)`` gets :class:`ProjectedGaussians` of any camera model
+    and returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``, differentiable w.r.t. the
+    projected tensors. It may raise :class:`UnsupportedSettings` for inputs it cannot honour.
+    ``auto=True`` lets ``backend="auto"`` pick it on CUDA (before those registered earlier).
+    """
+    if not isinstance(name, str) or not name or name == "auto":
+        raise ValueError(f"backend name must be a non-empty string other than 'auto', got {name!r}")
+    if not callable(fn):
+        raise TypeError(f"backend {name!r} must be callable")
     _BACKENDS[name] = fn
+    if auto and name not in _AUTO_ORDER:
+        _AUTO_ORDER.insert(0, name)
+
+
+if triton_available():
+    register_backend("triton", triton_backend, auto=True)
 
 
 def available_backends() -> list[str]:
@@ -61,12 +73,84 @@ def available_backends() -> list[str]:
 
 def _pick_backend(name: str, device: torch.device) -> Backend:
     if name == "auto":
-        for cand in _AUTO_ORDER:
-            if cand in _BACKENDS and (cand == "torch" or device.type == "cuda") and _BACKENDS[cand] not in _AUTO_DISABLED:
-                return _BACKENDS[cand]
+        if device.type == "cuda":
+            for cand in _AUTO_ORDER:
+                if cand in _BACKENDS and _BACKENDS[cand] not in _AUTO_DISABLED:
+                    return _BACKENDS[cand]
+        return _reference_backend
     if name not in _BACKENDS:
         raise ValueError(f"unknown render backend {name!r}; available: {available_backends()} or 'auto'")
     return _BACKENDS[name]
+
+
+def _rasterize(fn: Backend, backend: str, proj: ProjectedGaussians, settings, background):
+    """Run a backend; under ``"auto"`` fall back to the reference where the fast one cannot run."""
+    try:
+        return fn(proj, settings, background)
+    except torch.OutOfMemoryError:
+        raise  # not a broken backend: the reference would need more memory still
+    except UnsupportedSettings:
+        if backend != "auto" or fn is _reference_backend:
+            raise
+        return _reference_backend(proj, settings, background)  # this call only
+    except Exception as exc:  # noqa: BLE001
+        if backend != "auto" or fn is _reference_backend:
+            raise
+        # The fast backend compiles at first use; if that fails on this machine, keep working.
+        _AUTO_DISABLED.add(fn)
+        warnings.warn(f"fast render backend failed ({type(exc).__name__}: {exc}); using the PyTorch reference from "
+                      "now on (pass backend='triton' to see the error)", RuntimeWarning, stacklevel=3)
+        return _reference_backend(proj, settings, background)
+
+
+def render(
+    gaussians: Gaussians,
+    c2w: Tensor,
+    camera: CameraModel,
+    background: Tensor | tuple[float, float, float] | None = None,
+    backend: str = "auto",
+    settings: RasterSettings | None = None,
+) -> RenderOutput:
+    """Render ``gaussians`` from cameras ``c2w`` with a camera model (:mod:`cylindersplat.render.cameras`).
+
+    Args:
+        gaussians: unbatched (``means (N, 3)``) or batched (``means (B, N, 3)``) Gaussians.
+        c2w: camera-to-world poses (OpenCV frame): ``(4, 4)`` or ``(V, 4, 4)`` for unbatched
+            Gaussians, ``(B, V, 4, 4)`` for batched ones.
+        camera: e.g. ``Equirect(512, 1024)``, ``Pinhole(K, 480, 640)``, ``cubemap_face(256)``.
+        background: RGB in [0, 1] added behind the Gaussians (default black); ``(3,)`` or one per camera.
+        backend: ``"auto"`` (fast GPU backend on CUDA when available, else ``"torch"``), or a name
+            from :func:`available_backends`.
+        settings: rasterisation constants (:class:`RasterSettings`, 3DGS conventions).
+
+    Returns:
+        :class:`RenderOutput` with leading dims ``(*B, V)`` (``V`` omitted for a single ``(4, 4)`` pose).
+    """
+    if not isinstance(gaussians, Gaussians):
+        raise TypeError(f"gaussians must be a cylindersplat.gaussians.Gaussians, got {type(gaussians).__name__}")
+    if not isinstance(camera, CameraModel):
+        raise TypeError(f"camera must be a camera model (cylindersplat.render.cameras), got {type(camera).__name__}")
+    gaussians.validate()
+    validate_c2w(c2w)
+    settings = settings or RasterSettings()
+    c2w = c2w.to(device=gaussians.device)
+    out_shape = _output_shape(gaussians, c2w)
+    num_cameras = int(torch.tensor(out_shape).prod()) if out_shape else 1
+    if num_cameras == 0:
+        raise ValueError("c2w holds no cameras")
+    if background is not None:
+        background = torch.as_tensor(background, dtype=gaussians.dtype, device=gaussians.device)
+        if background.shape[-1:] != (3,) or background.numel() not in (3, 3 * num_cameras):
+            raise ValueError(f"background must be RGB, (3,) or one per camera {(*out_shape, 3)}, got {tuple(background.shape)}")
+        if not torch.isfinite(background).all():
+            raise ValueError("background must be finite")
+    fn = _pick_backend(backend, gaussians.device)
+    proj = camera.project(gaussians, c2w, settings)
+    rgb, depth, alpha = _rasterize(fn, backend, proj, settings, background)
+    h, w = camera.height, camera.width
+    return RenderOutput(
+        rgb=rgb.reshape(*out_shape, 3, h, w), depth=depth.reshape(*out_shape, h, w), alpha=alpha.reshape(*out_shape, h, w)
+    )
 
 
 def render_equirect(
@@ -78,7 +162,8 @@ def render_equirect(
     backend: str = "auto",
     settings: RasterSettings | None = None,
 ) -> RenderOutput:
-    """Render equirectangular panoramas of ``gaussians`` from cameras ``c2w``.
+    """Render equirectangular panoramas of ``gaussians`` from cameras ``c2w``:
+    ``render(gaussians, c2w, Equirect(height, width), ...)``.
 
     Args:
         gaussians: unbatched (``means (N, 3)``) or batched (``means (B, N, 3)``) Gaussians.
@@ -101,40 +186,7 @@ def render_equirect(
     longitude seam; near the poles the footprint is bounded (see :mod:`.projection`), so outputs and
     gradients stay finite. Differentiable w.r.t. every Gaussian parameter.
     """
-    check_equirect_shape(height, width)
-    if not isinstance(gaussians, Gaussians):
-        raise TypeError(f"gaussians must be a cylindersplat.gaussians.Gaussians, got {type(gaussians).__name__}")
-    gaussians.validate()
-    validate_c2w(c2w)
-    settings = settings or RasterSettings()
-    if background is not None:
-        background = torch.as_tensor(background, dtype=gaussians.dtype, device=gaussians.device)
-        if background.shape[-1] != 3:
-            raise ValueError(f"background must be RGB with a last dimension of 3, got {tuple(background.shape)}")
-    c2w = c2w.to(device=gaussians.device)
-    out_shape = _output_shape(gaussians, c2w)
-    fn = _pick_backend(backend, gaussians.device)
-    try:
-        rgb, depth, alpha = fn(gaussians, c2w, height, width, background, settings)
-    except torch.OutOfMemoryError:
-        raise  # not a broken backend: the reference would need more memory still
-    except UnsupportedSettings:
-        if backend != "auto" or fn is _torch_backend:
-            raise
-        rgb, depth, alpha = _torch_backend(gaussians, c2w, height, width, background, settings)  # this call only
-    except Exception as exc:  # noqa: BLE001
-        if backend != "auto" or fn is _torch_backend:
-            raise
-        # The fast backend compiles at first use; if that fails on this machine, keep working.
-        _AUTO_DISABLED.add(fn)
-        warnings.warn(f"fast render backend failed ({type(exc).__name__}: {exc}); using the PyTorch reference from "
-                      "now on (pass backend='triton' to see the error)", RuntimeWarning, stacklevel=2)
-        rgb, depth, alpha = _torch_backend(gaussians, c2w, height, width, background, settings)
-    return RenderOutput(
-        rgb=rgb.reshape(*out_shape, 3, height, width),
-        depth=depth.reshape(*out_shape, height, width),
-        alpha=alpha.reshape(*out_shape, height, width),
-    )
+    return render(gaussians, c2w, Equirect(height, width), background, backend, settings)
 
 
 def _output_shape(gaussians: Gaussians, c2w: Tensor) -> tuple[int, ...]:

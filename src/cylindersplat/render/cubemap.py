@@ -13,10 +13,10 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..gaussians import Gaussians
-from ..geometry.cubemap import cubemap_face_c2w, cubemap_intrinsics, cubemap_rotations
+from ..geometry.cubemap import cubemap_face_c2w, cubemap_rotations
 from ..geometry.equirect import check_equirect_shape, equirect_rays
-from .api import RenderOutput, _output_shape
-from .pinhole import render_pinhole
+from .api import RenderOutput, _output_shape, render
+from .cameras import cubemap_face
 from .projection import RasterSettings
 
 __all__ = ["render_cubemap", "cubemap_to_equirect"]
@@ -43,6 +43,16 @@ def cubemap_to_equirect(faces: Tensor, height: int, width: int) -> Tensor:
     return picked[:, 0].reshape(*lead, ch, height, width)
 
 
+def _face_background(background, face_c2w: Tensor):
+    """A per-panorama background ``(..., 3)`` becomes one per face (each panorama's six faces share it)."""
+    if background is None:
+        return None
+    background = torch.as_tensor(background, device=face_c2w.device)
+    if background.numel() == 3:
+        return background.reshape(3)
+    return background.reshape(-1, 3).repeat_interleave(6, dim=0)
+
+
 def render_cubemap(
     gaussians: Gaussians,
     c2w: Tensor,
@@ -51,10 +61,12 @@ def render_cubemap(
     face_size: int | None = None,
     background: Tensor | None = None,
     settings: RasterSettings | None = None,
+    backend: str = "auto",
 ) -> RenderOutput:
     """Render six faces of ``face_size`` (default ``H // 2``) and stitch them into an equirect panorama.
 
-    Same signature and output as :func:`cylindersplat.render.render_equirect`.
+    Same output as :func:`cylindersplat.render.render_equirect`; the faces go through the same
+    backends (``backend``) as the direct route.
     """
     check_equirect_shape(height, width)
     face_size = face_size or max(height // 2, 1)
@@ -64,8 +76,7 @@ def render_cubemap(
         face_c2w = face_c2w.flatten(1, 2)  # (B, V*6, 4, 4)
     else:
         face_c2w = face_c2w.reshape(-1, 4, 4)
-    k = cubemap_intrinsics(face_size, device=gaussians.device, dtype=gaussians.dtype)
-    faces = render_pinhole(gaussians, face_c2w, k, face_size, face_size, background=background, settings=settings)
+    faces = render(gaussians, face_c2w, cubemap_face(face_size), _face_background(background, face_c2w), backend, settings)
     packed = torch.cat((faces.rgb, faces.depth.unsqueeze(-3), faces.alpha.unsqueeze(-3)), dim=-3)
     packed = packed.reshape(*out_shape, 6, 5, face_size, face_size)
     pano = cubemap_to_equirect(packed, height, width)

@@ -1,14 +1,13 @@
-"""Pinhole renderer (same rasterizer, perspective projection); used for the cubemap baseline."""
+"""Pinhole rendering (same rasterizer and backends, perspective projection); the cubemap route uses it."""
 
 from __future__ import annotations
 
 from torch import Tensor
 
 from ..gaussians import Gaussians
-from ..geometry.poses import validate_c2w
-from .api import RenderOutput, _output_shape
-from .projection import RasterSettings, project_pinhole_gaussians
-from .rasterize import rasterize
+from .api import RenderOutput, render
+from .cameras import Pinhole
+from .projection import RasterSettings
 
 __all__ = ["render_pinhole"]
 
@@ -21,26 +20,12 @@ def render_pinhole(
     width: int,
     background: Tensor | None = None,
     settings: RasterSettings | None = None,
+    backend: str = "auto",
 ) -> RenderOutput:
-    """Render pinhole images (OpenCV intrinsics ``K`` 3x3, pixel centres at +0.5).
+    """Render pinhole images (OpenCV intrinsics ``K`` 3x3, pixel centres at +0.5):
+    ``render(gaussians, c2w, Pinhole(K, height, width), ...)``.
 
     Shapes as :func:`cylindersplat.render.render_equirect`. ``depth`` is the radial distance of the
     Gaussian means (alpha-weighted), so it is comparable with equirect depth.
     """
-    if height <= 0 or width <= 0:
-        raise ValueError(f"image size must be positive, got {height}x{width}")
-    if intrinsics.shape != (3, 3):
-        raise ValueError(f"intrinsics must be a 3x3 matrix, got {tuple(intrinsics.shape)}")
-    gaussians.validate()
-    validate_c2w(c2w)
-    settings = settings or RasterSettings()
-    out_shape = _output_shape(gaussians, c2w)
-    proj, _ = project_pinhole_gaussians(gaussians, c2w.to(gaussians.device), intrinsics.to(gaussians.device), height, width, settings)
-    if background is not None:
-        background = background.to(gaussians.device, gaussians.dtype)
-    rgb, depth, alpha = rasterize(proj, settings, background)
-    return RenderOutput(
-        rgb=rgb.reshape(*out_shape, 3, height, width),
-        depth=depth.reshape(*out_shape, height, width),
-        alpha=alpha.reshape(*out_shape, height, width),
-    )
+    return render(gaussians, c2w, Pinhole(intrinsics, height, width), background, backend, settings)

@@ -1,4 +1,4 @@
-"""The fast backend: PyTorch projection and tile binning, Triton per-tile compositing (fwd + bwd).
+"""The fast backend: tile binning in PyTorch, Triton per-tile compositing (fwd + bwd), any camera model.
 
 Needs no compile step from the user: Triton ships with CUDA builds of PyTorch and compiles the
 kernels (:mod:`.triton_kernels`) at first use. Projection (EWA, seam and pole safeguards) and the
@@ -17,8 +17,7 @@ import importlib.util
 import torch
 from torch import Tensor
 
-from ..gaussians import Gaussians
-from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings, project_equirect_gaussians
+from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings
 from .rasterize import TileBins, bin_to_tiles, pack_projected, unpack_composited
 
 __all__ = ["triton_available", "triton_backend", "composite_triton"]
@@ -79,7 +78,10 @@ def composite_triton(
     return unpack_composited(out, proj, background)
 
 
-def triton_backend(gaussians: Gaussians, c2w: Tensor, height: int, width: int, background, settings: RasterSettings):
-    proj, _ = project_equirect_gaussians(gaussians, c2w, height, width, settings)
+def triton_backend(proj: ProjectedGaussians, settings: RasterSettings, background: Tensor | None = None):
+    """The backend function (:func:`cylindersplat.render.register_backend`): projected Gaussians of
+    any camera model -> ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
+    if settings.tile_size & (settings.tile_size - 1):
+        raise UnsupportedSettings(f"the Triton backend needs a power-of-two tile size, got {settings.tile_size}")
     bins = bin_to_tiles(proj, settings.tile_size)
     return composite_triton(proj, bins, settings, background)
