@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 
@@ -94,3 +96,81 @@ def test_train_cli_end_to_end(synth_root, tmp_path, capsys):
         assert any((out / "images").glob(f"stage{stage}_*.png"))
     assert (out / "metrics.jsonl").read_text().count("\n") >= 3
     assert main(["train", "--data", str(tmp_path / "missing"), "--out", str(out)]) == 1
+
+
+# -- non-finite guard ---------------------------------------------------------------------------
+def _nan_grad_on(trainer, steps: set[int]) -> list[str]:
+    """Make the first trainable parameter's grad NaN on the given (1-based) global steps; returns [its name]."""
+    begin, name = trainer._begin_stage, []
+
+    def begin_and_hook():
+        begin()
+        key, param = next((k, p) for k, p in trainer.model.named_parameters() if p.requires_grad)
+        name[:] = [key]
+        param.register_hook(lambda g: g * float("nan") if trainer.global_step + 1 in steps else g)
+
+    trainer._begin_stage = begin_and_hook
+    return name
+
+
+def test_nonfinite_step_is_skipped(synth_root, tmp_path):
+    cfg = _config(synth_root, tmp_path / "run", "train.stages=[1]", "train.steps_per_stage=[3]",
+                  "data.options={scenes: ['00000000']}")
+    trainer = Trainer(cfg)
+    bad_param = _nan_grad_on(trainer, {2})
+    after, train_step = [], trainer.train_step
+
+    def step_and_snapshot(batch):  # weights, AdamW moments and schedule position after every step
+        parts = train_step(batch)
+        after.append((*_params_and_optimizer(trainer), trainer.scheduler.last_epoch))
+        return parts
+
+    trainer.train_step = step_and_snapshot
+    with pytest.warns(RuntimeWarning, match=r"step 2 \(stage 1\) skipped: loss finite, grad norm nan") as record:
+        summary = trainer.fit()
+    assert bad_param[0] in str(record[0].message) and "gaussian grads: all finite" in str(record[0].message)
+    assert [h["skipped"] for h in summary["history"]] == [0.0, 1.0, 0.0]
+    assert summary["skipped_steps"] == 1 and summary["finished"] and summary["global_step"] == 3
+    assert trainer.consecutive_skips == 0
+    (p1, m1, _), (p2, m2, _), (p3, _, _) = after
+    for key in p1:  # the skipped step changed nothing (no update, no weight decay) and left all finite
+        assert torch.isfinite(p2[key]).all(), key
+        torch.testing.assert_close(p2[key], p1[key], rtol=0, atol=0, msg=key)
+    for key in m1:
+        torch.testing.assert_close(m2[key], m1[key], rtol=0, atol=0)
+    assert [a[2] for a in after] == [1, 2, 3]  # the schedule still advanced
+    assert any(not torch.equal(p3[k], p2[k]) for k in p3)  # step 3 trained again
+    assert all(torch.isfinite(v).all() for v in p3.values())
+    lines = (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()
+    assert [json.loads(line)["train/skipped"] for line in lines] == [0.0, 1.0, 0.0]
+
+
+def test_nonfinite_loss_every_step_diverges(synth_root, tmp_path, monkeypatch):
+    cfg = _config(synth_root, tmp_path / "run", "train.stages=[1]", "train.steps_per_stage=[5]",
+                  "train.max_nonfinite_steps=2", "data.options={scenes: ['00000000']}")
+    trainer = Trainer(cfg)
+    compute = trainer.compute_loss
+
+    def nan_loss(batch):
+        terms = compute(batch)
+        terms.total = terms.total * float("nan")
+        return terms
+
+    monkeypatch.setattr(trainer, "compute_loss", nan_loss)
+    with pytest.warns(RuntimeWarning, match="loss non-finite"):
+        with pytest.raises(RuntimeError, match=r"training diverged: 3 consecutive steps .*last at step 3.*"
+                                               r"gaussians\.means.*train\.render_backend=torch"):
+            trainer.fit()
+    assert trainer.skipped_steps == 3
+    assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
+
+
+def test_render_backend_option(synth_root, tmp_path):
+    cfg = _config(synth_root, tmp_path / "run", "train.stages=[1]", "train.steps_per_stage=[1]",
+                  "train.render_backend=torch", "data.options={scenes: ['00000000']}")
+    assert cfg.train.render_backend == "torch"
+    assert Trainer(cfg).fit()["finished"]
+    with pytest.raises(ValueError, match="train.render_backend='nope' is not available here"):
+        Trainer(_config(synth_root, tmp_path / "bad", "train.render_backend=nope"))
+    with pytest.raises(ValueError, match="max_nonfinite_steps"):
+        load_config("tiny", ["train.max_nonfinite_steps=-1"])

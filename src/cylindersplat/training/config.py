@@ -59,9 +59,11 @@ class TrainConfig:
     warmup_steps: int = 0  # linear warm-up before the cosine decay
     min_lr_ratio: float = 0.0  # cosine decays to lr * min_lr_ratio
     grad_clip: float = 1.0  # max global grad norm; 0 disables
+    max_nonfinite_steps: int = 20  # consecutive skipped (NaN/inf loss or grads) steps before giving up; 0 = never
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     amp: Literal["auto", "bf16", "off"] = "auto"  # auto: bf16 network forward on CUDA, fp32 on CPU
     device: str = "auto"  # auto: cuda when available
+    render_backend: str = "auto"  # render_equirect backend: auto, torch (reference) or triton
     seed: int = 0
     log_every: int = 10
     image_every: int = 100  # steps between logged image grids (render | target, rgb and depth); 0 = never
@@ -188,6 +190,8 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     bad = [s for s in cfg.train.stages if s not in (1, 2, 3)]
     if bad or not cfg.train.stages:
         raise ValueError(f"train.stages must be a non-empty list of 1, 2, 3; got {cfg.train.stages}")
+    if cfg.train.max_nonfinite_steps < 0:
+        raise ValueError(f"train.max_nonfinite_steps must be >= 0 (0 = never give up), got {cfg.train.max_nonfinite_steps}")
     return cfg
 
 

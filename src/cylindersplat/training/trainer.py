@@ -8,6 +8,10 @@ run, so ``[1, 2, 3]`` is the full curriculum and ``[3]`` the paper's fine-tuning
 
 Precision: the network forward runs under bf16 autocast on CUDA (``train.amp``); the Gaussians are
 cast to fp32 and rasterised, and the loss computed, in fp32. On a CPU everything is fp32.
+
+Non-finite guard: a step whose loss or global gradient norm is NaN/inf is skipped (no optimizer
+update, so the weights and AdamW moments stay as they were) with a warning naming its source; the
+schedule still advances. ``train.max_nonfinite_steps`` consecutive skips end the run with an error.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from tqdm.auto import tqdm
 
 from ..data import Sample
 from ..model import CylinderSplat, load_model, save_model
-from ..render import render_equirect
+from ..render import available_backends, render_equirect
 from .checkpoint import capture_rng, prune_checkpoints, read_state, resolve_checkpoint, restore_rng, save_checkpoint
 from .config import ExperimentConfig, config_as_dict
 from .data import ResumableBatchSampler, build_dataset, build_loader
@@ -36,11 +40,34 @@ from .schedule import cosine_schedule
 
 __all__ = ["Trainer", "batch_to_device", "select_device"]
 
+GAUSSIAN_FIELDS = ("means", "scales", "rotations", "opacities", "sh")
+
 
 def select_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     return torch.device(name)
+
+
+def _total_grad_norm(params: list[Tensor]) -> Tensor:
+    """Global L2 norm of the parameters' grads (without clipping, so NaN is not spread first)."""
+    grads = [p.grad for p in params if p.grad is not None]
+    if not grads:
+        return torch.zeros(())
+    if hasattr(torch.nn.utils, "get_total_norm"):  # torch >= 2.6
+        return torch.nn.utils.get_total_norm(grads)
+    return torch.linalg.vector_norm(torch.stack([torch.linalg.vector_norm(g).to(grads[0].device) for g in grads]))
+
+
+def _clip_grads(params: list[Tensor], max_norm: float, total_norm: Tensor) -> None:
+    """Same scaling as ``clip_grad_norm_``, reusing the norm already computed."""
+    if hasattr(torch.nn.utils, "clip_grads_with_norm_"):  # torch >= 2.6
+        torch.nn.utils.clip_grads_with_norm_(params, max_norm, total_norm)
+        return
+    coef = (max_norm / (total_norm + 1e-6)).clamp(max=1.0)
+    for p in params:
+        if p.grad is not None:
+            p.grad.mul_(coef.to(p.grad.device))
 
 
 def batch_to_device(batch: Sample, device: torch.device) -> Sample:
@@ -62,6 +89,11 @@ class Trainer:
     def __init__(self, config: ExperimentConfig, dataset=None, resume: str | Path | None = None) -> None:
         self.config = config
         tcfg = config.train
+        if tcfg.render_backend != "auto" and tcfg.render_backend not in available_backends():  # fail before any work
+            raise ValueError(
+                f"train.render_backend={tcfg.render_backend!r} is not available here; "
+                f"choose 'auto' or one of {available_backends()}"
+            )
         self.dist, self.device = init_distributed(select_device(tcfg.device))
         torch.manual_seed(tcfg.seed + self.dist.rank)
         self.output_dir = Path(config.output_dir)
@@ -79,6 +111,10 @@ class Trainer:
         self.optimizer: torch.optim.Optimizer | None = None
         self.scheduler = None
         self._pending_optim_state: dict[str, Any] | None = None
+        # Non-finite guard: skipped steps in this run (total, and the current streak).
+        self.skipped_steps = 0
+        self.consecutive_skips = 0
+        self._gaussian_grad_ok: dict[str, Tensor] = {}  # filled by backward hooks, read only on a bad step
         if resume is not None:
             self._load(resolve_checkpoint(resume))
         elif tcfg.init:
@@ -129,26 +165,82 @@ class Trainer:
         with autocast:
             out = self.train_model(batch.context_images, batch.context_depths, batch.context_poses)
         gaussians = out.gaussians.to(torch.float32)
+        self._watch_gaussian_grads(gaussians)
         height, width = batch.target_images.shape[-2:]
         with torch.autocast(self.device.type, enabled=False):
             render = render_equirect(
-                gaussians, batch.target_poses.float(), height, width, background=tuple(self.config.train.background)
+                gaussians, batch.target_poses.float(), height, width,
+                background=tuple(self.config.train.background), backend=self.config.train.render_backend,
             )
             self._last_render = (render, batch)
             return self.loss_fn(render.rgb, render.depth, render.alpha, batch.target_images, batch.target_depths)
 
+    def _watch_gaussian_grads(self, gaussians) -> None:
+        """Record per Gaussian tensor whether its grad is finite; a device-side flag, no sync."""
+        self._gaussian_grad_ok = {}
+        for name in GAUSSIAN_FIELDS:
+            tensor = getattr(gaussians, name)
+            if tensor.requires_grad:
+                def hook(grad: Tensor, name: str = name) -> None:
+                    self._gaussian_grad_ok[name] = torch.isfinite(grad).all()
+                tensor.register_hook(hook)
+
+    def _nonfinite_source(self) -> str:
+        """Which rendered Gaussian tensors and (up to 5) parameters got non-finite grads."""
+        ok = self._gaussian_grad_ok
+        fields = [f"gaussians.{k}" for k in GAUSSIAN_FIELDS if k in ok and not bool(ok[k])]
+        params = [
+            name for name, p in self.model.named_parameters()
+            if p.grad is not None and not bool(torch.isfinite(p.grad).all())
+        ]
+        shown = params[:5] + ([f"(+{len(params) - 5} more)"] if len(params) > 5 else [])
+        return (
+            f"gaussian grads: {', '.join(fields) or 'all finite'}; "
+            f"parameter grads: {', '.join(shown) or 'all finite'}"
+        )
+
     def train_step(self, batch: Sample) -> dict[str, float]:
         self.model.train()
+        tcfg = self.config.train
         terms = self.compute_loss(batch_to_device(batch, self.device))
         self.optimizer.zero_grad(set_to_none=True)
+        # Backward even for a NaN loss: under DDP every rank must join the gradient all-reduce.
         terms.total.backward()
         params = [p for group in self.optimizer.param_groups for p in group["params"]]
-        if self.config.train.grad_clip > 0:
-            grad_norm = torch.nn.utils.clip_grad_norm_(params, self.config.train.grad_clip)
-            terms.parts["grad_norm"] = float(grad_norm)
+        grad_norm = _total_grad_norm(params)
+        loss_ok = torch.isfinite(terms.total.detach())
+        bad = (~(loss_ok & torch.isfinite(grad_norm).to(loss_ok.device))).float()
+        if self.dist.enabled:  # the loss is per rank: all ranks must agree on skipping
+            torch.distributed.all_reduce(bad, op=torch.distributed.ReduceOp.MAX)
+        skip = bool(bad)
+        terms.parts["grad_norm"] = float(grad_norm)
         terms.parts["lr"] = self.optimizer.param_groups[0]["lr"]
-        self.optimizer.step()
-        self.scheduler.step()
+        terms.parts["skipped"] = float(skip)
+        if skip:
+            source = self._nonfinite_source()  # before zeroing: it reads the grads
+            self.optimizer.zero_grad(set_to_none=True)
+            self.skipped_steps += 1
+            self.consecutive_skips += 1
+            step = self.global_step + 1
+            warnings.warn(
+                f"step {step} (stage {self.stage}) skipped: loss {'finite' if bool(loss_ok) else 'non-finite'}, "
+                f"grad norm {float(grad_norm)}; {source}", RuntimeWarning, stacklevel=2,
+            )
+            if 0 < tcfg.max_nonfinite_steps < self.consecutive_skips:
+                raise RuntimeError(
+                    f"training diverged: {self.consecutive_skips} consecutive steps with non-finite loss/gradients "
+                    f"(last at step {step}, source {source}); lower train.lr, or try train.render_backend=torch "
+                    "to rule out the fast renderer"
+                )
+            with warnings.catch_warnings():  # the schedule advances on purpose without an optimizer step
+                warnings.filterwarnings("ignore", message="Detected call of `lr_scheduler.step\\(\\)` before")
+                self.scheduler.step()
+        else:
+            self.consecutive_skips = 0
+            if tcfg.grad_clip > 0:
+                _clip_grads(params, tcfg.grad_clip, grad_norm)
+            self.optimizer.step()
+            self.scheduler.step()
         self.stage_step += 1
         self.global_step += 1
         return terms.parts
@@ -157,7 +249,8 @@ class Trainer:
     def fit(self, max_steps: int | None = None) -> dict[str, Any]:
         """Run the remaining curriculum (or ``max_steps`` more optimizer steps, then checkpoint).
 
-        Returns a summary: per-step losses of this call, mean step time, final paths.
+        Returns a summary: per-step losses of this call, mean step time, skipped (non-finite) steps of
+        the run, final paths.
         """
         tcfg = self.config.train
         if self.dist.is_main:
@@ -191,7 +284,7 @@ class Trainer:
                     history.append({"stage": self.stage, **parts})
                     bar.update(1)
                     bar.set_postfix(loss=f"{parts['total']:.4f}")
-                    if self.global_step % tcfg.log_every == 0 or self.stage_step == total:
+                    if self.global_step % tcfg.log_every == 0 or self.stage_step == total or parts["skipped"]:
                         self.logger.log(self.global_step, {f"train/{k}": v for k, v in parts.items()}, stage=self.stage)
                     if tcfg.image_every > 0 and self.global_step % tcfg.image_every == 0:
                         self.log_images()
@@ -219,6 +312,7 @@ class Trainer:
             "history": history,
             "mean_step_time": sum(step_times) / len(step_times) if step_times else float("nan"),
             "global_step": self.global_step,
+            "skipped_steps": self.skipped_steps,
             "finished": self.stage_index >= len(tcfg.stages),
             "weights": str(self.output_dir / "model.safetensors"),
         }
@@ -252,6 +346,8 @@ class Trainer:
             "stage_index": self.stage_index,
             "stage": self.stage if self.stage_index < len(self.config.train.stages) else None,
             "stage_step": self.stage_step,
+            "skipped_steps": self.skipped_steps,
+            "consecutive_skips": self.consecutive_skips,
             "stages": list(self.config.train.stages),
             "optimizer": self.optimizer.state_dict() if self.optimizer is not None else None,
             "scheduler": self.scheduler.state_dict() if self.scheduler is not None else None,
@@ -279,6 +375,8 @@ class Trainer:
         self.global_step = state["global_step"]
         self.stage_index = state["stage_index"]
         self.stage_step = state["stage_step"]
+        self.skipped_steps = state.get("skipped_steps", 0)  # absent in older checkpoints
+        self.consecutive_skips = state.get("consecutive_skips", 0)
         if state["optimizer"] is not None and self.stage_step > 0:
             self._pending_optim_state = {"optimizer": state["optimizer"], "scheduler": state["scheduler"]}
         restore_rng(state["rng"])
