@@ -33,7 +33,8 @@ _C3 = (
 
 
 def eval_sh(sh: Float[Tensor, "*batch K 3"], dirs: Float[Tensor, "*batch 3"]) -> Float[Tensor, "*batch 3"]:
-    """Colour ``max(SH(dirs) + 0.5, 0)`` for unit view directions (camera -> Gaussian)."""
+    """Colour ``max(SH(dirs) + 0.5, 0)`` for unit view directions (camera -> Gaussian); ``dirs`` may be
+    ``None`` for degree 0 (view-independent)."""
     k = sh.shape[-2]
     out = _C0 * sh[..., 0, :]
     if k > 1:

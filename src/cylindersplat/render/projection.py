@@ -28,7 +28,8 @@ from torch import Tensor
 
 from ..gaussians import Gaussians
 from ..geometry.equirect import equirect_jacobian
-from .covariance import covariance_3d, eval_sh
+from ..geometry.rotations import quaternion_to_matrix
+from .covariance import eval_sh
 
 __all__ = ["ProjectedGaussians", "RasterSettings", "UnsupportedSettings", "project_equirect_gaussians", "project_pinhole_gaussians"]
 
@@ -99,58 +100,84 @@ def _flatten_cameras(gaussians: Gaussians, c2w: Tensor) -> tuple[Gaussians, Tens
     return gaussians, c2w, out_shape
 
 
-def _view_colors(gaussians: Gaussians, c2w: Tensor) -> Tensor:
-    """Per (batch, view, Gaussian) RGB, ``(B, V, N, 3)``; view-independent for SH degree 0."""
-    sh = gaussians.sh
+def _view_colors(gaussians: Gaussians, c2w: Tensor, index: Tensor, num_v: int) -> Tensor:
+    """RGB of the visible pairs ``index`` (flat over ``(B, V, N)``), ``(M, 3)``; view-independent for SH degree 0."""
+    num_n = gaussians.means.shape[-2]
+    gauss = index % num_n + (index // (num_v * num_n)) * num_n  # row of the (B*N) Gaussians
+    sh = gaussians.sh.reshape(-1, *gaussians.sh.shape[-2:])
     if sh.shape[-2] == 1:
-        return eval_sh(sh, gaussians.means)[:, None].expand(-1, c2w.shape[1], -1, -1)
-    dirs = gaussians.means[:, None] - c2w[:, :, None, :3, 3]
+        return eval_sh(sh.index_select(0, gauss), None)
+    means = gaussians.means.reshape(-1, 3).index_select(0, gauss)
+    origins = c2w[..., :3, 3].reshape(-1, 3).to(means.dtype).index_select(0, index // num_n)
+    dirs = means - origins
     dirs = dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True).clamp_min(1e-12)
-    return eval_sh(sh[:, None].expand(-1, c2w.shape[1], -1, -1, -1), dirs)
+    return eval_sh(sh.index_select(0, gauss), dirs)
+
+
+def _cov2d_entries(jac_cam: Tensor, rot_c2w: Tensor, scales: Tensor, quats: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """Entries ``(a, b, c)`` of ``Sigma_2d = J W Sigma_3d W^T J^T`` (before dilation), ``(B, V, N)`` each.
+
+    With ``Sigma_3d = M M^T`` and ``M = R_q diag(s)``, ``Sigma_2d = (T M)(T M)^T`` where
+    ``T = J W`` (``W = R_c2w^T``, world -> camera): two 2x3 products per pair instead of 3x3 chains,
+    written elementwise so a GPU runs a few fused passes rather than batched tiny matrix products,
+    and positive semi-definite by construction.
+
+    jac_cam ``(B, V, N, 2, 3)``; rot_c2w ``(B, V, 3, 3)``; scales ``(B, N, 3)``; quats ``(B, N, 4)``.
+    """
+    # T[i, j] = sum_k J[i, k] W[k, j] = sum_k J[i, k] R[j, k]
+    t = (jac_cam[..., :, None, :] * rot_c2w[:, :, None, None, :, :]).sum(-1)  # (B, V, N, 2, 3)
+    m = quaternion_to_matrix(quats) * scales[..., None, :]  # (B, N, 3, 3)
+    tm = (t[..., :, :, None] * m[:, None, :, None, :, :]).sum(-2)  # (B, V, N, 2, 3)
+    row_u, row_v = tm[..., 0, :], tm[..., 1, :]
+    return (row_u * row_u).sum(-1), (row_u * row_v).sum(-1), (row_v * row_v).sum(-1)
 
 
 def _finish(
-    cov2d: Tensor,
+    cov2d: tuple[Tensor, Tensor, Tensor],
     uv: Tensor,
     depth: Tensor,
     valid: Tensor,
     gaussians: Gaussians,
-    colors: Tensor,
+    c2w: Tensor,
     settings: RasterSettings,
     max_std: tuple[float, float],
     height: int,
     width: int,
     wrap_u: bool,
 ) -> ProjectedGaussians:
-    """Shared tail: dilation, std caps, conic, extents, culling, flattening (all ``(B, V, N, ...)``)."""
-    eye = torch.eye(2, dtype=cov2d.dtype, device=cov2d.device)
-    cov2d = cov2d + settings.dilation * eye
-    a, b, c = cov2d[..., 0, 0], cov2d[..., 0, 1], cov2d[..., 1, 1]
+    """Shared tail: dilation, std caps, conic, extents, culling, compaction (all ``(B, V, N, ...)``)."""
+    a, b, c = cov2d
+    a, c = a + settings.dilation, c + settings.dilation
     # Cap the standard deviations by scaling rows/columns (keeps the matrix positive definite).
     fu = torch.clamp(max_std[0] ** 2 / a, max=1.0)
     fv = torch.clamp(max_std[1] ** 2 / c, max=1.0)
     a, b, c = a * fu, b * torch.sqrt(fu * fv), c * fv
     det = (a * c - b * b).clamp_min(1e-30)
-    conic = torch.stack((c / det, -b / det, a / det), dim=-1)
-    extent = settings.sigma_extent * torch.sqrt(torch.stack((a, c), dim=-1))
+    extent_u = settings.sigma_extent * torch.sqrt(a)
+    extent_v = settings.sigma_extent * torch.sqrt(c)
 
-    opacity = gaussians.opacities[:, None].expand_as(depth)
+    opacity = gaussians.opacities[:, None]
     valid = valid & (opacity >= settings.alpha_min)
-    valid = valid & (uv[..., 1] - extent[..., 1] < height) & (uv[..., 1] + extent[..., 1] > 0)
+    valid = valid & (uv[..., 1] - extent_v < height) & (uv[..., 1] + extent_v > 0)
     if not wrap_u:
-        valid = valid & (uv[..., 0] - extent[..., 0] < width) & (uv[..., 0] + extent[..., 0] > 0)
+        valid = valid & (uv[..., 0] - extent_u < width) & (uv[..., 0] + extent_u > 0)
 
+    # One index computation and gathers of packed rows (every x[mask] would synchronise again).
     num_b, num_v, num_n = depth.shape
-    camera = torch.arange(num_b * num_v, device=depth.device).view(num_b, num_v, 1).expand(-1, -1, num_n)
+    index = valid.reshape(-1).nonzero().squeeze(1)
     dtype = gaussians.dtype
+    geo = torch.stack((uv[..., 0], uv[..., 1], c / det, -b / det, a / det, extent_u, extent_v, depth), dim=-1)
+    geo = geo.reshape(-1, 8).index_select(0, index).to(dtype)
+    gauss = index % num_n + (index // (num_v * num_n)) * num_n  # row of the (B*N) Gaussians
+    colors = _view_colors(gaussians, c2w, index, num_v)
     return ProjectedGaussians(
-        camera=camera[valid],
-        uv=uv[valid].to(dtype),
-        conic=conic[valid].to(dtype),
-        extent=extent[valid].to(dtype),
-        depth=depth[valid].to(dtype),
-        opacity=opacity[valid],
-        color=colors[valid],
+        camera=index // num_n,
+        uv=geo[:, 0:2],
+        conic=geo[:, 2:5],
+        extent=geo[:, 5:7],
+        depth=geo[:, 7],
+        opacity=gaussians.opacities.reshape(-1).index_select(0, gauss),
+        color=colors,
         num_cameras=num_b * num_v,
         height=height,
         width=width,
@@ -184,13 +211,9 @@ def project_equirect_gaussians(
     r_safe = torch.where(valid, r, torch.ones_like(r))
     p_safe = torch.where(valid[..., None], p, torch.ones_like(p))
     jac = equirect_jacobian(p_safe, height, width, min_rho=settings.pole_eps * r_safe)  # (B, V, N, 2, 3)
-    cov_world = covariance_3d(gaussians.scales.to(f64), gaussians.rotations.to(f64))  # (B, N, 3, 3)
-    cov_cam = rot.transpose(-1, -2)[:, :, None] @ cov_world[:, None] @ rot[:, :, None]
-    cov2d = jac @ cov_cam @ jac.transpose(-1, -2)
-
-    colors = _view_colors(gaussians, c2w)
+    cov2d = _cov2d_entries(jac, rot, gaussians.scales.to(f64), gaussians.rotations.to(f64))
     proj = _finish(
-        cov2d, uv, r, valid, gaussians, colors, settings, (width / 6.0, 2.0 * height), height, width, wrap_u=True
+        cov2d, uv, r, valid, gaussians, c2w, settings, (width / 6.0, 2.0 * height), height, width, wrap_u=True
     )
     return proj, out_shape
 
@@ -230,10 +253,7 @@ def project_pinhole_gaussians(
         ),
         dim=-2,
     )
-    cov_world = covariance_3d(gaussians.scales.to(f64), gaussians.rotations.to(f64))
-    cov_cam = rot.transpose(-1, -2)[:, :, None] @ cov_world[:, None] @ rot[:, :, None]
-    cov2d = jac @ cov_cam @ jac.transpose(-1, -2)
+    cov2d = _cov2d_entries(jac, rot, gaussians.scales.to(f64), gaussians.rotations.to(f64))
     r = torch.linalg.vector_norm(p, dim=-1)
-    colors = _view_colors(gaussians, c2w)
-    proj = _finish(cov2d, uv, r, valid, gaussians, colors, settings, (4.0 * width, 4.0 * height), height, width, wrap_u=False)
+    proj = _finish(cov2d, uv, r, valid, gaussians, c2w, settings, (4.0 * width, 4.0 * height), height, width, wrap_u=False)
     return proj, out_shape

@@ -158,20 +158,25 @@ def composite_backward_kernel(
         cr, cg, cb, cd = _colour(packed_ptr, g)
         s = g_r * cr + g_g * cg + g_b * cb + g_d * cd + g_a
         prefix += s * w
-        d_alpha = trans * s - (total - prefix) / (1.0 - alpha)
-        d_alpha = tl.where(use & (raw < alpha_max), d_alpha, 0.0)
-        d_mahal = -0.5 * alpha * d_alpha
-        gp = grad_packed_ptr + g * 11
-        tl.atomic_add(gp + 0, tl.sum(-2.0 * d_mahal * (a * du + b * dv), axis=0))
-        tl.atomic_add(gp + 1, tl.sum(-2.0 * d_mahal * (b * du + c * dv), axis=0))
-        tl.atomic_add(gp + 2, tl.sum(d_mahal * du * du, axis=0))
-        tl.atomic_add(gp + 3, tl.sum(2.0 * d_mahal * du * dv, axis=0))
-        tl.atomic_add(gp + 4, tl.sum(d_mahal * dv * dv, axis=0))
-        tl.atomic_add(gp + 5, tl.sum(d_alpha * alpha, axis=0) / tl.maximum(o, 1e-30))
-        tl.atomic_add(gp + 6, tl.sum(g_r * w, axis=0))
-        tl.atomic_add(gp + 7, tl.sum(g_g * w, axis=0))
-        tl.atomic_add(gp + 8, tl.sum(g_b * w, axis=0))
-        tl.atomic_add(gp + 9, tl.sum(g_d * w, axis=0))
+        # Pairs that touch none of the tile's pixels (bounding box only) add nothing: skip their atomics.
+        if tl.sum(use.to(tl.int32), axis=0) > 0:
+            d_alpha = trans * s - (total - prefix) / (1.0 - alpha)
+            on = use & (raw < alpha_max)
+            # where(), not a product with 0: alpha, du, dv are garbage (even NaN) outside the support.
+            d_mahal = tl.where(on, -0.5 * alpha * d_alpha, 0.0)
+            du = tl.where(on, du, 0.0)
+            dv = tl.where(on, dv, 0.0)
+            gp = grad_packed_ptr + g * 11
+            tl.atomic_add(gp + 0, tl.sum(-2.0 * d_mahal * (a * du + b * dv), axis=0))
+            tl.atomic_add(gp + 1, tl.sum(-2.0 * d_mahal * (b * du + c * dv), axis=0))
+            tl.atomic_add(gp + 2, tl.sum(d_mahal * du * du, axis=0))
+            tl.atomic_add(gp + 3, tl.sum(2.0 * d_mahal * du * dv, axis=0))
+            tl.atomic_add(gp + 4, tl.sum(d_mahal * dv * dv, axis=0))
+            tl.atomic_add(gp + 5, tl.sum(tl.where(on, d_alpha * alpha, 0.0), axis=0) / tl.maximum(o, 1e-30))
+            tl.atomic_add(gp + 6, tl.sum(g_r * w, axis=0))
+            tl.atomic_add(gp + 7, tl.sum(g_g * w, axis=0))
+            tl.atomic_add(gp + 8, tl.sum(g_b * w, axis=0))
+            tl.atomic_add(gp + 9, tl.sum(g_d * w, axis=0))
         trans = next_trans
         alive = next_alive
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
