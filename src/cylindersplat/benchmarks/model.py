@@ -49,11 +49,14 @@ def run_single(args) -> dict:
 
         render = render_equirect
 
+    use_bf16 = args.amp == "bf16" and device.type == "cuda"
+
     def step():
         with torch.no_grad():
-            out = model(images, depth, c2w)
+            with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_bf16):
+                out = model(images, depth, c2w)
             if render is not None:
-                render(out.gaussians, c2w[:, :1], args.height, 2 * args.height)
+                render(out.gaussians.to(torch.float32), c2w[:, :1], args.height, 2 * args.height)
         return out
 
     for _ in range(args.warmup):
@@ -100,10 +103,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--mode", default="both", choices=["pixel", "volume", "both"])
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--render", action="store_true", help="include one render_equirect per forward")
+    parser.add_argument("--amp", choices=["bf16", "off"], default="bf16",
+                        help="network forward under bf16 autocast on CUDA (as inference and training do)")
     parser.add_argument("--warmup", type=int, default=1)
+    parser.add_argument("--compile", action="store_true", help="projection through torch.compile (render.projection.compile_projection)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--single", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.compile:
+        from cylindersplat.render.projection import compile_projection
+
+        compile_projection(True)
     if args.height is None:
         from cylindersplat.model import get_config
 
@@ -115,13 +125,14 @@ def main(argv: list[str] | None = None) -> None:
         return
 
     print(f"# CylinderSplat forward benchmark: config={args.config} mode={args.mode} input {args.height}x{2 * args.height}"
-          f"{' + 1 render' if args.render else ''}; {describe_device(args.device)}")
+          f"{' + 1 render' if args.render else ''}, amp {args.amp if args.device.startswith('cuda') else 'off'}; "
+          f"{describe_device(args.device)}")
     print("| views | Gaussians | median latency (s) | min (s) | peak memory (MiB) |")
     print("|---|---|---|---|---|")
     for views in args.views:
         cmd = [sys.executable, __file__, "--single", "--config", args.config, "--height", str(args.height),
                "--views", str(views), "--mode", args.mode, "--device", args.device,
-               "--warmup", str(args.warmup), "--repeats", str(args.repeats)] + (["--render"] if args.render else [])
+               "--warmup", str(args.warmup), "--repeats", str(args.repeats), "--amp", args.amp] + (["--compile"] if args.compile else []) + (["--render"] if args.render else [])
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             sys.exit(f"benchmark with {views} views failed:\n{proc.stderr}")

@@ -86,7 +86,7 @@ def bench(num: int, height: int, device: torch.device, backend: str, repeats: in
             if device.type == "cuda":
                 torch.cuda.reset_peak_memory_stats()
             row["cubemap_forward_ms"], row["cubemap_fwd_bwd_ms"] = _forward_and_backward_ms(
-                lambda: render_cubemap(g, c2w, height, width), params, device, repeats)
+                lambda: render_cubemap(g, c2w, height, width, backend=backend), params, device, repeats)
             row["cubemap_peak_mb"] = _peak_mb(device)
         except torch.OutOfMemoryError:
             row["cubemap_error"] = "out of memory"
@@ -149,6 +149,28 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
     return out
 
 
+def profile(num: int, height: int, device: torch.device, backend: str, rows: int = 20) -> None:
+    """Top operators (by device time) of one forward + backward."""
+    g = random_indoor(num).to(device)
+    for t in g.tensors().values():
+        t.requires_grad_()
+    c2w = torch.eye(4, device=device)
+
+    def step():
+        out = render_equirect(g, c2w, height, 2 * height, backend=backend)
+        (out.rgb.sum() + out.depth.sum()).backward()
+
+    step()
+    _sync(device)
+    activities = [torch.profiler.ProfilerActivity.CPU] + ([torch.profiler.ProfilerActivity.CUDA] if device.type == "cuda" else [])
+    with torch.profiler.profile(activities=activities) as prof:
+        step()
+        _sync(device)
+    key = "self_device_time_total" if device.type == "cuda" else "self_cpu_time_total"
+    print(f"# profile: {backend}, {num} Gaussians, {height}x{2 * height}, one forward + backward")
+    print(prof.key_averages().table(sort_by=key, row_limit=rows, max_name_column_width=60))
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="cylindersplat bench render", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--num", type=int, nargs="+", default=[100_000], help="numbers of Gaussians")
@@ -161,13 +183,20 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--stages", action="store_true", help="print the per-stage breakdown")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     parser.add_argument("--default-malloc", action="store_true", help="skip the glibc allocator tuning")
+    parser.add_argument("--profile", action="store_true", help="print torch.profiler's top kernels of one forward+backward")
+    parser.add_argument("--compile", action="store_true", help="projection through torch.compile (render.projection.compile_projection)")
     args = parser.parse_args(argv)
+    if args.compile:
+        from cylindersplat.render.projection import compile_projection
+
+        compile_projection(True)
     if not args.default_malloc:
         keep_freed_memory()
     if args.threads:
         torch.set_num_threads(args.threads)
     devices = args.device or (["cpu", "cuda"] if torch.cuda.is_available() else ["cpu"])
-    print(f"# {platform.processor() or platform.machine()}, {torch.get_num_threads()} torch threads, torch {torch.__version__}")
+    print(f"# {platform.processor() or platform.machine()}, {torch.get_num_threads()} torch threads, torch {torch.__version__}"
+          f"{', compiled projection' if args.compile else ''}")
     if torch.cuda.is_available():
         print(f"# GPU: {torch.cuda.get_device_name()}")
     for dev in devices:
@@ -179,6 +208,8 @@ def main(argv: list[str] | None = None) -> None:
                     continue
                 rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, args.cubemap, args.stages))
                 print(rows[-1])
+                if args.profile:
+                    profile(num, args.height, torch.device(dev), backend)
             for row in rows[1:]:
                 base = rows[0]
                 text = (f"# {row['backend']} vs {base['backend']} ({num} Gaussians, {row['size']}, {dev}): forward "

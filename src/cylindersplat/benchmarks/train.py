@@ -99,7 +99,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=5, help="timed steps per stage")
     parser.add_argument("--warmup", type=int, default=2)
     parser.add_argument("--lpips", choices=["random", "off"], default="random")
+    parser.add_argument("--compile", action="store_true", help="projection through torch.compile (render.projection.compile_projection)")
     args = parser.parse_args(argv)
+    if args.compile:
+        from cylindersplat.render.projection import compile_projection
+
+        compile_projection(True)
     name = torch.cuda.get_device_name() if args.device.startswith("cuda") else "CPU"
     print(f"# training step per curriculum stage: config={args.config} {args.height}x{2 * args.height}, batch 1, "
           f"2 context + 1 target, LPIPS {args.lpips}; {name}, torch {torch.__version__}", flush=True)

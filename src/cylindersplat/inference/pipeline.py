@@ -30,11 +30,19 @@ def reconstruct_gaussians(
     c2w: Float[Tensor, "V 4 4"],
     device: torch.device | str = "cpu",
     min_opacity: float = 0.0,
+    amp: str = "auto",
 ) -> Gaussians:
-    """World-frame Gaussians (unbatched, on ``device``) of one scene; drops those with opacity <= ``min_opacity``."""
+    """World-frame Gaussians (unbatched, float32, on ``device``) of one scene; drops those with opacity <=
+    ``min_opacity``. ``amp``: ``"auto"`` runs the network under bf16 autocast on CUDA (as training
+    does; the Gaussians come out in float32), ``"off"`` in float32 everywhere."""
+    if amp not in ("auto", "off"):
+        raise ValueError(f"amp must be 'auto' or 'off', got {amp!r}")
     model.eval()
-    out = model(images[None].to(device), depths[None].to(device), c2w[None].to(device))
-    gaussians = out.gaussians.detach().batch(0)
+    device = torch.device(device)
+    use_bf16 = amp == "auto" and device.type == "cuda"
+    with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_bf16):
+        out = model(images[None].to(device), depths[None].to(device), c2w[None].to(device))
+    gaussians = out.gaussians.detach().to(torch.float32).batch(0)
     if min_opacity > 0:
         gaussians = gaussians[gaussians.opacities > min_opacity]
     return gaussians

@@ -132,20 +132,21 @@ def _cov2d_entries(jac_cam: Tensor, rot_c2w: Tensor, scales: Tensor, quats: Tens
     return (row_u * row_u).sum(-1), (row_u * row_v).sum(-1), (row_v * row_v).sum(-1)
 
 
-def _finish(
+def _dense_tail(
     cov2d: tuple[Tensor, Tensor, Tensor],
     uv: Tensor,
     depth: Tensor,
     valid: Tensor,
-    gaussians: Gaussians,
-    c2w: Tensor,
+    opacities: Tensor,
     settings: RasterSettings,
     max_std: tuple[float, float],
     height: int,
     width: int,
     wrap_u: bool,
-) -> ProjectedGaussians:
-    """Shared tail: dilation, std caps, conic, extents, culling, compaction (all ``(B, V, N, ...)``)."""
+) -> tuple[Tensor, Tensor]:
+    """Shared tail: dilation, std caps, conic, extents, culling (all ``(B, V, N, ...)``).
+
+    Returns ``geo (B, V, N, 8)`` = ``[u, v, conic A, B, C, extent u, extent v, depth]`` and ``valid``."""
     a, b, c = cov2d
     a, c = a + settings.dilation, c + settings.dilation
     # Cap the standard deviations by scaling rows/columns (keeps the matrix positive definite).
@@ -155,21 +156,23 @@ def _finish(
     det = (a * c - b * b).clamp_min(1e-30)
     extent_u = settings.sigma_extent * torch.sqrt(a)
     extent_v = settings.sigma_extent * torch.sqrt(c)
-
-    opacity = gaussians.opacities[:, None]
-    valid = valid & (opacity >= settings.alpha_min)
-    valid = valid & (uv[..., 1] - extent_v < height) & (uv[..., 1] + extent_v > 0)
+    u, v = uv
+    valid = valid & (opacities[:, None] >= settings.alpha_min)
+    valid = valid & (v - extent_v < height) & (v + extent_v > 0)
     if not wrap_u:
-        valid = valid & (uv[..., 0] - extent_u < width) & (uv[..., 0] + extent_u > 0)
+        valid = valid & (u - extent_u < width) & (u + extent_u > 0)
+    geo = torch.stack((u, v, c / det, -b / det, a / det, extent_u, extent_v, depth), dim=-1)
+    return geo, valid
 
-    # One index computation and gathers of packed rows (every x[mask] would synchronise again).
-    num_b, num_v, num_n = depth.shape
+
+def _compact(
+    geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, height: int, width: int, wrap_u: bool
+) -> ProjectedGaussians:
+    """Keep the visible pairs: one index computation and gathers (every ``x[mask]`` would synchronise again)."""
+    num_b, num_v, num_n = valid.shape
     index = valid.reshape(-1).nonzero().squeeze(1)
-    dtype = gaussians.dtype
-    geo = torch.stack((uv[..., 0], uv[..., 1], c / det, -b / det, a / det, extent_u, extent_v, depth), dim=-1)
-    geo = geo.reshape(-1, 8).index_select(0, index).to(dtype)
+    geo = geo.reshape(-1, 8).index_select(0, index).to(gaussians.dtype)
     gauss = index % num_n + (index // (num_v * num_n)) * num_n  # row of the (B*N) Gaussians
-    colors = _view_colors(gaussians, c2w, index, num_v)
     return ProjectedGaussians(
         camera=index // num_n,
         uv=geo[:, 0:2],
@@ -177,7 +180,7 @@ def _finish(
         extent=geo[:, 5:7],
         depth=geo[:, 7],
         opacity=gaussians.opacities.reshape(-1).index_select(0, gauss),
-        color=colors,
+        color=_view_colors(gaussians, c2w, index, num_v),
         num_cameras=num_b * num_v,
         height=height,
         width=width,
@@ -185,15 +188,14 @@ def _finish(
     )
 
 
-def project_equirect_gaussians(
-    gaussians: Gaussians, c2w: Tensor, height: int, width: int, settings: RasterSettings = RasterSettings()
-) -> tuple[ProjectedGaussians, tuple[int, ...]]:
-    """Project into equirect cameras. Returns the projection and the output batch shape ``(*B, V)``."""
-    gaussians, c2w, out_shape = _flatten_cameras(gaussians, c2w)
+def _equirect_dense(
+    means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, c2w: Tensor, height: int, width: int,
+    settings: RasterSettings,
+) -> tuple[Tensor, Tensor]:
+    """Every (camera, Gaussian) pair of ``(B, N)`` Gaussians and ``(B, V)`` cameras -> ``geo, valid`` (:func:`_dense_tail`)."""
     f64 = torch.float64
     rot = c2w[..., :3, :3].to(f64)  # (B, V, 3, 3)
-    means = gaussians.means.to(f64)
-    p = (means[:, None] - c2w[:, :, None, :3, 3].to(f64)) @ rot  # (B, V, N, 3) camera frame
+    p = (means.to(f64)[:, None] - c2w[:, :, None, :3, 3].to(f64)) @ rot  # (B, V, N, 3) camera frame
     x, y, z = p.unbind(-1)
     rho2 = x * x + z * z
     r = torch.sqrt((rho2 + y * y).clamp_min(1e-30))
@@ -206,16 +208,72 @@ def project_equirect_gaussians(
     rho = torch.sqrt(rho2.clamp_min(1e-24))
     u = width / (2 * math.pi) * (torch.atan2(x_safe, z_safe) + math.pi)
     v = height / math.pi * (torch.atan2(y, rho) + math.pi / 2)
-    uv = torch.stack((u, v), dim=-1)
 
     r_safe = torch.where(valid, r, torch.ones_like(r))
     p_safe = torch.where(valid[..., None], p, torch.ones_like(p))
     jac = equirect_jacobian(p_safe, height, width, min_rho=settings.pole_eps * r_safe)  # (B, V, N, 2, 3)
-    cov2d = _cov2d_entries(jac, rot, gaussians.scales.to(f64), gaussians.rotations.to(f64))
-    proj = _finish(
-        cov2d, uv, r, valid, gaussians, c2w, settings, (width / 6.0, 2.0 * height), height, width, wrap_u=True
+    cov2d = _cov2d_entries(jac, rot, scales.to(f64), quats.to(f64))
+    return _dense_tail(cov2d, (u, v), r, valid, opacities, settings, (width / 6.0, 2.0 * height), height, width, True)
+
+
+def _pinhole_dense(
+    means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, c2w: Tensor, intrinsics: Tensor, height: int,
+    width: int, settings: RasterSettings,
+) -> tuple[Tensor, Tensor]:
+    f64 = torch.float64
+    rot = c2w[..., :3, :3].to(f64)
+    p = (means.to(f64)[:, None] - c2w[:, :, None, :3, 3].to(f64)) @ rot
+    x, y, z = p.unbind(-1)
+    k = intrinsics.to(f64)
+    fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+    valid = z > settings.near
+    z_safe = torch.where(valid, z, torch.ones_like(z))
+    tx, ty = x / z_safe, y / z_safe
+    lim_x, lim_y = 1.3 * (width / 2) / fx, 1.3 * (height / 2) / fy
+    valid = valid & ((tx - (cx - width / 2) / fx).abs() <= lim_x) & ((ty - (cy - height / 2) / fy).abs() <= lim_y)
+    zero = torch.zeros_like(z)
+    jac = torch.stack(
+        (
+            torch.stack((fx / z_safe, zero, -fx * x / z_safe**2), dim=-1),
+            torch.stack((zero, fy / z_safe, -fy * y / z_safe**2), dim=-1),
+        ),
+        dim=-2,
     )
-    return proj, out_shape
+    cov2d = _cov2d_entries(jac, rot, scales.to(f64), quats.to(f64))
+    r = torch.linalg.vector_norm(p, dim=-1)
+    uv = (fx * tx + cx, fy * ty + cy)
+    return _dense_tail(cov2d, uv, r, valid, opacities, settings, (4.0 * width, 4.0 * height), height, width, False)
+
+
+# torch.compile of the dense math (opt-in): fused kernels forward and backward on a GPU.
+_COMPILED: dict = {}
+_USE_COMPILED = False
+
+
+def compile_projection(enabled: bool = True) -> None:
+    """Run the per-pair projection math through ``torch.compile`` (fewer, fused GPU kernels, forward and
+    backward). The first call per camera model and dtype compiles (seconds); results are identical
+    up to floating-point reassociation. Off by default."""
+    global _USE_COMPILED
+    _USE_COMPILED = bool(enabled)
+
+
+def _dense(fn):
+    if not _USE_COMPILED:
+        return fn
+    if fn not in _COMPILED:
+        _COMPILED[fn] = torch.compile(fn, dynamic=True)
+    return _COMPILED[fn]
+
+
+def project_equirect_gaussians(
+    gaussians: Gaussians, c2w: Tensor, height: int, width: int, settings: RasterSettings = RasterSettings()
+) -> tuple[ProjectedGaussians, tuple[int, ...]]:
+    """Project into equirect cameras. Returns the projection and the output batch shape ``(*B, V)``."""
+    gaussians, c2w, out_shape = _flatten_cameras(gaussians, c2w)
+    g = gaussians
+    geo, valid = _dense(_equirect_dense)(g.means, g.scales, g.rotations, g.opacities, c2w, height, width, settings)
+    return _compact(geo, valid, gaussians, c2w, height, width, wrap_u=True), out_shape
 
 
 def project_pinhole_gaussians(
@@ -233,27 +291,7 @@ def project_pinhole_gaussians(
     distance so that direct and cubemap renders composite in the same order.
     """
     gaussians, c2w, out_shape = _flatten_cameras(gaussians, c2w)
-    f64 = torch.float64
-    rot = c2w[..., :3, :3].to(f64)
-    p = (gaussians.means.to(f64)[:, None] - c2w[:, :, None, :3, 3].to(f64)) @ rot
-    x, y, z = p.unbind(-1)
-    k = intrinsics.to(f64)
-    fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
-    valid = z > settings.near
-    z_safe = torch.where(valid, z, torch.ones_like(z))
-    tx, ty = x / z_safe, y / z_safe
-    lim_x, lim_y = 1.3 * (width / 2) / fx, 1.3 * (height / 2) / fy
-    valid = valid & ((tx - (cx - width / 2) / fx).abs() <= lim_x) & ((ty - (cy - height / 2) / fy).abs() <= lim_y)
-    uv = torch.stack((fx * tx + cx, fy * ty + cy), dim=-1)
-    zero = torch.zeros_like(z)
-    jac = torch.stack(
-        (
-            torch.stack((fx / z_safe, zero, -fx * x / z_safe**2), dim=-1),
-            torch.stack((zero, fy / z_safe, -fy * y / z_safe**2), dim=-1),
-        ),
-        dim=-2,
-    )
-    cov2d = _cov2d_entries(jac, rot, gaussians.scales.to(f64), gaussians.rotations.to(f64))
-    r = torch.linalg.vector_norm(p, dim=-1)
-    proj = _finish(cov2d, uv, r, valid, gaussians, c2w, settings, (4.0 * width, 4.0 * height), height, width, wrap_u=False)
-    return proj, out_shape
+    g = gaussians
+    geo, valid = _dense(_pinhole_dense)(g.means, g.scales, g.rotations, g.opacities, c2w, intrinsics, height, width,
+                                        settings)
+    return _compact(geo, valid, gaussians, c2w, height, width, wrap_u=False), out_shape
