@@ -5,6 +5,7 @@ See ``docs/data.md`` for the on-disk layouts.
 
 from .base import ExampleRef, FrameRef, PanoramaDataset
 from .consistency import ConsistencyResult, reprojection_consistency
+from .occlusion import occluded_fraction, occluded_mask
 from .depth_prior import (
     DepthPrior,
     FilePrior,
