@@ -174,3 +174,17 @@ def test_render_backend_option(synth_root, tmp_path):
         Trainer(_config(synth_root, tmp_path / "bad", "train.render_backend=nope"))
     with pytest.raises(ValueError, match="max_nonfinite_steps"):
         load_config("tiny", ["train.max_nonfinite_steps=-1"])
+
+
+def test_volume_lr_scale_gives_the_volume_branch_its_own_rate(tmp_path, synth_root):
+    cfg = _config(synth_root, tmp_path / "run", "train.stages=[3]", "train.steps_per_stage=[1]",
+                  "train.volume_lr_scale=0.25", "train.warmup_steps=0")
+    trainer = Trainer(cfg)
+    trainer.stage_index = 0
+    trainer._begin_stage()
+    volume = {id(p) for p in trainer.model.branch_parameters("volume")}
+    rates = {id(p): g["lr"] for g in trainer.optimizer.param_groups for p in g["params"]}
+    assert {rates[i] for i in volume} == {cfg.train.lr * 0.25}
+    assert {r for i, r in rates.items() if i not in volume} == {cfg.train.lr}
+    with pytest.raises(ValueError, match="volume_lr_scale"):
+        load_config("tiny", ["train.volume_lr_scale=0"])

@@ -63,6 +63,7 @@ class TrainConfig:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     amp: Literal["auto", "bf16", "off"] = "auto"  # auto: bf16 network forward on CUDA, fp32 on CPU
     device: str = "auto"  # auto: cuda when available
+    volume_lr_scale: float = 1.0  # volume-branch learning rate = lr x this (a per-branch rate for the joint stage)
     render_backend: str = "auto"  # render_equirect backend: auto, torch (reference) or triton
     seed: int = 0
     log_every: int = 10
@@ -190,6 +191,8 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     bad = [s for s in cfg.train.stages if s not in (1, 2, 3)]
     if bad or not cfg.train.stages:
         raise ValueError(f"train.stages must be a non-empty list of 1, 2, 3; got {cfg.train.stages}")
+    if not cfg.train.volume_lr_scale > 0:
+        raise ValueError(f"train.volume_lr_scale must be > 0, got {cfg.train.volume_lr_scale}")
     if cfg.train.max_nonfinite_steps < 0:
         raise ValueError(f"train.max_nonfinite_steps must be >= 0 (0 = never give up), got {cfg.train.max_nonfinite_steps}")
     return cfg

@@ -148,8 +148,16 @@ class Trainer:
         tcfg = self.config.train
         self.model.configure_stage(self.stage)
         self.train_model = wrap_ddp(self.model, self.dist, self.device)
-        params = [p for p in self.model.parameters() if p.requires_grad]
-        self.optimizer = torch.optim.AdamW(params, lr=tcfg.lr, betas=tuple(tcfg.betas), weight_decay=tcfg.weight_decay)
+        volume = {id(p) for p in self.model.branch_parameters("volume")}
+        groups = [
+            {"params": [p for p in self.model.parameters() if p.requires_grad and id(p) not in volume], "lr": tcfg.lr},
+            {"params": [p for p in self.model.parameters() if p.requires_grad and id(p) in volume],
+             "lr": tcfg.lr * tcfg.volume_lr_scale},
+        ]
+        groups = [g for g in groups if g["params"]]  # stage 1 trains no volume parameters, stage 2 no pixel ones
+        if tcfg.volume_lr_scale == 1.0:  # one group, as checkpoints of earlier versions have
+            groups = [{"params": [p for g in groups for p in g["params"]], "lr": tcfg.lr}]
+        self.optimizer = torch.optim.AdamW(groups, lr=tcfg.lr, betas=tuple(tcfg.betas), weight_decay=tcfg.weight_decay)
         self.scheduler = cosine_schedule(self.optimizer, self.stage_steps(), tcfg.warmup_steps, tcfg.min_lr_ratio)
         if self._pending_optim_state is not None:
             self.optimizer.load_state_dict(self._pending_optim_state["optimizer"])

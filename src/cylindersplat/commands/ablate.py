@@ -1,0 +1,73 @@
+"""``cylindersplat ablate``: the ablation study (train variants x seeds, score on held-out scenes)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from ._arguments import model_resolution
+
+
+def _steps(text: str) -> tuple[int, int, int]:
+    try:
+        parts = tuple(int(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--steps must be three integers like 300,150,150, got {text!r}") from None
+    if len(parts) != 3 or min(parts) < 0 or parts[0] == 0:
+        raise argparse.ArgumentTypeError(f"--steps needs stage-1,stage-2,stage-3 steps (stage 1 > 0), got {text!r}")
+    return parts
+
+
+def register(subparsers) -> None:
+    from ..experiments.ablation import VARIANT_NAMES
+
+    p = subparsers.add_parser(
+        "ablate", help="ablation study: train model variants with several seeds and tabulate them",
+        description="Train the tiny model's variants (full, pixel only, volume only with cylindrical / spherical / "
+        "Cartesian triplanes, and the paper's switches) with one schedule and several seeds on procedural scenes, "
+        "score them on the same held-out scenes (all pixels and pixels no input view sees) and write ablation.md / "
+        "ablation.json. Resumable: finished runs are scored, not retrained. Results: benchmarks/RESULTS.md.",
+    )
+    p.add_argument("--data", type=Path, help="synthetic dataset (default: generate OUT/data with the occlusion profile)")
+    p.add_argument("--out", type=Path, default=Path("outputs/ablation"), help="output folder (default outputs/ablation)")
+    p.add_argument("--variants", nargs="+", default=None, metavar="NAME",
+                   help=f"variants to run (default all): {', '.join(VARIANT_NAMES)}")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="training seeds (default 0 1)")
+    p.add_argument("--steps", type=_steps, default=(300, 150, 150),
+                   help="optimizer steps of stages 1,2,3 of the full model; other variants get the same total (default 300,150,150)")
+    p.add_argument("--lr", type=float, default=2e-3, help="peak learning rate (default 2e-3)")
+    p.add_argument("--scenes", type=int, default=28, help="scenes to generate when --data is not given (default 28)")
+    p.add_argument("--held-out", type=int, default=8, help="last N scenes are scored, not trained on (default 8)")
+    p.add_argument("--resolution", type=model_resolution, default=(64, 128), help="panorama HxW (default 64x128)")
+    p.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    p.add_argument("--json", type=Path, help="also copy ablation.json here (e.g. benchmarks/results/ablation.json)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..experiments.ablation import Schedule, default_variants, run_study
+
+    known = {v.name: v for v in default_variants()}
+    names = args.variants or list(known)
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ValueError(f"unknown variant(s) {unknown}; choose from {list(known)}")
+    data = args.data or _generate(args)
+    schedule = Schedule(*args.steps, lr=args.lr)
+    report = run_study(data, args.out, [known[n] for n in names], tuple(args.seeds), schedule, args.held_out,
+                       args.resolution, args.device)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=1))
+    print((args.out / "ablation.md").read_text())
+    return 0
+
+
+def _generate(args) -> Path:
+    from ..data.synth import write_synthetic_dataset
+    from ..experiments.ablation import study_sequence_config
+
+    root = args.out / "data"
+    write_synthetic_dataset(root, args.scenes, args.resolution, study_sequence_config(), seed=0)
+    return root

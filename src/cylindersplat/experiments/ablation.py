@@ -1,0 +1,276 @@
+"""The ablation study: train model variants with one schedule and several seeds, score them on the
+same held-out scenes, and tabulate mean and spread (paper Table "Ablation Study").
+
+A variant is a name, a list of config overrides on the ``tiny`` preset and the curriculum stages it
+trains. All variants get the same number of optimizer steps (``Schedule.total``): the full model runs
+stages 1-2-3, the pixel-only model spends them all in stage 1, volume-only models run stage 1 (the
+pixel branch provides the volume branch's features and depth) then stage 2. Runs are resumable: a
+variant/seed whose ``model.safetensors`` exists is scored, not retrained.
+
+Outputs: ``ablation.json`` (per variant: every metric's per-seed values, mean and spread, plus
+training time, skipped steps and Gaussian counts) and ``ablation.md`` (a paper-shaped table).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+
+__all__ = ["Schedule", "Variant", "default_variants", "VARIANT_NAMES", "run_study", "study_table", "study_sequence_config"]
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Optimizer steps of the full curriculum's stages 1, 2, 3 (other variants get the same total)."""
+
+    stage1: int = 300
+    stage2: int = 150
+    stage3: int = 150
+    lr: float = 2e-3
+
+    @property
+    def total(self) -> int:
+        return self.stage1 + self.stage2 + self.stage3
+
+
+@dataclass(frozen=True)
+class Variant:
+    name: str
+    description: str
+    overrides: tuple[str, ...] = ()
+    kind: str = "full"  # "full" (stages 1-2-3), "pixel" (stage 1 only), "volume" (stages 1-2)
+
+    def stages(self, schedule: Schedule) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        """(stages, steps per stage) of this variant under ``schedule``."""
+        if self.kind == "full":
+            stages = [(1, schedule.stage1), (2, schedule.stage2), (3, schedule.stage3)]
+        elif self.kind == "pixel":
+            stages = [(1, schedule.total)]
+        elif self.kind == "volume":
+            stages = [(1, schedule.stage1), (2, schedule.stage2 + schedule.stage3)]
+        else:
+            raise ValueError(f"unknown variant kind {self.kind!r}")
+        stages = [(s, n) for s, n in stages if n > 0]
+        return tuple(s for s, _ in stages), tuple(n for _, n in stages)
+
+
+def default_variants() -> list[Variant]:
+    """The paper's ablation rows (and the switches issue 11 asks for), in table order."""
+    return [
+        Variant("full", "pixel + cylindrical volume branch, curriculum 1-2-3"),
+        Variant("pixel_only", "pixel branch only", kind="pixel"),
+        Variant("volume_only_cylindrical", "volume branch only, cylindrical triplanes", kind="volume"),
+        Variant("volume_only_spherical", "volume branch only, spherical triplanes",
+                ("model.volume.coordinates=spherical",), kind="volume"),
+        Variant("volume_only_cartesian", "volume branch only, Cartesian triplanes",
+                ("model.volume.coordinates=cartesian",), kind="volume"),
+        Variant("wo_rgb_retrieval", "full, colour decoded from triplane features (no RGB retrieval)",
+                ("model.volume.color=decoded",)),
+        Variant("central_triplane", "full, one triplane at the centre of all views (not per camera)",
+                ("model.volume.placement=central",)),
+        Variant("cartesian_scale", "full, Cartesian scales instead of the Jacobian transform",
+                ("model.volume.scale_transform=cartesian",)),
+        Variant("full_res_query", "full, Eq. 2 with full-resolution queries",
+                ("model.volume.image_query=full",)),
+        Variant("isolated_init", "full, isolated triplane init (own view's points only)",
+                ("model.volume.init=isolated",)),
+        Variant("depth_fusion", "full, depth-guided fusion (volume Gaussians in front of the surface pruned)",
+                ("model.fusion.strategy=depth_prune", "model.fusion.side=front")),
+    ]
+
+
+VARIANT_NAMES = tuple(v.name for v in default_variants())
+
+
+def study_sequence_config():
+    """Procedural sequences the study trains and scores on (baselines 1-2 m between the outer frames)."""
+    from ..data.synth import SequenceConfig
+
+    return SequenceConfig(frames=3, spacing=(0.5, 1.0))
+
+# metric key -> (table header, higher is better, format); occluded-pixel metrics appear when eval reports them
+TABLE_METRICS = [
+    ("ws_psnr", "WS-PSNR ↑", True, "{:.2f}"),
+    ("ssim", "SSIM ↑", True, "{:.3f}"),
+    ("pcc", "PCC ↑", True, "{:.3f}"),
+    ("abs_rel", "AbsRel ↓", False, "{:.3f}"),
+    ("ws_psnr_occluded", "WS-PSNR occ. ↑", True, "{:.2f}"),
+    ("abs_rel_occluded", "AbsRel occ. ↓", False, "{:.3f}"),
+    ("gaussians", "Gaussians", None, "{:,.0f}"),
+    ("train_s", "Train (s)", None, "{:.0f}"),
+    ("time_s", "Time / scene (s)", None, "{:.2f}"),
+]
+
+
+@dataclass
+class RunResult:
+    metrics: dict[str, float | None]
+    train_s: float
+    skipped_steps: int
+    gaussians: int
+    visible_gaussians: int
+    weights: str
+    extra: dict = field(default_factory=dict)
+
+
+def _train(variant: Variant, seed: int, schedule: Schedule, data_root: Path, train_ids: list[str], run_dir: Path,
+           resolution: tuple[int, int], device: str) -> tuple[Path, float, int]:
+    from ..training import Trainer, load_config
+
+    weights = run_dir / "model.safetensors"
+    meta = run_dir / "study_run.json"
+    if weights.is_file() and meta.is_file():
+        info = json.loads(meta.read_text())
+        return weights, info["train_s"], info["skipped_steps"]
+    stages, steps = variant.stages(schedule)
+    overrides = list(variant.overrides) + [
+        f"data.root={data_root}", f"output_dir={run_dir}", f"data.resolution=[{resolution[0]},{resolution[1]}]",
+        f"data.options={{scenes: {json.dumps(train_ids)}}}", f"train.stages={list(stages)}",
+        f"train.steps_per_stage={list(steps)}", f"train.lr={schedule.lr}", "train.warmup_steps=10",
+        f"train.seed={seed}", f"train.device={device}", "train.progress=false", "train.image_every=0",
+        "train.tensorboard=false", f"train.checkpoint_every={schedule.total + 1}", "train.log_every=25",
+    ]
+    config = load_config("tiny", overrides)
+    start = time.perf_counter()
+    summary = Trainer(config).fit()
+    train_s = time.perf_counter() - start
+    meta.write_text(json.dumps({"train_s": train_s, "skipped_steps": summary.get("skipped_steps", 0),
+                                "stages": stages, "steps": steps, "seed": seed, "overrides": list(variant.overrides)}))
+    return Path(summary["weights"]), train_s, int(summary.get("skipped_steps", 0))
+
+
+def _score(weights: Path, data_root: Path, held_out: list[str], device: str) -> tuple[dict, int, int]:
+    from ..data import SyntheticDataset
+    from ..evaluation import evaluate, model_method
+    from ..evaluation.methods import reconstruct
+    from ..metrics import DepthRange
+    from ..model import load_model
+
+    dataset = SyntheticDataset(data_root, views="two_view", scenes=held_out)
+    model = load_model(weights, map_location=device)
+    result = evaluate(dataset, [model_method(model, "model", device=device)], depth_range=DepthRange(0.05, 1000.0),
+                      progress=False)
+    gaussians = reconstruct(model, dataset[0], device)
+    visible = int((gaussians.opacities > 0.005).sum())
+    return result.means["model"], len(gaussians), visible
+
+
+def run_study(
+    data_root: str | Path,
+    out_dir: str | Path,
+    variants: list[Variant] | None = None,
+    seeds: tuple[int, ...] = (0, 1),
+    schedule: Schedule = Schedule(),
+    held_out: int = 8,
+    resolution: tuple[int, int] = (64, 128),
+    device: str = "cpu",
+    log=print,
+) -> dict:
+    """Train and score every variant x seed; write ``ablation.json`` / ``ablation.md`` to ``out_dir``."""
+    from ..data import SyntheticDataset
+
+    data_root, out_dir = Path(data_root), Path(out_dir)
+    variants = variants or default_variants()
+    scenes = SyntheticDataset(data_root).scenes
+    if held_out < 1 or len(scenes) - held_out < 1:
+        raise ValueError(f"need at least one training and one held-out scene ({len(scenes)} scenes, held out {held_out})")
+    train_ids, test_ids = scenes[:-held_out], scenes[-held_out:]
+    _check_variants(variants)
+    report: dict = {"schedule": asdict(schedule), "seeds": list(seeds), "resolution": list(resolution),
+                    "data": str(data_root), "train_scenes": len(train_ids), "held_out_scenes": test_ids, "variants": {}}
+    start = time.perf_counter()
+    for vi, variant in enumerate(variants):
+        runs: list[RunResult] = []
+        for seed in seeds:
+            run_dir = out_dir / "runs" / variant.name / f"seed{seed}"
+            run_dir.mkdir(parents=True, exist_ok=True)
+            t0 = time.perf_counter()
+            weights, train_s, skipped = _train(variant, seed, schedule, data_root, train_ids, run_dir, resolution, device)
+            metrics, count, visible = _score(weights, data_root, test_ids, device)
+            runs.append(RunResult(metrics, train_s, skipped, count, visible, str(weights)))
+            log(f"[{vi + 1}/{len(variants)}] {variant.name} seed {seed}: WS-PSNR {metrics.get('ws_psnr', float('nan')):.2f}"
+                f" (occluded {_fmt(metrics.get('ws_psnr_occluded'))}), trained {train_s:.0f} s, skipped {skipped}; "
+                f"{time.perf_counter() - t0:.0f} s, study {time.perf_counter() - start:.0f} s")
+        report["variants"][variant.name] = _aggregate(variant, runs)
+    report["study_s"] = time.perf_counter() - start
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "ablation.json").write_text(json.dumps(report, indent=1))
+    (out_dir / "ablation.md").write_text(study_table(report))
+    return report
+
+
+def _fmt(value) -> str:
+    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.2f}"
+
+
+def _check_variants(variants: list[Variant]) -> None:
+    """Fail before hours of training if a variant's overrides are not valid configs."""
+    from ..training import load_config
+
+    names = [v.name for v in variants]
+    if len(set(names)) != len(names):
+        raise ValueError(f"variant names must be unique, got {names}")
+    for v in variants:
+        try:
+            load_config("tiny", list(v.overrides)).model.validate()
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"ablation variant {v.name!r} is not available: {exc}") from exc
+
+
+def _aggregate(variant: Variant, runs: list[RunResult]) -> dict:
+    keys = list(dict.fromkeys(k for r in runs for k in r.metrics))
+    per_metric = {k: [r.metrics.get(k) for r in runs] for k in keys}
+    per_metric["gaussians"] = [r.visible_gaussians for r in runs]
+    per_metric["gaussians_total"] = [r.gaussians for r in runs]
+    per_metric["train_s"] = [r.train_s for r in runs]
+    per_metric["skipped_steps"] = [r.skipped_steps for r in runs]
+    metrics = {}
+    for key, values in per_metric.items():
+        finite = [float(x) for x in values if x is not None and math.isfinite(float(x))]
+        metrics[key] = {
+            "seeds": [None if x is None else float(x) for x in values],
+            "mean": statistics.fmean(finite) if finite else None,
+            "spread": (max(finite) - min(finite)) / 2 if len(finite) > 1 else 0.0 if finite else None,
+        }
+    return {"description": variant.description, "overrides": list(variant.overrides), "kind": variant.kind,
+            "metrics": metrics}
+
+
+def study_table(report: dict) -> str:
+    """Markdown: one row per variant, ``mean ± half the seed range`` per metric; best mean in bold."""
+    variants = report["variants"]
+    present = [m for m in TABLE_METRICS if any(v["metrics"].get(m[0], {}).get("mean") is not None for v in variants.values())]
+    best = {}
+    for key, _, higher, _ in present:
+        if higher is None:
+            continue
+        means = [v["metrics"][key]["mean"] for v in variants.values() if v["metrics"].get(key, {}).get("mean") is not None]
+        best[key] = (max if higher else min)(means) if means else None
+    sched = report["schedule"]
+    lines = [
+        f"Ablation study: {report['train_scenes']} training / {len(report['held_out_scenes'])} held-out procedural scenes, "
+        f"{report['resolution'][0]}x{report['resolution'][1]}, two_view; seeds {report['seeds']}; "
+        f"{sched['stage1'] + sched['stage2'] + sched['stage3']} steps per variant (full: {sched['stage1']}/{sched['stage2']}/"
+        f"{sched['stage3']}), lr {sched['lr']}. Cells: mean ± half the range over seeds. \"occ.\": pixels no input view sees.",
+        "",
+        "| Variant | " + " | ".join(h for _, h, _, _ in present) + " |",
+        "|---|" + "---|" * len(present),
+    ]
+    for name, v in variants.items():
+        cells = []
+        for key, _, higher, fmt in present:
+            stat = v["metrics"].get(key, {})
+            mean, spread = stat.get("mean"), stat.get("spread")
+            if mean is None:
+                cells.append("n/a")
+                continue
+            text = fmt.format(mean) + (f" ± {fmt.format(spread)}" if spread and higher is not None else "")
+            cells.append(f"**{text}**" if higher is not None and mean == best.get(key) else text)
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += ["", f"Study time: {report.get('study_s', float('nan')) / 60:.1f} min."]
+    return "\n".join(lines) + "\n"

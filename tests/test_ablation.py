@@ -1,0 +1,52 @@
+"""The ablation study harness: variants, schedule bookkeeping, resumable runs, tables."""
+
+import json
+
+import pytest
+
+from cylindersplat.cli import main
+from cylindersplat.data.synth import SequenceConfig, write_synthetic_dataset
+from cylindersplat.experiments.ablation import Schedule, Variant, default_variants, run_study, study_table
+
+
+def test_every_variant_gets_the_same_number_of_steps():
+    schedule = Schedule(30, 20, 10)
+    for variant in default_variants():
+        stages, steps = variant.stages(schedule)
+        assert sum(steps) == schedule.total, variant.name
+        assert stages == {"full": (1, 2, 3), "pixel": (1,), "volume": (1, 2)}[variant.kind]
+
+
+def test_study_trains_scores_resumes_and_tabulates(tmp_path):
+    data = tmp_path / "data"
+    write_synthetic_dataset(data, 3, (32, 64), SequenceConfig(frames=3, spacing=(0.5, 1.0)), seed=2, progress=False)
+    variants = [Variant("full", "both branches"), Variant("pixel_only", "pixel", kind="pixel")]
+    lines = []
+    report = run_study(data, tmp_path / "study", variants, seeds=(0, 1), schedule=Schedule(3, 2, 2), held_out=1,
+                       resolution=(32, 64), log=lines.append)
+    assert len(lines) == 4
+    saved = json.loads((tmp_path / "study" / "ablation.json").read_text())
+    assert set(saved["variants"]) == {"full", "pixel_only"}
+    ws = saved["variants"]["full"]["metrics"]["ws_psnr"]
+    assert len(ws["seeds"]) == 2 and ws["mean"] == pytest.approx(sum(ws["seeds"]) / 2)
+    assert ws["spread"] == pytest.approx(abs(ws["seeds"][0] - ws["seeds"][1]) / 2)
+    # pixel-only outputs one Gaussian per pixel of the two inputs; full adds the volume branch's
+    full, pixel = (saved["variants"][k]["metrics"]["gaussians_total"]["mean"] for k in ("full", "pixel_only"))
+    assert pixel == 2 * 32 * 64 and full > pixel
+    table = (tmp_path / "study" / "ablation.md").read_text()
+    assert "| full |" in table and "| pixel_only |" in table and "WS-PSNR" in table
+    # A second call scores the finished runs without training them again.
+    again = run_study(data, tmp_path / "study", variants, seeds=(0, 1), schedule=Schedule(3, 2, 2), held_out=1,
+                      resolution=(32, 64), log=lambda *_: None)
+    assert again["variants"]["full"]["metrics"]["train_s"] == report["variants"]["full"]["metrics"]["train_s"]
+    assert study_table(again) == study_table(again)
+
+
+def test_bad_variants_fail_before_training(tmp_path, capsys):
+    data = tmp_path / "data"
+    write_synthetic_dataset(data, 2, (32, 64), SequenceConfig(frames=3), seed=3, progress=False)
+    with pytest.raises(ValueError, match="not available"):
+        run_study(data, tmp_path / "s", [Variant("broken", "x", ("model.volume.nope=1",))], seeds=(0,), held_out=1,
+                  resolution=(32, 64))
+    assert main(["ablate", "--data", str(data), "--variants", "nonsense"]) == 1
+    assert "unknown variant" in capsys.readouterr().err
