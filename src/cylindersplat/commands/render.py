@@ -15,8 +15,14 @@ def run(args: argparse.Namespace) -> int:
     from ..gaussians import save_ply
     from ..inference import depth_limits, midpoint_poses, read_poses_file, render_views, write_flythrough, write_view
 
+    from ..inference.video import check_video_format
+
     if args.frames < 0:
         raise ValueError("--frames must be >= 0")
+    if args.fps < 1:
+        raise ValueError("--fps must be >= 1")
+    if args.frames:
+        check_video_format(f"flythrough.{args.video_format}")  # before minutes of work, not after
     inputs, gaussians, _ = reconstruct_from_args(args)
     h, w = args.output_resolution or inputs.size
     background = tuple(args.background)
@@ -36,13 +42,13 @@ def run(args: argparse.Namespace) -> int:
                    views.rgb[i], views.depth[i], views.alpha[i], near, far)
     print(f"wrote {len(poses)} novel views (RGB + depth colormap, {h}x{w}) to {view_dir}")
 
+    if not args.no_ply:
+        ply = save_ply(gaussians.to("cpu"), args.out / "gaussians.ply")
+        print(f"wrote {ply}")
     if args.frames:
         video = write_flythrough(args.out / f"flythrough.{args.video_format}", gaussians, inputs.c2w, h, w,
                                  frames=args.frames, fps=args.fps, near=near, far=far, background=background)
         print(f"wrote {video} ({args.frames} frames, RGB above depth)")
-    if not args.no_ply:
-        ply = save_ply(gaussians.to("cpu"), args.out / "gaussians.ply")
-        print(f"wrote {ply}")
     return 0
 
 

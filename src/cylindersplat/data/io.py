@@ -23,6 +23,8 @@ from jaxtyping import Float
 from PIL import Image, UnidentifiedImageError
 from torch import Tensor
 
+from ..utils.atomic import atomic_path
+
 __all__ = [
     "DEPTH_PNG_SCALE",
     "open_image",
@@ -121,8 +123,8 @@ def write_rgb(path: Path | str, image: Float[Tensor, "3 H W"] | np.ndarray) -> N
     """Save float ``(3, H, W)`` in ``[0, 1]`` (or uint8 ``(H, W, 3)``) as an 8-bit PNG."""
     if isinstance(image, Tensor):
         image = to_uint8(image)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.ascontiguousarray(image)).save(path, compress_level=1)
+    with atomic_path(path) as tmp:
+        Image.fromarray(np.ascontiguousarray(image)).save(tmp, format="PNG", compress_level=1)
 
 
 def write_depth_png(path: Path | str, depth: Float[Tensor, "H W"] | np.ndarray, scale: float = DEPTH_PNG_SCALE) -> None:
@@ -130,8 +132,8 @@ def write_depth_png(path: Path | str, depth: Float[Tensor, "H W"] | np.ndarray, 
     d = depth.detach().cpu().numpy() if isinstance(depth, Tensor) else np.asarray(depth)
     d = np.nan_to_num(d.astype(np.float64), nan=0.0, posinf=0.0, neginf=0.0) * scale
     d = np.where((d > 0) & (d < 65535.5), np.round(d), 0).astype(np.uint16)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(d).save(path, compress_level=1)
+    with atomic_path(path) as tmp:
+        Image.fromarray(d).save(tmp, format="PNG", compress_level=1)
 
 
 def read_matrix_txt(path: Path | str, shape: tuple[int, ...]) -> np.ndarray:

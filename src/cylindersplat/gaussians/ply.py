@@ -21,6 +21,8 @@ import numpy as np
 import torch
 from plyfile import PlyData, PlyElement
 
+from ..utils.atomic import atomic_path
+
 from .container import Gaussians, sh_degree_from_count
 
 __all__ = ["save_ply", "load_ply"]
@@ -60,8 +62,8 @@ def save_ply(gaussians: Gaussians, path: str | Path) -> Path:
     for i, name in enumerate(names):
         vertex[name] = data[:, i]
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    PlyData([PlyElement.describe(vertex, "vertex")]).write(str(path))
+    with atomic_path(path) as tmp:  # a failed write leaves an earlier file at `path` intact
+        PlyData([PlyElement.describe(vertex, "vertex")]).write(str(tmp))
     return path
 
 
@@ -92,12 +94,23 @@ def load_ply(path: str | Path, device=None, dtype=torch.float32) -> Gaussians:
         sh = np.concatenate([f_dc, f_rest], axis=1)
     else:
         sh = f_dc
+    fields = {"position (x, y, z)": stack(["x", "y", "z"]), "colour (f_dc_*, f_rest_*)": sh, "opacity": col("opacity"),
+              "scale (scale_*)": stack(["scale_0", "scale_1", "scale_2"]), "rotation (rot_*)": stack(["rot_0", "rot_1", "rot_2", "rot_3"])}
+    for name, values in fields.items():
+        bad = ~np.isfinite(values).reshape(n, -1).all(axis=1)
+        if bad.any():
+            raise ValueError(f"{path}: {int(bad.sum())} of {n} Gaussians have a non-finite {name}, e.g. vertex {int(np.argmax(bad))}")
+    log_scales = fields["scale (scale_*)"].astype(np.float64)
+    if (log_scales > 30).any():  # exp(30) m = 1e13 m: an overflowing or corrupt scale, not a scene
+        raise ValueError(f"{path}: scale_* (log standard deviation) up to {log_scales.max():.3g}; values above 30 are not plausible")
+    if n and (np.linalg.norm(fields["rotation (rot_*)"], axis=1) == 0).any():
+        raise ValueError(f"{path}: a Gaussian has the zero quaternion as rotation (rot_0..rot_3 all 0)")
     opacity = 1.0 / (1.0 + np.exp(-col("opacity").astype(np.float64)))
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(device=device, dtype=dtype)  # noqa: E731
     return Gaussians(
-        means=t(stack(["x", "y", "z"])),
-        scales=t(np.exp(stack(["scale_0", "scale_1", "scale_2"]).astype(np.float64))),
-        rotations=t(stack(["rot_0", "rot_1", "rot_2", "rot_3"])),
+        means=t(fields["position (x, y, z)"]),
+        scales=t(np.exp(log_scales)),
+        rotations=t(fields["rotation (rot_*)"]),
         opacities=t(opacity),
         sh=t(sh),
     )

@@ -22,7 +22,7 @@ def validate_c2w(c2w: Tensor, name: str = "c2w", atol: float = 1e-3) -> Tensor:
     """Check that ``c2w`` is a finite ``(..., 4, 4)`` rigid transform; return it unchanged.
 
     Raises ``ValueError`` naming the problem (shape, non-finite entries, non-orthonormal rotation,
-    wrong last row).
+    reflection instead of rotation, wrong last row).
     """
     if not isinstance(c2w, Tensor):
         raise TypeError(f"{name} must be a torch.Tensor, got {type(c2w).__name__}")
@@ -35,6 +35,9 @@ def validate_c2w(c2w: Tensor, name: str = "c2w", atol: float = 1e-3) -> Tensor:
     err = (rot @ rot.transpose(-1, -2) - eye).abs().amax() if rot.numel() else torch.tensor(0.0)
     if err > atol:
         raise ValueError(f"{name} rotation part is not orthonormal (max |R R^T - I| = {float(err):.3g})")
+    if rot.numel() and (torch.linalg.det(rot) < 0).any():
+        raise ValueError(f"{name} rotation part is a reflection (determinant -1), not a rotation; "
+                         "check the handedness of the pose convention")
     last = c2w[..., 3, :].double()
     expected = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=last.dtype, device=last.device)
     if last.numel() and (last - expected).abs().amax() > atol:
