@@ -29,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Feed-forward 3D Gaussian Splatting from posed 360-degree panoramas.",
     )
     parser.add_argument("--version", action="version", version=f"cylindersplat {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for module in subcommand_modules():
         importlib.import_module(module).register(sub)
@@ -46,11 +47,58 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         result = args.func(args)
-    except (ValueError, FileNotFoundError) as exc:
-        # User errors: one clear line, no traceback.
-        print(f"cylindersplat {args.command}: error: {exc}", file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f"cylindersplat {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: BLE001 - sorted into expected failures and bugs below
+        message = None if args.debug else expected_failure(exc)
+        if message is None:
+            raise  # a bug (or --debug): the traceback is what we need
+        # Expected failures: one clear line, no traceback.
+        print(f"cylindersplat {args.command}: error: {message}", file=sys.stderr)
         return 1
     return int(result or 0)
+
+
+def expected_failure(exc: BaseException) -> str | None:
+    """One line for failures a user can fix (bad input, missing files or packages, no CUDA, full disk,
+    out of memory); ``None`` for anything else, which is a bug and keeps its traceback."""
+    import errno
+
+    import torch
+
+    if isinstance(exc, torch.OutOfMemoryError):
+        return ("out of memory; use a smaller resolution or fewer views/cameras at once, or a machine with more "
+                f"memory ({str(exc).splitlines()[0][:200]})")
+    if isinstance(exc, OSError) and not isinstance(exc, FileNotFoundError):
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        if exc.errno == errno.ENOSPC:
+            return f"disk full{where}; free space or write somewhere else (--out)"
+        if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+            return f"permission denied{where}; choose a folder you can write to"
+        if exc.errno in (errno.EISDIR, errno.ENOTDIR, errno.EEXIST):
+            return f"{exc.strerror}{where}"
+        if exc.errno == errno.EFBIG:
+            return f"file too large{where}"
+        return None
+    if isinstance(exc, (ValueError, FileNotFoundError)):
+        return str(exc)
+    if isinstance(exc, ModuleNotFoundError):
+        return f"the optional package {exc.name!r} is not installed ({exc}); install it with pip"
+    if isinstance(exc, (AssertionError, RuntimeError)) and _no_cuda(exc):
+        return "CUDA was asked for (--device cuda) but this machine has no usable CUDA GPU; use --device cpu"
+    name = type(exc).__name__
+    if name == "SafetensorError" or "safetensors" in type(exc).__module__:
+        return f"could not read the weights file: {exc} (is it a complete .safetensors written by cylindersplat?)"
+    if "yaml" in type(exc).__module__:
+        return f"malformed YAML: {str(exc).splitlines()[0]}"
+    return None
+
+
+def _no_cuda(exc: BaseException) -> bool:
+    text = str(exc)
+    return any(s in text for s in ("Torch not compiled with CUDA", "No CUDA GPUs are available",
+                                   "Found no NVIDIA driver", "CUDA driver initialization failed"))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -108,7 +108,10 @@ def _read_preset(preset: str | Path) -> dict[str, Any]:
         path = CONFIG_DIR / f"{preset}.yaml"
     if not path.is_file():
         raise FileNotFoundError(f"config {preset!r} not found (presets: {available_presets()}; or give a YAML path)")
-    data = yaml.safe_load(path.read_text()) or {}
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path}: malformed YAML ({' '.join(str(exc).split())})") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: top level must be a mapping")
     return data
@@ -127,7 +130,10 @@ def parse_overrides(overrides: list[str] | tuple[str, ...]) -> dict[str, Any]:
             target = target.setdefault(part, {})
             if not isinstance(target, dict):
                 raise ValueError(f"override {item!r} conflicts with another override of {part!r}")
-        target[last] = yaml.safe_load(raw) if raw.strip() else None
+        try:
+            target[last] = yaml.safe_load(raw) if raw.strip() else None
+        except yaml.YAMLError:
+            raise ValueError(f"override {item!r}: the value is not valid YAML") from None
     return nested
 
 
@@ -160,6 +166,14 @@ def _coerce(value: Any, current: Any, where: str) -> Any:
         return float(value)
     if isinstance(current, int) and isinstance(value, float) and value.is_integer():
         return int(value)
+    if isinstance(current, int) and (isinstance(value, bool) or not isinstance(value, int)):
+        raise ValueError(f"{where} must be an integer, got {value!r}")
+    if isinstance(current, float) and not isinstance(value, (int, float)):
+        raise ValueError(f"{where} must be a number, got {value!r}")
+    if isinstance(current, tuple) and not isinstance(value, (list, tuple)):
+        raise ValueError(f"{where} must be a list like [1, 2], got {value!r}")
+    if isinstance(current, str) and not isinstance(value, str):
+        raise ValueError(f"{where} must be a string, got {value!r}")
     if isinstance(value, list):
         return tuple(value)
     return value
@@ -195,6 +209,18 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
         raise ValueError(f"train.volume_lr_scale must be > 0, got {cfg.train.volume_lr_scale}")
     if cfg.train.max_nonfinite_steps < 0:
         raise ValueError(f"train.max_nonfinite_steps must be >= 0 (0 = never give up), got {cfg.train.max_nonfinite_steps}")
+    t, d = cfg.train, cfg.data
+    limits = [
+        ("data.batch_size", d.batch_size, 1), ("data.num_workers", d.num_workers, 0), ("train.log_every", t.log_every, 1),
+        ("train.checkpoint_every", t.checkpoint_every, 1), ("train.keep_checkpoints", t.keep_checkpoints, 0),
+        ("train.image_every", t.image_every, 0), ("train.warmup_steps", t.warmup_steps, 0),
+    ] + [("train.steps_per_stage", n, 0) for n in t.steps_per_stage]
+    for name, value, low in limits:
+        if value < low:
+            raise ValueError(f"{name} must be >= {low}, got {value}")
+    if not t.lr > 0 or t.grad_clip < 0 or t.weight_decay < 0:
+        raise ValueError(f"train.lr must be > 0 and train.grad_clip, train.weight_decay >= 0 "
+                         f"(got {t.lr}, {t.grad_clip}, {t.weight_decay})")
     return cfg
 
 
