@@ -26,7 +26,7 @@ def open_eval_dataset(args, protocol: str):
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..evaluation import METRIC_COLUMNS, evaluate, forward_warp_method, model_method, results_to_markdown
+    from ..evaluation import METRIC_COLUMNS, VIEW_COUNTS, evaluate, forward_warp_method, model_method, results_to_markdown
     from ..metrics import DepthRange, load_lpips
     from ..model import load_model
 
@@ -54,8 +54,11 @@ def run(args: argparse.Namespace) -> int:
         result = evaluate(dataset, methods, lpips_net, args.max_examples, args.out / "examples" / protocol,
                           num_pictures=args.pictures, depth_range=depth_range)
         key = f"{Path(args.data).name} — {protocol} ({result.num_examples} examples)"
-        results[key] = {name: {column[0]: m.get(column[0]) for column in METRIC_COLUMNS} for name, m in result.means.items()}
+        keys = [column[0] for column in METRIC_COLUMNS] + list(VIEW_COUNTS)
+        results[key] = {name: {k: m.get(k) for k in keys} for name, m in result.means.items()}
         details[protocol] = result.rows
+        for note in result.notes:
+            print(f"{protocol}: {note}")
     table = results_to_markdown(results, title="Evaluation")
     (args.out / "results.md").write_text(table)
     (args.out / "results.json").write_text(json.dumps({"means": results, "views": details}, indent=1))
@@ -70,8 +73,10 @@ def register(subparsers) -> None:
         description=(
             "Run the paper's protocols (two_view: first+last frame in, middle out; one_view: middle "
             "in, outer out; n_view: all but the middle in; all_between: 360Loc) and write a table "
-            "(PCC, WS-PSNR, SSIM, LPIPS, AbsRel, RMSE, delta1, LRCE, time) as Markdown and JSON plus "
-            "comparison pictures (ground truth / methods; RGB | depth). See docs/evaluation.md."
+            "(PCC, WS-PSNR, SSIM, LPIPS, AbsRel, RMSE, delta1, LRCE, time, then WS-PSNR, PSNR, L1 and AbsRel "
+            "on the occluded pixels -- those no input view sees, found with the ground-truth depth of targets "
+            "and inputs -- and their share) as Markdown and JSON plus comparison pictures (ground truth / "
+            "methods; RGB | depth). See docs/evaluation.md."
         ),
     )
     parser.add_argument("--data", required=True, help="dataset folder (synthetic output, png_render_* folder or 360Loc root)")

@@ -1,7 +1,8 @@
 """Evaluation: methods (the model, baselines) rendered on dataset protocols, metrics, tables, pictures."""
 
-from .evaluate import EvalResult, evaluate
+from .evaluate import OCCLUDED_METRICS, EvalResult, evaluate, occluded_masks, score_views
+from .masked import MIN_OCCLUDED_PIXELS, masked_l1, masked_psnr, masked_ws_psnr
 from .methods import Method, forward_warp_method, model_method
-from .table import METRIC_COLUMNS, results_to_markdown
+from .table import METRIC_COLUMNS, OCCLUDED_COLUMNS, VIEW_COUNTS, results_to_markdown
 
 __all__ = [name for name in dir() if not name.startswith("_")]

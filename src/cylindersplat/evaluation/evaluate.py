@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -12,25 +14,66 @@ from PIL import Image
 from tqdm.auto import tqdm
 
 from ..data.io import to_uint8
+from ..data.occlusion import occluded_fraction, occluded_mask
 from ..inference.pipeline import depth_limits, normalized_depth
 from ..metrics import DepthRange, abs_rel, delta1, lrce, pcc, psnr, rmse, ssim, ws_psnr
 from ..utils.colormap import colorize_depth
+from .masked import MIN_OCCLUDED_PIXELS, masked_l1, masked_psnr, masked_ws_psnr
 from .methods import Method
 
-__all__ = ["EvalResult", "evaluate", "score_views", "comparison_image"]
+__all__ = ["EvalResult", "evaluate", "score_views", "comparison_image", "occluded_masks", "MIN_OCCLUDED_PIXELS",
+           "OCCLUDED_METRICS"]
+
+# Per-view keys computed on the occluded pixels only (None when the view has too few of them).
+OCCLUDED_METRICS = ("ws_psnr_occluded", "psnr_occluded", "l1_occluded", "abs_rel_occluded")
+# Row keys that are bookkeeping, not metrics to average.
+_ROW_KEYS = ("example", "scene", "view", "method", "occluded_pixels")
 
 
 @dataclass
 class EvalResult:
-    """``means[method][metric]`` over all target views; ``rows``: one dict per (example, view, method)."""
+    """``means[method][metric]`` over all target views; ``rows``: one dict per (example, view, method).
+
+    Occluded-pixel metrics (``*_occluded``) average only the views that have them; ``means`` also
+    holds ``views`` (target views scored) and ``occluded_views`` (views with at least
+    :data:`MIN_OCCLUDED_PIXELS` occluded pixels). ``notes``: why occluded metrics were skipped, if so.
+    """
 
     means: dict[str, dict[str, float | None]]
     rows: list[dict] = field(default_factory=list)
     num_examples: int = 0
+    notes: list[str] = field(default_factory=list)
 
 
-def score_views(render, target_images, target_depths, lpips_net=None, depth_range: DepthRange = DepthRange()) -> list[dict]:
-    """Per-view metrics. ``render``: RenderOutput ``(T, ...)``; targets ``(T, 3, H, W)`` / ``(T, H, W)`` or None."""
+def occluded_masks(sample, rel_tol: float = 0.05) -> tuple[torch.Tensor | None, str | None]:
+    """``(T, H, W)`` masks of the target pixels no context view sees, or ``(None, reason)``.
+
+    Needs the ground-truth depth of the targets (to lift their pixels) and of the contexts (to
+    depth-test): the depth prior is not what the context cameras saw, so it is never used here.
+    """
+    if sample.target_depths is None:
+        return None, "the targets have no ground-truth depth"
+    if sample.context_gt_depths is None:
+        return None, "the context views have no ground-truth depth (the depth prior is not used for this)"
+    masks = [occluded_mask(depth, pose, sample.context_gt_depths, sample.context_poses, rel_tol=rel_tol)
+             for depth, pose in zip(sample.target_depths, sample.target_poses)]
+    return torch.stack(masks), None
+
+
+def _finite_or_none(value) -> float | None:
+    value = float(value)
+    return None if math.isnan(value) else value
+
+
+def score_views(render, target_images, target_depths, lpips_net=None, depth_range: DepthRange = DepthRange(),
+                occluded=None) -> list[dict]:
+    """Per-view metrics. ``render``: RenderOutput ``(T, ...)``; targets ``(T, 3, H, W)`` / ``(T, H, W)`` or None.
+
+    ``occluded``: ``(T, H, W)`` bool masks of the pixels no context sees (:func:`occluded_masks`);
+    when given, every view also gets ``occluded_share`` (latitude-weighted share of the mask),
+    ``occluded_pixels`` and :data:`OCCLUDED_METRICS` on the masked pixels, those being ``None`` for
+    a view with fewer than :data:`MIN_OCCLUDED_PIXELS` occluded pixels.
+    """
     rgb = render.rgb.clamp(0, 1).float()
     target = target_images.float()
     scores = {
@@ -42,6 +85,7 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
     if lpips_net is not None:
         with torch.no_grad():
             scores["lpips"] = lpips_net(rgb, target).reshape(-1)
+    depth = None
     if target_depths is not None:
         depth = normalized_depth(render.depth.float(), render.alpha.float())
         # PCC over every reference pixel in range; pixels the method left empty count with depth 0.
@@ -49,7 +93,27 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
         scores["abs_rel"] = abs_rel(depth, target_depths.float(), depth_range=depth_range)
         scores["rmse"] = rmse(depth, target_depths.float(), depth_range=depth_range)
         scores["delta1"] = delta1(depth, target_depths.float(), depth_range=depth_range)
-    return [{k: float(v[i]) for k, v in scores.items()} for i in range(rgb.shape[0])]
+    rows = [{k: float(v[i]) for k, v in scores.items()} for i in range(rgb.shape[0])]
+    if occluded is not None:
+        occluded = occluded.to(rgb.device).bool()
+        if occluded.shape != (rgb.shape[0], *rgb.shape[-2:]):
+            raise ValueError(f"score_views: occluded masks {tuple(occluded.shape)} do not match the renders "
+                             f"{tuple(rgb.shape)} (expected (T, H, W))")
+        masked = {
+            "ws_psnr_occluded": masked_ws_psnr(rgb, target, occluded),
+            "psnr_occluded": masked_psnr(rgb, target, occluded),
+            "l1_occluded": masked_l1(rgb, target, occluded),
+        }
+        if depth is not None:
+            masked["abs_rel_occluded"] = abs_rel(depth, target_depths.float(), mask=occluded, depth_range=depth_range)
+        for i, row in enumerate(rows):
+            pixels = int(occluded[i].sum())
+            enough = pixels >= MIN_OCCLUDED_PIXELS
+            row["occluded_share"] = occluded_fraction(occluded[i])
+            row["occluded_pixels"] = pixels
+            for key in OCCLUDED_METRICS:
+                row[key] = _finite_or_none(masked[key][i]) if enough and key in masked else None
+    return rows
 
 
 def comparison_image(target_rgb, target_depth, renders: dict, labels: bool = True) -> np.ndarray:
@@ -91,16 +155,26 @@ def evaluate(
     if count == 0:
         raise ValueError("evaluate: the dataset is empty")
     rows: list[dict] = []
+    notes: list[str] = []
     pictures = 0
     for index in tqdm(range(count), desc="evaluate", unit="example", disable=not progress):
         sample = dataset[index]
+        occluded, reason = occluded_masks(sample)
+        if reason is not None and sample.target_depths is not None:
+            # Without target depth no depth metric exists and the table says so; a missing context
+            # depth is worth a word, as it silently drops only the occluded columns.
+            note = f"occluded-pixel metrics skipped: {reason}"
+            if note not in notes:
+                notes.append(note)
+                warnings.warn(f"evaluate: {note} (example {index} and possibly others)", stacklevel=2)
         renders = {}
         for method in methods:
             start = time.perf_counter()
             out = method.run(sample)
             seconds = time.perf_counter() - start
             renders[method.name] = out
-            for view, scores in enumerate(score_views(out, sample.target_images, sample.target_depths, lpips_net, depth_range)):
+            scored = score_views(out, sample.target_images, sample.target_depths, lpips_net, depth_range, occluded)
+            for view, scores in enumerate(scored):
                 rows.append({"example": index, "scene": sample.metadata.get("scene", str(index)), "view": view,
                              "method": method.name, "time_s": seconds, **scores})
         if example_dir is not None:
@@ -116,8 +190,17 @@ def evaluate(
     means: dict[str, dict[str, float | None]] = {}
     for method in methods:
         mine = [r for r in rows if r["method"] == method.name]
-        keys = [k for k in mine[0] if k not in ("example", "scene", "view", "method")]
-        means[method.name] = {k: float(np.mean([r[k] for r in mine])) for k in keys}
+        keys = [k for k in dict.fromkeys(k for r in mine for k in r) if k not in _ROW_KEYS]
+        means[method.name] = {}
+        for key in keys:
+            if key == "occluded_share" or key in OCCLUDED_METRICS:
+                # only the views that have the value (enough occluded pixels, reference depth)
+                values = [r[key] for r in mine if r.get(key) is not None]
+                means[method.name][key] = float(np.mean(values)) if values else None
+            else:
+                means[method.name][key] = float(np.mean([r[key] for r in mine]))
         # time is per example, not per view
         means[method.name]["time_s"] = float(np.mean([r["time_s"] for r in mine if r["view"] == 0]))
-    return EvalResult(means, rows, count)
+        means[method.name]["views"] = len(mine)
+        means[method.name]["occluded_views"] = sum(r.get("ws_psnr_occluded") is not None for r in mine)
+    return EvalResult(means, rows, count, notes)

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-__all__ = ["METRIC_COLUMNS", "results_to_markdown"]
+from .masked import MIN_OCCLUDED_PIXELS
 
-# (key, header, higher is better, format)
+__all__ = ["METRIC_COLUMNS", "OCCLUDED_COLUMNS", "VIEW_COUNTS", "results_to_markdown"]
+
+# (key, header, higher is better (None: no best value), format)
 METRIC_COLUMNS = [
     ("pcc", "PCC ↑", True, "{:.3f}"),
     ("ws_psnr", "WS-PSNR ↑", True, "{:.2f}"),
@@ -15,24 +17,35 @@ METRIC_COLUMNS = [
     ("delta1", "δ1 ↑", True, "{:.3f}"),
     ("lrce", "LRCE ↓", False, "{:.4f}"),
     ("time_s", "Time (s) ↓", False, "{:.2f}"),
+    # On the occluded pixels only: target pixels no input view sees (docs/evaluation.md, "Occluded pixels").
+    ("ws_psnr_occluded", "WS-PSNR (occ.) ↑", True, "{:.2f}"),
+    ("psnr_occluded", "PSNR (occ.) ↑", True, "{:.2f}"),
+    ("l1_occluded", "L1 (occ.) ↓", False, "{:.4f}"),
+    ("abs_rel_occluded", "AbsRel (occ.) ↓", False, "{:.3f}"),
+    ("occluded_share", "occ. share", None, "{:.1%}"),
 ]
+OCCLUDED_COLUMNS = [c for c in METRIC_COLUMNS if c[0].endswith("_occluded") or c[0] == "occluded_share"]
+# Per-method counts carried with the means (not columns): target views scored, views with occluded metrics.
+VIEW_COUNTS = ("views", "occluded_views")
 
 
 def results_to_markdown(results: dict[str, dict[str, dict[str, float | None]]], title: str | None = None) -> str:
     """``results[protocol][method][metric]`` -> one Markdown table per protocol; best value in bold.
 
-    Metrics a method could not compute (no LPIPS weights, no reference depth) show ``n/a``.
+    Metrics a method could not compute (no LPIPS weights, no reference depth) show ``n/a``. The
+    occluded-pixel columns ("occ.") average only the views with enough occluded pixels; when the
+    means carry :data:`VIEW_COUNTS`, a line under the table says how many views that was.
     """
     lines = [f"# {title}", ""] if title else []
     for protocol, by_method in results.items():
         present = [c for c in METRIC_COLUMNS if any(m.get(c[0]) is not None for m in by_method.values())]
-        missing = [c[1].split()[0] for c in METRIC_COLUMNS if c not in present]
+        missing = [c[1].split()[0] for c in METRIC_COLUMNS if c not in present and c not in OCCLUDED_COLUMNS]
         lines += [f"## {protocol}", "", "| Method | " + " | ".join(c[1] for c in present) + " |",
                   "|---|" + "---|" * len(present)]
         best = {}
         for key, _, higher, _ in present:
             values = [m[key] for m in by_method.values() if m.get(key) is not None]
-            best[key] = (max if higher else min)(values) if values else None
+            best[key] = (max if higher else min)(values) if values and higher is not None else None
         for name, metrics in by_method.items():
             cells = []
             for key, _, _, fmt in present:
@@ -47,5 +60,27 @@ def results_to_markdown(results: dict[str, dict[str, dict[str, float | None]]], 
             if set(missing) & {"PCC", "AbsRel", "RMSE", "δ1"}:
                 why.append("depth metrics need reference depth")
             lines += ["", f"Not available here: {', '.join(missing)}" + (f" ({'; '.join(why)})." if why else ".")]
+        lines += _occluded_note(by_method, [c for c in OCCLUDED_COLUMNS if c in present])
         lines.append("")
     return "\n".join(lines)
+
+
+def _occluded_note(by_method: dict[str, dict], shown: list) -> list[str]:
+    """One line on the occluded-pixel columns: how many views they average, or why they are absent."""
+    if not shown:
+        if any(m.get(k) is not None for m in by_method.values() for k in ("pcc", "abs_rel")):
+            return ["", "occ. columns not available here (they need ground-truth depth of the input views too)."]
+        return []
+    share = "occ. share is their latitude-weighted share of the panorama"
+    counts = {(m.get("occluded_views"), m.get("views")) for m in by_method.values()}
+    if all(used == 0 for used, _ in counts):
+        return ["", f"occ.: no target view has {MIN_OCCLUDED_PIXELS} or more pixels that no input view sees; {share}."]
+    if len(counts) == 1:
+        used, total = next(iter(counts))
+        scope = f"the {used} of {total} target views" if used is not None and total is not None else "the target views"
+    else:
+        scope = "the target views (" + "; ".join(
+            f"{name}: {m.get('occluded_views', '?')} of {m.get('views', '?')}" for name, m in by_method.items()) + ")"
+    note = (f"occ.: on the target pixels no input view sees (docs/evaluation.md, \"Occluded pixels\"); means over "
+            f"{scope} with at least {MIN_OCCLUDED_PIXELS} such pixels; {share}.")
+    return ["", note]
