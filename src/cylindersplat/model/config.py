@@ -85,6 +85,26 @@ class PixelBranchConfig:
 
 @dataclass
 class VolumeBranchConfig:
+    """Volume branch (paper Sec. 3.2).
+
+    Ablation switches (defaults = the full model; see ``docs/model.md``, "Ablation switches"):
+
+    * ``coordinates`` - ``cylindrical`` | ``spherical`` | ``cartesian`` triplanes (Table
+      "Ablation Study", rows "Only Cylindrical / Spherical / Cartesian Volume Branch").
+    * ``color`` - ``retrieval`` (Eq. 6) | ``decoded``: colour = sigmoid(MLP(volume head's colour
+      feature)), no projection into the input images (row "Only Cylindrical Volume Branch (w/o RGB)").
+    * ``placement`` - ``per_camera`` (one local triplane per input camera) | ``central``: OmniScene's
+      single triplane centred on the mean camera centre with the first camera's rotation, whose
+      triplane-to-image attention reads every view (row "Full (w/o Multi Triplane)").
+    * ``scale_transform`` - ``paper`` (Eq. 4, ``|J| S_local``) | ``exact`` (``J diag(S^2) J^T``) |
+      ``cartesian``: the head predicts Cartesian std-devs in metres directly, no Jacobian
+      push-forward (Appendix "Derivation and Validity of Scale Transformation", Table
+      "scale_ablation", row "Ours (Cartesian Scale)").
+    * ``image_query`` - ``coarse`` (planes resampled to ``image_grid`` for the Eq. 2 queries, the
+      update upsampled back) | ``full`` (Eq. 2 as printed: every cell of the plane at ``grid``
+      resolution queries ``N'_c`` samples along the orthogonal axis).
+    """
+
     coordinates: CoordinateKind = "cylindrical"
     radius: float = 10.0  # R_0 (m)
     height: float = 10.0  # Z_0 (m)
@@ -97,10 +117,13 @@ class VolumeBranchConfig:
     init: Literal["shared", "isolated"] = "shared"  # static scenes: shared; dynamic: isolated
     decoder_hidden: int = 128
     color_hidden: int = 64
-    scale_transform: Literal["paper", "exact"] = "paper"  # Eq. 4 (|J| S) or J diag(S^2) J^T
+    scale_transform: Literal["paper", "exact", "cartesian"] = "paper"  # Eq. 4 (|J| S), J diag(S^2) J^T, or metric S
     max_scale_cells: float = 1.0  # S_local <= this many cells along each axis
     min_scale_cells: float = 0.02
     visibility_temperature: float = 1.0  # w = softmax(-s / T); T = 1 m is the paper's Eq. 6
+    color: Literal["retrieval", "decoded"] = "retrieval"  # Eq. 6 RGB retrieval, or decoded from the triplane
+    placement: Literal["per_camera", "central"] = "per_camera"  # one triplane per camera, or one at the centre
+    image_query: Literal["coarse", "full"] = "coarse"  # Eq. 2 queries at image_grid (coarse) or at grid (full)
 
 
 @dataclass
@@ -137,7 +160,14 @@ class ModelConfig:
             (len(vol.image_grid) == 3 and min(vol.image_grid) >= 1, f"volume.image_grid must be 3 positive sizes, got {vol.image_grid}"),
             (vol.coordinates in ("cylindrical", "spherical", "cartesian"), f"unknown volume.coordinates {vol.coordinates!r}"),
             (vol.init in ("shared", "isolated"), f"volume.init must be shared or isolated, got {vol.init!r}"),
-            (vol.scale_transform in ("paper", "exact"), f"volume.scale_transform must be paper or exact, got {vol.scale_transform!r}"),
+            (vol.scale_transform in ("paper", "exact", "cartesian"),
+             f"volume.scale_transform must be paper, exact or cartesian, got {vol.scale_transform!r}"),
+            (vol.color in ("retrieval", "decoded"), f"volume.color must be retrieval or decoded, got {vol.color!r}"),
+            (vol.placement in ("per_camera", "central"), f"volume.placement must be per_camera or central, got {vol.placement!r}"),
+            (vol.image_query in ("coarse", "full"), f"volume.image_query must be coarse or full, got {vol.image_query!r}"),
+            (vol.placement != "central" or vol.init == "shared",
+             ("volume.placement='central' needs volume.init='shared' (the single central triplane has no view "
+              "of its own to be isolated to)")),
             (self.fusion.strategy in ("concat", "depth_prune"), f"unknown fusion.strategy {self.fusion.strategy!r}"),
             (self.fusion.side in ("both", "front"), f"fusion.side must be both or front, got {self.fusion.side!r}"),
             (0 < vol.min_scale_cells < vol.max_scale_cells, "need 0 < volume.min_scale_cells < volume.max_scale_cells"),

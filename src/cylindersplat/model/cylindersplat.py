@@ -40,7 +40,7 @@ class ModelOutput:
     refined_depth: Float[Tensor, "B V H W"]
     features: Float[Tensor, "B V C H W"]  # F_pano
     pixel_gaussians: Gaussians | None  # (B, V*H*W, ...), view-major then row-major pixels
-    volume_gaussians: Gaussians | None  # (B, V*G, ...), camera-major then (q0, q1, q2) cells
+    volume_gaussians: Gaussians | None  # (B, V*G, ...) camera-major then (q0, q1, q2) cells; (B, G) central
 
 
 class CylinderSplat(nn.Module):
@@ -129,12 +129,15 @@ class CylinderSplat(nn.Module):
 
         pixel = self._pixel_gaussians(pixel_out, c2w) if self.mode != "volume" else None
         volume = volume_points = None
+        check_depth = pixel_out.refined_depth
         if self.mode != "pixel":
             vol = self.volume_branch(
                 images, depth_prior, c2w, pixel_out.features, pixel_out.points_world, pixel_out.point_features
             )
             volume, volume_points = vol.gaussians, vol.points_cam
-        fused, keep = fuse_gaussians(pixel, volume, self.config.fusion, volume_points, pixel_out.refined_depth)
+            if vol.depth_view is not None:  # central triplane: its Gaussians are checked against one view
+                check_depth = check_depth[:, vol.depth_view : vol.depth_view + 1]
+        fused, keep = fuse_gaussians(pixel, volume, self.config.fusion, volume_points, check_depth)
         return ModelOutput(
             gaussians=fused,
             keep_mask=keep,

@@ -3,8 +3,10 @@
 * :class:`PixelGaussianHead` - one Gaussian per pixel, centred on the refined depth along the ray.
 * :class:`VolumeGaussianHead` - one Gaussian per triplane grid cell, with *local* (coordinate
   system) offsets and scales bounded by the cell (paper Sec. 3.2.3).
-* :func:`local_to_cartesian_scales` - paper Eq. 4 (``S' = |J| S_local``, the default) or the exact
-  first-order push-forward ``Sigma = J diag(S^2) J^T``.
+* :func:`local_to_cartesian_scales` - paper Eq. 4 (``S' = |J| S_local``, the default), the exact
+  first-order push-forward ``Sigma = J diag(S^2) J^T``, or (ablation) ``"cartesian"``: the head's
+  scales already are Cartesian std-devs in metres (bounded per cell by
+  :func:`cell_cartesian_extent`) and pass through unchanged.
 
 Rotation frames (the paper only says "predicted in the global Cartesian frame"): every head
 predicts its quaternion in the frame where its scales are axis-aligned - the camera frame for
@@ -31,8 +33,12 @@ __all__ = [
     "PixelGaussianHead",
     "VolumeGaussianHead",
     "local_to_cartesian_scales",
+    "cell_cartesian_extent",
     "cell_frame",
+    "SCALE_TRANSFORMS",
 ]
+
+SCALE_TRANSFORMS = ("paper", "exact", "cartesian")
 
 IDENTITY_QUATERNION = (1.0, 0.0, 0.0, 0.0)
 
@@ -88,7 +94,14 @@ class PixelGaussianHead(nn.Module):
 class VolumeGaussianHead(nn.Module):
     """MLP on summed triplane features -> bounded local offsets/scales, rotation, opacity.
 
-    Also emits a ``color_feature`` that the RGB retrieval's colour MLP conditions on.
+    Offsets are bounded by half a ``cell_size`` (coordinate units). Scales lie in
+    ``[min_scale_cells, max_scale_cells] x scale_unit``; ``scale_unit`` defaults to ``cell_size``
+    (local scales in coordinate units, theta in radians - Eq. 4 / exact transforms). The
+    ``scale_transform="cartesian"`` ablation passes the per-cell metric extent
+    (:func:`cell_cartesian_extent`) instead, so the scales come out in metres along camera x, y, z.
+
+    Also emits a ``color_feature`` that the RGB retrieval's colour MLP (or, for ``color="decoded"``,
+    the colour decoder) conditions on.
     """
 
     def __init__(self, channels: int, hidden: int, color_feature_dim: int, max_scale_cells: float, min_scale_cells: float):
@@ -100,15 +113,21 @@ class VolumeGaussianHead(nn.Module):
             nn.Linear(hidden, 3 + 3 + 4 + 1 + color_feature_dim),
         )
 
-    def forward(self, features: Float[Tensor, "*B C"], cell_size: Float[Tensor, "3"]) -> dict[str, Tensor]:
+    def forward(
+        self,
+        features: Float[Tensor, "*B C"],
+        cell_size: Float[Tensor, "3"],
+        scale_unit: Float[Tensor, "*#B 3"] | None = None,
+    ) -> dict[str, Tensor]:
         raw = self.mlp(features)
         raw_offset, raw_scale, raw_rot, raw_opacity, color_feature = raw.split(
             (3, 3, 4, 1, self.color_feature_dim), dim=-1
         )
+        unit = cell_size if scale_unit is None else scale_unit
         return {
             # strictly inside the cell: |offset| < half a cell along every axis
             "offsets": torch.tanh(raw_offset) * (0.5 * cell_size),
-            "local_scales": _bounded(raw_scale, self.min_scale_cells * cell_size, self.max_scale_cells * cell_size),
+            "local_scales": _bounded(raw_scale, self.min_scale_cells * unit, self.max_scale_cells * unit),
             "rotations": _unit_quaternion(raw_rot),
             "opacities": torch.sigmoid(raw_opacity.squeeze(-1)),
             "color_feature": color_feature,
@@ -129,6 +148,22 @@ def cell_frame(jacobian: Float[Tensor, "*B 3 3"]) -> tuple[Float[Tensor, "*B 3 3
     return frame, lengths
 
 
+def cell_cartesian_extent(
+    coords: TriplaneCoordinates, q_center: Float[Tensor, "*B 3"], cell_size: Float[Tensor, "3"]
+) -> Float[Tensor, "*B 3"]:
+    """Metric size of a grid cell along the camera's x, y, z axes (first order): ``|J(q_c)| @ dq``.
+
+    ``J`` is evaluated at the cell centre ``q_c``; its column ``k`` scaled by the cell size
+    ``dq_k`` is the cell's metric edge along ``q_k`` (``dr``, ``r dtheta``, ``dh`` for the
+    cylinder), and ``|J| @ dq`` sums the absolute projections of these edges on each Cartesian
+    axis, i.e. the axis-aligned bounding box of the (linearised) cell. It grows with the radius
+    along the tangential direction and is strictly positive for every cell centre of the three
+    coordinate systems. The ``scale_transform="cartesian"`` ablation bounds its metric scales by
+    ``[min_scale_cells, max_scale_cells]`` times this extent.
+    """
+    return (coords.jacobian(q_center).abs() @ cell_size.unsqueeze(-1)).squeeze(-1)
+
+
 def local_to_cartesian_scales(
     coords: TriplaneCoordinates,
     q: Float[Tensor, "*B 3"],
@@ -146,11 +181,20 @@ def local_to_cartesian_scales(
       ``Q R diag((lengths S_local)^2) R^T Q^T``: the local rotation ``R`` turns the Gaussian inside
       the metric cell frame. For ``R = I`` this is exactly the first-order push-forward
       ``J diag(S_local^2) J^T`` of an axis-aligned local Gaussian.
+    * ``"cartesian"`` (ablation "Ours (Cartesian Scale)", paper appendix "Derivation and Validity
+      of Scale Transformation"): ``local_scales`` are taken as they are as Cartesian standard
+      deviations in metres along the camera's x, y, z axes, and ``local_rotations`` as the
+      camera-frame rotation - no Jacobian, no push-forward; the result does not depend on ``q``
+      (the Gaussian's radius or angle). The only geometry the cell contributes is the *bound* the
+      head applies before this call (``[min, max]`` x :func:`cell_cartesian_extent` at the cell
+      centre), so a Gaussian stays about the size of its cell.
     """
+    if mode == "cartesian":
+        return local_scales, local_rotations
     jac = coords.jacobian(q)
     if mode == "paper":
         return (jac.abs() @ local_scales.unsqueeze(-1)).squeeze(-1), local_rotations
     if mode == "exact":
         frame, lengths = cell_frame(jac)
         return lengths * local_scales, quaternion_multiply(matrix_to_quaternion(frame), local_rotations)
-    raise ValueError(f"unknown scale transform {mode!r}; expected 'paper' or 'exact'")
+    raise ValueError(f"unknown scale transform {mode!r}; expected one of {SCALE_TRANSFORMS}")

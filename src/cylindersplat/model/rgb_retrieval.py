@@ -8,6 +8,10 @@ depth prior ``d_o`` are read there (bilinear, wrapping in ``u``). The visibility
 ``d_g``". An MLP maps ``sum_v w_v C_v`` (and a per-Gaussian feature from the triplane, our
 addition so the colour can depend on the Gaussian) to the final colour, as a logit-space
 residual on the retrieved colour so that it starts at the retrieval itself.
+
+:class:`DecodedColor` is the ``volume.color="decoded"`` ablation (Table "Ablation Study", row
+"Only Cylindrical Volume Branch (w/o RGB)", OmniScene's colour): the colour is decoded from the
+triplane alone, ``sigmoid(MLP(color_feature))``, without reading the input images.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from torch import Tensor, nn
 from ..geometry import project_equirect, world_to_camera
 from .sampling import sample_panorama
 
-__all__ = ["project_to_views", "visibility_weights", "retrieve_colors", "RGBRetrieval"]
+__all__ = ["project_to_views", "visibility_weights", "retrieve_colors", "RGBRetrieval", "DecodedColor"]
 
 
 def project_to_views(
@@ -71,3 +75,18 @@ class RGBRetrieval(nn.Module):
         retrieved, _ = retrieve_colors(points_world, images, depth_prior, c2w, self.temperature)
         residual = self.mlp(torch.cat((retrieved, features), dim=-1))
         return torch.sigmoid(torch.logit(retrieved.clamp(0.01, 0.99)) + residual)
+
+
+class DecodedColor(nn.Module):
+    """Colour decoded directly from the triplane (``volume.color="decoded"``; paper ablation row
+    "Only Cylindrical Volume Branch (w/o RGB)"): ``sigmoid(MLP(f))`` on the volume head's colour
+    feature ``f``. No projection into the input images: the colour depends on the images only
+    through the triplane features (``F_pano`` via init and triplane-to-image attention).
+    """
+
+    def __init__(self, feature_dim: int, hidden: int):
+        super().__init__()
+        self.mlp = nn.Sequential(nn.Linear(feature_dim, hidden), nn.GELU(), nn.Linear(hidden, 3))
+
+    def forward(self, features: Float[Tensor, "B N F"]) -> Float[Tensor, "B N 3"]:
+        return torch.sigmoid(self.mlp(features))

@@ -95,20 +95,28 @@ def scatter_points_to_triplanes(
     grid: tuple[int, int, int],
     strategy: str = "shared",
 ) -> tuple[list[Tensor], list[Tensor]]:
-    """Initial plane features of every camera's local triplane (paper Sec. 3.2 and App. B).
+    """Initial plane features of every triplane (paper Sec. 3.2 and App. B).
+
+    ``c2w`` holds the triplanes' frames ``(B, T, 4, 4)``: the ``V`` cameras for per-camera
+    triplanes (``T = V``), or any other frames, e.g. the single central frame (``T = 1``) of the
+    ``placement="central"`` ablation.
 
     * ``"shared"``: triplane ``t`` averages the points of *all* views that fall inside its
-      volume (expressed in camera ``t``'s frame) - for static scenes;
-    * ``"isolated"``: triplane ``t`` uses only view ``t``'s own points - for dynamic scenes.
+      volume (expressed in frame ``t``) - for static scenes;
+    * ``"isolated"``: triplane ``t`` uses only view ``t``'s own points - for dynamic scenes
+      (needs ``T = V``).
 
-    Returns per plane ``(B*V, n_a, n_b, C)`` means and ``(B*V, n_a, n_b)`` counts, triplanes
-    ordered like the views.
+    Returns per plane ``(B*T, n_a, n_b, C)`` means and ``(B*T, n_a, n_b)`` counts, triplanes
+    ordered like the frames.
     """
     if strategy not in ("shared", "isolated"):
         raise ValueError(f"unknown triplane initialisation {strategy!r}; expected 'shared' or 'isolated'")
     b, v, p, c = point_features.shape
+    targets = c2w.shape[1]
+    if strategy == "isolated" and targets != v:
+        raise ValueError(f"isolated initialisation needs one triplane per view ({v}), got {targets} frames")
     per_target = []
-    for t in range(v):  # loop over targets: avoids a V-fold copy of the (large) feature cloud
+    for t in range(targets):  # loop over targets: avoids a T-fold copy of the (large) feature cloud
         sources = slice(None) if strategy == "shared" else slice(t, t + 1)
         pts = points_world[:, sources].reshape(b, -1, 3)
         feats = point_features[:, sources].reshape(b, -1, c)

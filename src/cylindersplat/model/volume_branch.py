@@ -16,6 +16,18 @@ For every input camera ``t`` (all cameras processed in parallel, batch ``B*V``):
 
 The coordinate system (cylindrical / spherical / Cartesian) is a pluggable
 :class:`~cylindersplat.geometry.TriplaneCoordinates`; nothing here is specific to the cylinder.
+
+Ablation switches (``VolumeBranchConfig``; paper Table "Ablation Study" and Table "scale_ablation"):
+
+* ``color="decoded"`` - row "Only Cylindrical Volume Branch (w/o RGB)": step 4 replaced by
+  :class:`~.rgb_retrieval.DecodedColor` (``sigmoid(MLP(colour feature))``, no image lookup).
+* ``placement="central"`` - row "Full (w/o Multi Triplane)" (OmniScene): a single triplane per
+  scene in the frame :func:`central_frame` (mean camera centre, first camera's rotation); init
+  scatters all views' points into it; its triplane-to-image attention reads every view's
+  ``F_pano``; ``G`` Gaussians per scene instead of ``V*G``.
+* ``scale_transform="cartesian"`` - row "Ours (Cartesian Scale)": metric scales straight from the
+  head, no Jacobian (see :func:`~.gaussian_heads.local_to_cartesian_scales`).
+* ``image_query="full"`` - Eq. 2 as printed (queries at the plane resolution).
 """
 
 from __future__ import annotations
@@ -27,15 +39,15 @@ from jaxtyping import Float
 from torch import Tensor, nn
 
 from ..gaussians import Gaussians
-from ..geometry import TriplaneCoordinates, camera_to_world, make_coordinates
+from ..geometry import TriplaneCoordinates, camera_to_world, invert_rigid, make_coordinates, world_to_camera
 from .config import ModelConfig
-from .gaussian_heads import VolumeGaussianHead, local_to_cartesian_scales
-from .rgb_retrieval import RGBRetrieval
+from .gaussian_heads import VolumeGaussianHead, cell_cartesian_extent, local_to_cartesian_scales
+from .rgb_retrieval import DecodedColor, RGBRetrieval
 from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
 from .triplane import grid_features, plane_shape, scatter_points_to_triplanes
 from .triplane_attention import TriplaneRefinementLayer
 
-__all__ = ["TriplaneInitializer", "VolumeBranchOutput", "VolumeBranch"]
+__all__ = ["TriplaneInitializer", "VolumeBranchOutput", "VolumeBranch", "central_frame"]
 
 
 class TriplaneInitializer(nn.Module):
@@ -51,11 +63,12 @@ class TriplaneInitializer(nn.Module):
         self,
         points_world: Float[Tensor, "B V P 3"],
         point_features: Float[Tensor, "B V P C"],
-        c2w: Float[Tensor, "B V 4 4"],
+        frames: Float[Tensor, "B T 4 4"],
         coords: TriplaneCoordinates,
         strategy: str,
     ) -> list[Tensor]:
-        means, counts = scatter_points_to_triplanes(points_world, point_features, c2w, coords, self.grid, strategy)
+        """Planes ``(B*T, n_a, n_b, C)`` of the triplanes in ``frames`` (triplane-to-world)."""
+        means, counts = scatter_points_to_triplanes(points_world, point_features, frames, coords, self.grid, strategy)
         planes = []
         for embedding, mean, count in zip(self.embeddings, means, counts):
             lifted = torch.where(count[..., None] > 0, self.project(mean), 0.0)
@@ -63,11 +76,25 @@ class TriplaneInitializer(nn.Module):
         return planes
 
 
+def central_frame(c2w: Float[Tensor, "B V 4 4"]) -> Float[Tensor, "B 1 4 4"]:
+    """Frame of OmniScene's single central triplane (``volume.placement="central"``; paper Table
+    "Ablation Study", row "Full (w/o Multi Triplane)"): origin at the mean of the input camera
+    centres, axes of the first camera (so with upright panoramas the cylinder axis is vertical,
+    and with one view it is that view's camera)."""
+    frame = c2w[:, :1].clone()
+    frame[..., :3, 3] = c2w[..., :3, 3].mean(dim=1, keepdim=True)
+    return frame
+
+
 @dataclass
 class VolumeBranchOutput:
-    gaussians: Gaussians  # (B, V*G, ...) world frame, camera-major order
-    points_cam: Float[Tensor, "B V G 3"]  # centres in their own camera's frame (for fusion)
-    planes: list[Tensor]  # refined planes (B*V, n_a, n_b, C)
+    gaussians: Gaussians  # (B, T*G, ...) world frame, triplane-major order (T = V per camera, 1 central)
+    # centres in the frame of the camera whose refined depth checks them in depth-guided fusion:
+    # per camera (B, V, G, 3), each triplane's own camera; central (B, 1, G, 3), view ``depth_view``'s
+    points_cam: Float[Tensor, "B T G 3"]
+    planes: list[Tensor]  # refined planes (B*T, n_a, n_b, C)
+    frames: Float[Tensor, "B T 4 4"]  # triplane-to-world transforms
+    depth_view: int | None = None  # None: points_cam[:, t] belongs to view t; else all belong to this view
 
 
 class VolumeBranch(nn.Module):
@@ -77,17 +104,34 @@ class VolumeBranch(nn.Module):
         self.cfg = vc
         self.coords = make_coordinates(vc.coordinates, radius=vc.radius, height=vc.height)
         self.initializer = TriplaneInitializer(cfg.pixel.feature_dim, vc.channels, vc.grid)
+        query_grid = vc.grid if vc.image_query == "full" else None
         self.layers = nn.ModuleList(
-            TriplaneRefinementLayer(vc.channels, cfg.pixel.feature_dim, vc.heads, vc.mlp_ratio, self.coords, vc.image_grid)
+            TriplaneRefinementLayer(
+                vc.channels, cfg.pixel.feature_dim, vc.heads, vc.mlp_ratio, self.coords, vc.image_grid, query_grid
+            )
             for _ in range(vc.layers)
         )
         self.head = VolumeGaussianHead(vc.channels, vc.decoder_hidden, vc.color_hidden, vc.max_scale_cells, vc.min_scale_cells)
-        self.rgb = RGBRetrieval(vc.color_hidden, vc.color_hidden, vc.visibility_temperature)
+        # only the colour module the configuration uses exists (default: state dict unchanged)
+        if vc.color == "retrieval":
+            self.rgb = RGBRetrieval(vc.color_hidden, vc.color_hidden, vc.visibility_temperature)
+        elif vc.color == "decoded":
+            self.color_decoder = DecodedColor(vc.color_hidden, vc.color_hidden)
+        else:
+            raise ValueError(f"unknown volume colour {vc.color!r}; expected 'retrieval' or 'decoded'")
 
     @property
     def gaussians_per_camera(self) -> int:
+        """Gaussians per triplane (``N_r * N_theta * N_z``)."""
         n0, n1, n2 = self.cfg.grid
         return n0 * n1 * n2
+
+    def num_triplanes(self, views: int) -> int:
+        return views if self.cfg.placement == "per_camera" else 1
+
+    def num_gaussians(self, views: int) -> int:
+        """Volume Gaussians per scene for ``views`` input views (``V*G`` per camera, ``G`` central)."""
+        return self.num_triplanes(views) * self.gaussians_per_camera
 
     def forward(
         self,
@@ -98,25 +142,38 @@ class VolumeBranch(nn.Module):
         points_world: Float[Tensor, "B V P 3"],
         point_features: Float[Tensor, "B V P C"],
     ) -> VolumeBranchOutput:
-        b, v = images.shape[:2]
-        planes = self.initializer(points_world, point_features, c2w, self.coords, self.cfg.init)
-        flat_features = image_features.flatten(0, 1)
+        b = images.shape[0]
+        per_camera = self.cfg.placement == "per_camera"
+        frames = c2w if per_camera else central_frame(c2w)  # (B, T, 4, 4)
+        t = frames.shape[1]
+        planes = self.initializer(points_world, point_features, frames, self.coords, self.cfg.init)
+        if per_camera:  # each triplane reads its own camera's F_pano (identity pose)
+            features, view_from_plane = image_features.flatten(0, 1), None
+        else:  # the central triplane reads every view: central frame -> view camera transforms
+            features, view_from_plane = image_features, invert_rigid(c2w) @ frames
         for layer in self.layers:
-            planes = layer(planes, flat_features)
+            planes = layer(planes, features, view_from_plane)
 
         dtype, device = images.dtype, images.device
         cell = torch.tensor(self.coords.cell_size(self.cfg.grid), dtype=dtype, device=device)
-        params = self.head(grid_features(planes).flatten(1, 3), cell)  # (BV, G, .)
         centers = self.coords.cell_centers(self.cfg.grid, device=device, dtype=dtype).reshape(1, -1, 3)
+        scale_unit = None
+        if self.cfg.scale_transform == "cartesian":  # metric bounds: the cell's Cartesian extent
+            scale_unit = cell_cartesian_extent(self.coords, centers, cell)
+        params = self.head(grid_features(planes).flatten(1, 3), cell, scale_unit)  # (BT, G, .)
         q = centers + params["offsets"]
-        points_cam = self.coords.to_cartesian(q).view(b, v, -1, 3)
+        points_plane = self.coords.to_cartesian(q).view(b, t, -1, 3)
         scales, rotations_cam = local_to_cartesian_scales(
             self.coords, q, params["local_scales"], params["rotations"], self.cfg.scale_transform
         )
-        camera_rotation = matrix_to_quaternion(c2w[..., :3, :3])[:, :, None]  # (B, V, 1, 4)
-        rotations = quaternion_multiply(camera_rotation, rotations_cam.view(b, v, -1, 4))
-        means = camera_to_world(points_cam, c2w).flatten(1, 2)
-        colors = self.rgb(means, params["color_feature"].view(b, -1, self.cfg.color_hidden), images, depth_prior, c2w)
+        camera_rotation = matrix_to_quaternion(frames[..., :3, :3])[:, :, None]  # (B, T, 1, 4)
+        rotations = quaternion_multiply(camera_rotation, rotations_cam.view(b, t, -1, 4))
+        means = camera_to_world(points_plane, frames).flatten(1, 2)
+        color_feature = params["color_feature"].view(b, -1, self.cfg.color_hidden)
+        if self.cfg.color == "retrieval":
+            colors = self.rgb(means, color_feature, images, depth_prior, c2w)
+        else:
+            colors = self.color_decoder(color_feature)
         gaussians = Gaussians.from_rgb(
             means,
             scales.view(b, -1, 3),
@@ -124,4 +181,12 @@ class VolumeBranch(nn.Module):
             params["opacities"].view(b, -1),
             colors,
         )
-        return VolumeBranchOutput(gaussians=gaussians, points_cam=points_cam, planes=planes)
+        if per_camera:
+            points_cam, depth_view = points_plane, None
+        else:
+            # depth-guided fusion checks the central triplane's Gaussians against view 0's refined
+            # depth (the camera whose axes the central frame shares)
+            points_cam, depth_view = world_to_camera(means, c2w[:, 0])[:, None], 0
+        return VolumeBranchOutput(
+            gaussians=gaussians, points_cam=points_cam, planes=planes, frames=frames, depth_view=depth_view
+        )
