@@ -123,3 +123,47 @@ def test_synthetic_loader_errors(tmp_path):
     (out / "00000000" / "poses.json").write_text(json.dumps(poses))
     with pytest.raises(ValueError, match="poses.json"):
         SyntheticDataset(out, views="one_view")[0]
+
+
+# Poses of the first scenes of seed 0, recorded with the generator *before* the disocclusion options
+# (target_offset, occluders, layout_weights, through_doorways) existed: with those off, a seed must
+# still give the same scenes and cameras (the default and the demo's spacing). Per scene: kind,
+# spacing, primitive count, first and last camera centre, c2w[0, 0] and c2w[0, 2] (the shared yaw).
+_FINGERPRINT = {
+    (0.5, 0.5): [
+        ("indoor-l_shape", 0.5, 19, [-0.31309, -1.68547, -0.40478], [0.68606, -1.68547, -0.44584], -0.64046, -0.76799),
+        ("indoor-two_rooms", 0.5, 28, [-2.26199, -1.42395, 2.88723], [-3.14073, -1.42395, 2.40993], -0.86605, 0.49996),
+        ("outdoor", 0.5, 19, [-5.99208, -1.62473, -4.4434], [-5.83595, -1.62473, -5.43113], -0.13214, 0.99123),
+        ("indoor-two_rooms", 0.5, 19, [1.22325, -1.29051, -1.26374], [2.04781, -1.29051, -1.82952], -0.78027, -0.62545),
+        ("indoor-l_shape", 0.5, 18, [0.78747, -1.22793, 0.425], [1.13644, -1.22793, -0.51213], 0.85991, 0.51045),
+        ("indoor-two_rooms", 0.5, 19, [-3.56316, -1.41021, -1.82821], [-3.5561, -1.41021, -0.82823], -0.7486, -0.66303),
+    ],
+    (0.5, 1.0): [
+        ("indoor-l_shape", 0.60615, 19, [-0.31309, -1.68547, -0.40478], [0.89819, -1.68547, -0.45455], -0.64046, -0.76799),
+        ("indoor-two_rooms", 0.94084, 28, [-2.26199, -1.42395, 2.88723], [-3.9155, -1.42395, 1.9891], -0.86605, 0.49996),
+        ("outdoor", 0.57222, 19, [-5.99208, -1.62473, -4.4434], [-5.8134, -1.62473, -5.57381], -0.13214, 0.99123),
+        ("indoor-two_rooms", 0.94075, 19, [1.98711, -1.59273, -1.12751], [0.15469, -1.59273, -1.55443], -0.97363, 0.22815),
+        ("indoor-l_shape", 0.62294, 18, [0.78747, -1.22793, 0.425], [1.22225, -1.22793, -0.74256], 0.85991, 0.51045),
+        ("indoor-two_rooms", 0.8451, 19, [-3.56316, -1.41021, -1.82821], [-3.55122, -1.41021, -0.13805], -0.7486, -0.66303),
+    ],
+}
+
+
+@pytest.mark.parametrize("spacing", list(_FINGERPRINT))
+def test_default_sequences_are_unchanged(spacing):
+    for index, (kind, step, prims, first, last, c00, c02) in enumerate(_FINGERPRINT[spacing]):
+        seq = generate_sequence(0, index, SequenceConfig(spacing=spacing))
+        assert (seq.scene.kind, seq.scene.num_primitives()) == (kind, prims)
+        assert seq.spacing == pytest.approx(step, abs=1e-5)
+        assert seq.poses[0, :3, 3].tolist() == pytest.approx(first, abs=1e-4)
+        assert seq.poses[-1, :3, 3].tolist() == pytest.approx(last, abs=1e-4)
+        assert [float(seq.poses[0, 0, 0]), float(seq.poses[0, 0, 2])] == pytest.approx([c00, c02], abs=1e-4)
+
+
+def test_default_meta_has_only_the_original_keys(tmp_path):
+    out = write_synthetic_dataset(tmp_path / "d", scenes=1, resolution=(8, 16), cfg=SequenceConfig(), seed=0, progress=False)
+    meta = json.loads((out / "meta.json").read_text())
+    assert set(meta["config"]) == {"frames", "spacing", "height", "clearance", "random_yaw", "layouts",
+                                   "outdoor_fraction", "attempts"}
+    scene = json.loads((out / "00000000" / "meta.json").read_text())
+    assert "target_offset" not in scene

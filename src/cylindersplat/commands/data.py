@@ -7,6 +7,9 @@ import time
 
 from ._arguments import equirect_resolution
 
+PROFILE_NAMES = ("default", "occlusion")  # cylindersplat.data.synth.PROFILES (not imported: keeps the CLI start fast)
+PROTOCOL_NAMES = ("two_view", "one_view", "n_view")  # cylindersplat.data.views.PROTOCOLS
+
 
 def _spacing(text: str) -> tuple[float, float]:
     try:
@@ -18,16 +21,52 @@ def _spacing(text: str) -> tuple[float, float]:
     return parts[0], parts[-1]
 
 
-def _synth(args) -> int:
-    from ..data.synth import LAYOUTS, SequenceConfig, write_synthetic_dataset
+def _offset(text: str) -> tuple[float, float]:
+    try:
+        parts = [float(x) for x in text.split(":")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"target offset must be METRES or MIN:MAX, got {text!r}") from None
+    if len(parts) not in (1, 2) or min(parts) < 0 or parts[0] > parts[-1]:
+        raise argparse.ArgumentTypeError(f"target offset must be METRES or MIN:MAX with 0 <= MIN <= MAX, got {text!r}")
+    return parts[0], parts[-1]
 
-    layouts = tuple(args.layouts.split(",")) if args.layouts else LAYOUTS
-    cfg = SequenceConfig(frames=args.frames, spacing=args.spacing, layouts=layouts,
-                         outdoor_fraction=args.outdoor_fraction, random_yaw=not args.no_yaw)
+
+def _layouts(text: str) -> tuple[tuple[str, ...], tuple[float, ...]] | None:
+    """``room,l_shape`` or with weights ``room:1,two_rooms:3,outdoor`` (a missing weight is 1)."""
+    from ..data.synth import LAYOUTS
+
+    names, weights, weighted = [], [], False
+    for item in filter(None, (x.strip() for x in text.split(","))):
+        name, _, weight = item.partition(":")
+        if name not in LAYOUTS:
+            raise argparse.ArgumentTypeError(f"unknown layout {name!r}; choose from {','.join(LAYOUTS)}")
+        try:
+            value = float(weight) if weight else 1.0
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"layout weight must be a number, got {item!r}") from None
+        if value < 0:
+            raise argparse.ArgumentTypeError(f"layout weight must be >= 0, got {item!r}")
+        weighted |= bool(weight)
+        names.append(name)
+        weights.append(value)
+    if not names:  # "" = every layout, as before
+        return None
+    return tuple(names), (tuple(weights) if weighted else ())
+
+
+def _synth(args) -> int:
+    from ..data.synth import profile_config, write_synthetic_dataset
+
+    layouts, weights = args.layouts if args.layouts else (None, None)
+    cfg = profile_config(
+        args.profile, frames=args.frames, spacing=args.spacing, layouts=layouts, layout_weights=weights or None,
+        outdoor_fraction=args.outdoor_fraction, random_yaw=False if args.no_yaw else None,
+        target_offset=args.target_offset, occluders=args.occluders, through_doorways=args.through_doorways,
+    )
     start = time.perf_counter()
     out = write_synthetic_dataset(args.out, args.scenes, args.resolution, cfg, seed=args.seed)
     seconds = time.perf_counter() - start
-    print(f"wrote {args.scenes} scenes x {args.frames} frames to {out} in {seconds:.1f} s")
+    print(f"wrote {args.scenes} scenes x {cfg.frames} frames ({args.profile} profile) to {out} in {seconds:.1f} s")
     return 0
 
 
@@ -39,17 +78,35 @@ def _preview(args) -> int:
     return 0
 
 
-def _info(args) -> int:
-    from ..data.preview import open_dataset
+def _percent(share: float) -> str:
+    return f"{100 * share:.2f} %"
 
-    ds = open_dataset(args.data)
-    print(f"{type(ds).__name__}: {len(ds)} examples, stored size {ds.stored_size} (HxW)")
+
+def _info(args) -> int:
+    from ..data.preview import example_occlusion, occlusion_summary, open_dataset
+
+    ds = open_dataset(args.data, views=args.views)
+    print(f"{type(ds).__name__}: {len(ds)} examples, stored size {ds.stored_size} (HxW), views {args.views}")
     for index in range(min(args.count, len(ds))):
         ref = ds.example(index)
         centres = [f.c2w[:3, 3].tolist() for f in ref.frames]
         extra = ", ".join(f"{k}={v}" for k, v in ref.metadata.items())
+        occ = example_occlusion(ds, index) if args.occlusion else None
+        figures = ""
+        if occ is not None:
+            hidden = "/".join(_percent(s) for s in occ.occluded) if occ.occluded is not None else "n/a (no depth)"
+            figures = f", baseline {occ.baseline:.3f} m, occluded {hidden}"
         print(f"  {ref.scene}: {len(ref.frames)} frames, context {list(ref.views.context)} -> "
-              f"target {list(ref.views.target)}, {extra}, first centre {[round(c, 3) for c in centres[0]]}")
+              f"target {list(ref.views.target)}, {extra}, first centre {[round(c, 3) for c in centres[0]]}{figures}")
+    summary = occlusion_summary(ds, args.occlusion) if args.occlusion else None
+    if summary is not None:
+        print(f"occluded share of the targets (pixels no context sees, GT depth, latitude-weighted) over "
+              f"{summary['examples']} of {summary['of']} examples ({summary['targets']} targets): "
+              f"mean {_percent(summary['mean'])}, median {_percent(summary['median'])}, "
+              f"min {_percent(summary['min'])}, max {_percent(summary['max'])}; "
+              f"{100 * summary['at_least_1pct']:.0f} % of examples >= 1 %; mean baseline {summary['baseline']:.3f} m")
+    elif args.occlusion:
+        print("occluded share: n/a (no ground-truth depth)")
     return 0
 
 
@@ -70,12 +127,28 @@ def register(subparsers) -> None:
     synth.add_argument("--scenes", type=int, default=10, help="number of scenes (default 10)")
     synth.add_argument("--resolution", type=equirect_resolution, default=(256, 512), help="HxW with W = 2H (default 256x512)")
     synth.add_argument("--frames", type=int, default=3, help="frames per sequence, on a line (default 3)")
-    synth.add_argument("--spacing", type=_spacing, default=(0.5, 0.5),
-                       help="metres between consecutive frames, or MIN:MAX drawn per scene (default 0.5)")
+    synth.add_argument("--spacing", type=_spacing, default=None,
+                       help="metres between consecutive frames, or MIN:MAX drawn per scene (default 0.5; occlusion profile 0.5:1.0)")
     synth.add_argument("--seed", type=int, default=0, help="dataset seed; scene i is fully determined by (seed, i)")
-    synth.add_argument("--layouts", default="", help="comma list of room,l_shape,two_rooms,outdoor (default all)")
-    synth.add_argument("--outdoor-fraction", type=float, default=0.2, help="share of outdoor scenes (default 0.2)")
+    synth.add_argument("--layouts", type=_layouts, default=None,
+                       help="comma list of room,l_shape,two_rooms,outdoor (default all), optionally weighted: "
+                       "room:1,two_rooms:3,outdoor (outdoor's share is --outdoor-fraction)")
+    synth.add_argument("--outdoor-fraction", type=float, default=None,
+                       help="share of outdoor scenes (default 0.2; occlusion profile 0.15)")
     synth.add_argument("--no-yaw", action="store_true", help="identity camera rotations (PanoGRF-like) instead of a random yaw")
+    disocclusion = synth.add_argument_group(
+        "disocclusion", "targets that see what no context sees (all off by default; --profile occlusion sets them; "
+        "an explicit flag overrides the profile)")
+    disocclusion.add_argument("--profile", choices=sorted(PROFILE_NAMES), default="default",
+                              help="named settings: 'default' (straight line) or 'occlusion' (target off the line, "
+                              "occluders, doorways, 1-2 m baselines)")
+    disocclusion.add_argument("--target-offset", type=_offset, default=None, metavar="METRES|MIN:MAX",
+                              help="move the middle frame (the two_view target) this far off the line, mostly sideways "
+                              "(occlusion profile 0.4:1.0)")
+    disocclusion.add_argument("--occluders", type=int, default=None, metavar="N",
+                              help="extra objects (pillars, cabinets, screens, ...) standing near the camera path (occlusion profile 6)")
+    disocclusion.add_argument("--through-doorways", type=float, default=None, metavar="SHARE",
+                              help="share of doorway scenes whose camera line walks through the doorway (occlusion profile 0.7)")
     synth.set_defaults(func=_synth)
 
     preview = sub.add_parser(
@@ -88,7 +161,14 @@ def register(subparsers) -> None:
     preview.add_argument("--height", type=int, default=128, help="tile height in pixels (width = 2x, default 128)")
     preview.set_defaults(func=_preview)
 
-    info = sub.add_parser("info", help="summarise a dataset folder", description="Print examples, views and poses.")
+    info = sub.add_parser(
+        "info", help="summarise a dataset folder: examples, poses, baselines, occluded share of the targets",
+        description="Print examples, views and poses, each example's context baseline and the share of each "
+        "target's pixels that no context view sees (from ground-truth depth at the stored resolution), and "
+        "their average over the dataset.")
     info.add_argument("--data", required=True, help="dataset folder")
     info.add_argument("--count", type=int, default=5, help="examples to list (default 5)")
+    info.add_argument("--views", default="two_view", choices=PROTOCOL_NAMES, help="view protocol (default two_view)")
+    info.add_argument("--occlusion", type=int, default=64, metavar="N",
+                      help="average the occluded share over N evenly spaced examples (default 64; 0: skip it)")
     info.set_defaults(func=_info)

@@ -1,30 +1,80 @@
-"""Contact sheet of a dataset: one row per example, RGB next to colourised depth, per view."""
+"""Contact sheet of a dataset (one row per example, RGB next to colourised depth, per view) and the
+per-example figures ``cylindersplat data info`` prints (baseline, occluded share of each target)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 from PIL import Image
 
 from ..utils.colormap import colorize_depth
-from .io import to_uint8
-from .base import PanoramaDataset
+from .base import PanoramaDataset, _baseline
 from .depth_prior.base import NoPrior
+from .io import read_depth_png, to_uint8
+from .occlusion import occluded_fraction, occluded_mask
 from .pano_grf import PanoGRFDataset
 from .synthetic import SyntheticDataset
 
-__all__ = ["open_dataset", "contact_sheet", "write_contact_sheet"]
+__all__ = ["open_dataset", "contact_sheet", "write_contact_sheet", "ExampleOcclusion", "example_occlusion",
+           "occlusion_summary"]
 
 
-def open_dataset(path: str | Path, resolution: tuple[int, int] | None = None) -> PanoramaDataset:
-    """A synthetic folder (has ``meta.json``) or a ``png_render_*`` PanoGRF folder, in n-view order."""
+def open_dataset(path: str | Path, resolution: tuple[int, int] | None = None, views="n_view") -> PanoramaDataset:
+    """A synthetic folder (has ``meta.json``) or a ``png_render_*`` PanoGRF folder (default: n-view order)."""
     path = Path(path)
     if (path / "meta.json").is_file():
-        return SyntheticDataset(path, views="n_view", resolution=resolution, depth_prior=NoPrior())
+        return SyntheticDataset(path, views=views, resolution=resolution, depth_prior=NoPrior())
     if path.name.startswith("png_render_"):
-        return PanoGRFDataset(path, views="n_view", resolution=resolution)
+        return PanoGRFDataset(path, views=views, resolution=resolution)
     raise ValueError(f"{path}: neither a synthetic dataset (meta.json) nor a png_render_* folder")
+
+
+@dataclass
+class ExampleOcclusion:
+    """One example's context baseline (m) and, per target view, the latitude-weighted share of its
+    pixels that no context view sees (``None`` without ground-truth depth)."""
+
+    scene: str
+    baseline: float
+    occluded: list[float] | None
+
+
+def example_occlusion(dataset: PanoramaDataset, index: int) -> ExampleOcclusion:
+    """:class:`ExampleOcclusion` of example ``index`` from the stored ground-truth depth maps (stored
+    resolution, no image decoding): :func:`~cylindersplat.data.occlusion.occluded_mask` per target."""
+    ref = dataset.example(index)
+    ctx, tgt = list(ref.views.context), list(ref.views.target)
+    poses = torch.stack([f.c2w.float() for f in ref.frames])
+    baseline = _baseline(poses[ctx], poses[tgt])
+    if any(ref.frames[i].depth is None or not Path(ref.frames[i].depth).is_file() for i in ctx + tgt):
+        return ExampleOcclusion(ref.scene, baseline, None)
+    expected = getattr(dataset, "stored_size", None)
+    depth = {i: read_depth_png(ref.frames[i].depth, expected=expected) for i in ctx + tgt}
+    context_depths = torch.stack([depth[i] for i in ctx])
+    shares = [occluded_fraction(occluded_mask(depth[t], poses[t], context_depths, poses[ctx])) for t in tgt]
+    return ExampleOcclusion(ref.scene, baseline, shares)
+
+
+def occlusion_summary(dataset: PanoramaDataset, count: int = 64) -> dict | None:
+    """Mean / median / min / max occluded share of the targets and mean baseline over ``count``
+    evenly spaced examples (all when ``count >= len``); ``None`` when the dataset has no depth."""
+    if count <= 0 or len(dataset) == 0:
+        return None
+    indices = np.unique(np.linspace(0, len(dataset) - 1, min(count, len(dataset))).round().astype(int))
+    items = [example_occlusion(dataset, int(i)) for i in indices]
+    shares = np.array([s for it in items if it.occluded is not None for s in it.occluded])
+    if shares.size == 0:
+        return None
+    per_example = np.array([np.mean(it.occluded) for it in items if it.occluded is not None])
+    return {
+        "examples": len(per_example), "targets": int(shares.size), "of": len(dataset),
+        "mean": float(shares.mean()), "median": float(np.median(shares)), "min": float(shares.min()),
+        "max": float(shares.max()), "at_least_1pct": float((per_example >= 0.01).mean()),
+        "baseline": float(np.mean([it.baseline for it in items])),
+    }
 
 
 def contact_sheet(dataset: PanoramaDataset, count: int = 4, gap: int = 4) -> np.ndarray:

@@ -80,4 +80,6 @@ class SyntheticDataset(PanoramaDataset):
                 raise ValueError(f"{folder / 'poses.json'}: pose of {name!r} must be a finite 4x4 matrix")
             frames.append(FrameRef(name, folder / name / "rgb.png", torch.from_numpy(c2w).float(), folder / name / "depth.png"))
         extra = {"kind": meta.get("kind"), "spacing": meta.get("spacing")}
+        if "target_offset" in meta:  # datasets made with a target offset (data synth --profile occlusion)
+            extra["target_offset"] = meta["target_offset"]
         return ExampleRef(scene, frames, select_views(len(frames), self.views), extra)

@@ -5,11 +5,22 @@ Modules: :mod:`.scene` (primitives), :mod:`.materials` (textures, shading), :mod
 :mod:`.sequence` (camera lines), :mod:`.writer` (on-disk layout).
 """
 
-from .layouts import LAYOUTS, indoor_scene, outdoor_scene, random_scene
+from .layouts import LAYOUTS, add_occluders, indoor_scene, outdoor_scene, random_scene
 from .materials import Lighting, Material, Sky
 from .raycast import cast_rays, render_equirect_scene
 from .scene import SceneBuilder, SynthScene
-from .sequence import SequenceConfig, SynthSequence, generate_sequence, render_sequence, sample_camera_line, scene_rng
-from .writer import SYNTH_FORMAT, scene_id, write_synthetic_dataset
+from .sequence import (
+    PROFILES,
+    SequenceConfig,
+    SynthSequence,
+    camera_path,
+    generate_sequence,
+    profile_config,
+    render_sequence,
+    sample_camera_line,
+    scene_rng,
+    target_offset,
+)
+from .writer import SYNTH_FORMAT, config_record, scene_id, write_synthetic_dataset
 
 __all__ = [name for name in dir() if not name.startswith("_")]

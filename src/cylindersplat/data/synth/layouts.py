@@ -13,7 +13,7 @@ import torch
 from .materials import PATTERNS, Lighting, Material, Sky
 from .scene import SceneBuilder, SynthScene
 
-__all__ = ["LAYOUTS", "random_material", "indoor_scene", "outdoor_scene", "random_scene"]
+__all__ = ["LAYOUTS", "OCCLUDER_KINDS", "random_material", "indoor_scene", "outdoor_scene", "random_scene", "add_occluders"]
 
 LAYOUTS = ("room", "l_shape", "two_rooms", "outdoor")
 WALL = 0.2  # slab thickness (m)
@@ -143,12 +143,13 @@ def indoor_scene(rng: np.random.Generator, layout: str = "room") -> SynthScene:
         if z1 - (dz + door_w) > 1e-3:
             b.box((xs - t / 2, -height, dz + door_w), (xs + t / 2, 0.0, z1), inner)
         b.box((xs - t / 2, -height, dz), (xs + t / 2, -door_h, dz + door_w), inner)  # lintel
+    doorways = ((float(xs), float(dz + door_w / 2), 1.0, 0.0),) if layout == "two_rooms" else ()
     region = (x0, x1, z0, z1)
     area = sx * sz
     _furniture(b, rng, region, int(rng.integers(2, 4 + area // 8)))
     _non_manhattan(b, rng, region, -height)
     _paintings(b, rng, region, int(rng.integers(1, 5)))
-    return b.build(kind=f"indoor-{layout}", free_region=region, floor_y=0.0, ceiling_y=-height,
+    return b.build(kind=f"indoor-{layout}", free_region=region, doorways=doorways, floor_y=0.0, ceiling_y=-height,
                    lighting=_lighting(rng), noise_table=_noise_table(rng))
 
 
@@ -191,12 +192,121 @@ def _noise_table(rng: np.random.Generator) -> torch.Tensor:
     return torch.from_numpy(rng.uniform(size=(32, 32, 32)).astype(np.float32))
 
 
-def random_scene(rng: np.random.Generator, layouts: tuple[str, ...] = LAYOUTS, outdoor_fraction: float = 0.2) -> SynthScene:
-    """One scene; ``outdoor`` with probability ``outdoor_fraction`` (if allowed), else an indoor layout."""
+def random_scene(rng: np.random.Generator, layouts: tuple[str, ...] = LAYOUTS, outdoor_fraction: float = 0.2,
+                 weights: tuple[float, ...] = ()) -> SynthScene:
+    """One scene; ``outdoor`` with probability ``outdoor_fraction`` (if allowed), else an indoor layout,
+    uniformly or, given ``weights`` (one per entry of ``layouts``; outdoor's is ignored), weighted."""
     unknown = set(layouts) - set(LAYOUTS)
     if unknown:
         raise ValueError(f"unknown layouts {sorted(unknown)}; choose from {LAYOUTS}")
+    if weights and len(weights) != len(layouts):
+        raise ValueError(f"need one layout weight per layout {layouts}, got {weights}")
     indoor = [name for name in layouts if name != "outdoor"]
     if "outdoor" in layouts and (not indoor or rng.uniform() < outdoor_fraction):
         return outdoor_scene(rng)
-    return indoor_scene(rng, str(rng.choice(indoor)))
+    if not weights:  # the original draw: keeps datasets of earlier versions reproducible
+        return indoor_scene(rng, str(rng.choice(indoor)))
+    w = np.array([float(x) for name, x in zip(layouts, weights) if name != "outdoor"])
+    if (w < 0).any() or w.sum() <= 0:
+        raise ValueError(f"layout weights must be >= 0 with a positive indoor sum, got {weights}")
+    return indoor_scene(rng, str(rng.choice(indoor, p=w / w.sum())))
+
+
+# -- occluders near the camera path ---------------------------------------------------------------
+
+OCCLUDER_KINDS = {  # kind: probability, per setting
+    "indoor": {"pillar": 0.2, "cabinet": 0.25, "screen": 0.2, "counter": 0.2, "plant": 0.15},
+    "outdoor": {"wall": 0.3, "tree": 0.25, "shed": 0.2, "rock": 0.15, "pillar": 0.1},
+}
+
+
+def _occluder(b: SceneBuilder, rng: np.random.Generator, kind: str, ceiling: float | None):
+    """Draw one occluder's shape; returns ``(half_x, half_z, height, place)`` where ``place(cx, cz)``
+    adds its primitives (resting on the floor ``y = 0``, centred at ``(cx, cz)``) to ``b``."""
+    mat = random_material(rng)
+    swap = rng.uniform() < 0.5
+
+    def oriented(long_half, short_half):
+        return (short_half, long_half) if swap else (long_half, short_half)
+
+    def box(hx, hz, h):
+        return lambda cx, cz: b.box((cx - hx, -h, cz - hz), (cx + hx, 0.0, cz + hz), b.material(mat))
+
+    if kind == "pillar":
+        r = rng.uniform(0.12, 0.35)
+        h = -ceiling if ceiling is not None else rng.uniform(2.5, 4.5)
+        if rng.uniform() < 0.5:
+            return r, r, h, lambda cx, cz: b.cylinder(cx, cz, r, -h, 0.0, b.material(mat))
+        return r, r, h, box(r, r, h)
+    if kind == "cabinet":
+        hx, hz = oriented(rng.uniform(0.3, 0.7), rng.uniform(0.2, 0.35))
+        h = rng.uniform(1.4, 2.1)
+        return hx, hz, h, box(hx, hz, h)
+    if kind == "screen":  # free-standing partition
+        hx, hz = oriented(rng.uniform(0.5, 1.1), 0.03)
+        h = rng.uniform(1.5, 1.95)
+        return hx, hz, h, box(hx, hz, h)
+    if kind == "counter":  # below eye level: hides the floor behind it
+        hx, hz = oriented(rng.uniform(0.4, 1.0), rng.uniform(0.25, 0.45))
+        h = rng.uniform(0.8, 1.1)
+        return hx, hz, h, box(hx, hz, h)
+    if kind == "wall":
+        hx, hz = oriented(rng.uniform(1.0, 2.5), rng.uniform(0.1, 0.2))
+        h = rng.uniform(1.0, 2.5)
+        return hx, hz, h, box(hx, hz, h)
+    if kind == "shed":
+        hx, hz, h = rng.uniform(0.5, 1.2), rng.uniform(0.5, 1.2), rng.uniform(2.0, 3.0)
+        return hx, hz, h, box(hx, hz, h)
+    if kind == "rock":
+        r = rng.uniform(0.4, 0.9)
+        sink = rng.uniform(0.1, 0.5) * r
+        return r, r, 2 * r - sink, lambda cx, cz: b.sphere((cx, -(r - sink), cz), r, b.material(mat))
+    if kind in ("plant", "tree"):
+        trunk = rng.uniform(0.08, 0.2)
+        crown = rng.uniform(0.3, 0.5) if kind == "plant" else rng.uniform(0.7, 1.4)
+        stem = rng.uniform(0.4, 0.7) if kind == "plant" else rng.uniform(1.5, 2.5)
+        leaves = random_material(rng, patterns=("noise",), scale=(0.1, 0.4))
+
+        def place(cx, cz):
+            b.cylinder(cx, cz, trunk, -stem, 0.0, b.material(mat))
+            b.sphere((cx, -stem - 0.8 * crown, cz), crown, b.material(leaves))
+
+        return crown, crown, stem + 1.8 * crown, place
+    raise ValueError(f"unknown occluder kind {kind!r}")
+
+
+def add_occluders(scene: SynthScene, rng: np.random.Generator, path: np.ndarray, count: int, clearance: float,
+                  reach: tuple[float, float] = (0.2, 1.2), tries: int = 40) -> SynthScene:
+    """``scene`` plus up to ``count`` occluders (pillars, cabinets, screens, counters, plants; outdoors
+    walls, trees, sheds, rocks) standing ``reach`` metres beyond ``clearance`` from the camera ``path``
+    (points ``(P, 3)``), between the cameras and the walls, so they hide what lies behind them from some
+    views. Each keeps ``clearance`` from every path point, stays inside the free region and does not
+    cut into existing solids; one that finds no such place after ``tries`` draws is skipped."""
+    x0, x1, z0, z1 = scene.free_region
+    setting = "indoor" if scene.ceiling_y is not None else "outdoor"
+    kinds = OCCLUDER_KINDS[setting]
+    names, probs = list(kinds), np.array(list(kinds.values()))
+    path_t = torch.as_tensor(np.asarray(path), dtype=torch.float32)
+    for _ in range(count):
+        for _ in range(tries):
+            b = SceneBuilder()
+            hx, hz, h, place = _occluder(b, rng, str(rng.choice(names, p=probs / probs.sum())), scene.ceiling_y)
+            anchor = path[rng.integers(len(path))]
+            angle = rng.uniform(0, 2 * np.pi)
+            dist = clearance + rng.uniform(*reach) + max(hx, hz)
+            cx, cz = anchor[0] + dist * np.cos(angle), anchor[2] + dist * np.sin(angle)
+            if not (x0 + hx <= cx <= x1 - hx and z0 + hz <= cz <= z1 - hz):
+                continue
+            place(cx, cz)
+            if not bool(b.build().clearance_ok(path_t, clearance).all()):
+                continue
+            # Footprint x height samples (<= 0.2 m apart) must lie outside every existing solid.
+            gx = np.linspace(cx - hx, cx + hx, max(2, int(np.ceil(2 * hx / 0.2)) + 1))
+            gz = np.linspace(cz - hz, cz + hz, max(2, int(np.ceil(2 * hz / 0.2)) + 1))
+            gy = np.linspace(-0.1, -h + 0.1, max(2, int(np.ceil(h / 0.3)) + 1))
+            grid = torch.tensor(np.stack(np.meshgrid(gx, gy, gz, indexing="ij"), -1).reshape(-1, 3), dtype=torch.float32)
+            if not bool(scene.clearance_ok(grid, 0.03).all()):
+                continue
+            scene = scene.extended(b)
+            break
+    return scene

@@ -17,7 +17,7 @@ Each primitive refers to a :class:`~cylindersplat.data.synth.materials.Material`
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 from torch import Tensor
@@ -49,6 +49,7 @@ class SynthScene:
     sky: Sky | None = None  # None: rays that escape are black with depth 0 (indoor scenes are closed)
     kind: str = "indoor"
     free_region: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # x0, x1, z0, z1 for cameras
+    doorways: tuple[tuple[float, float, float, float], ...] = ()  # (x, z, normal_x, normal_z): centre, through-axis
     floor_y: float = 0.0
     ceiling_y: float | None = None
     noise_table: Tensor = field(default_factory=lambda: torch.rand(32, 32, 32, generator=torch.Generator().manual_seed(0)))
@@ -72,6 +73,22 @@ class SynthScene:
         d_quad = torch.linalg.vector_norm(p - closest, dim=-1)
         bad = inside_box | (d_sphere < margin).any(-1) | near_cyl.any(-1) | (d_quad < margin).any(-1)
         return ~bad
+
+    def extended(self, extra: SceneBuilder) -> SynthScene:
+        """This scene plus the primitives of ``extra`` (its material indices are local to ``extra``)."""
+        if not extra.materials and not (extra.boxes or extra.spheres or extra.cylinders or extra.quads):
+            return self
+        add = extra.build()
+        offset = len(self.materials)
+        fields = {}
+        for prefix, names in (("box", ("lo", "hi")), ("sphere", ("center", "radius")),
+                              ("cyl", ("center", "radius", "y")), ("quad", ("origin", "u", "v"))):
+            for name in names:
+                key = f"{prefix}_{name}"
+                fields[key] = torch.cat([getattr(self, key), getattr(add, key)])
+            key = f"{prefix}_mat"
+            fields[key] = torch.cat([getattr(self, key), getattr(add, key) + offset])
+        return replace(self, materials=[*self.materials, *add.materials], **fields)
 
 
 @dataclass

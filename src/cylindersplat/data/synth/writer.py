@@ -13,21 +13,36 @@ complete scenes are skipped.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict
+from dataclasses import asdict, fields
 from pathlib import Path
 
 from tqdm import tqdm
 
 from ..io import DEPTH_PNG_SCALE, write_depth_png, write_rgb
-from .sequence import SequenceConfig, generate_sequence, render_sequence
+from .sequence import SequenceConfig, generate_sequence, render_sequence, target_offset
 
-__all__ = ["SYNTH_FORMAT", "write_synthetic_dataset", "scene_id"]
+__all__ = ["SYNTH_FORMAT", "write_synthetic_dataset", "scene_id", "config_record"]
 
 SYNTH_FORMAT = "cylindersplat-synth-v1"
 
 
 def scene_id(index: int) -> str:
     return f"{index:08d}"
+
+
+# Fields added after the first datasets were written: recorded only when set, so a default
+# configuration writes the same ``meta.json`` as before (absent = the default).
+_LATER_FIELDS = ("target_offset", "occluders", "layout_weights", "through_doorways")
+
+
+def config_record(cfg: SequenceConfig) -> dict:
+    """``cfg`` as JSON-ready dict for ``meta.json`` (later options only where not at their default)."""
+    record = asdict(cfg)
+    defaults = {f.name: f.default for f in fields(SequenceConfig)}
+    for name in _LATER_FIELDS:
+        if record[name] == defaults[name] or (isinstance(record[name], tuple) and record[name] == tuple(defaults[name])):
+            del record[name]
+    return record
 
 
 def write_synthetic_dataset(
@@ -47,7 +62,7 @@ def write_synthetic_dataset(
     ids = [scene_id(i) for i in range(scenes)]
     settings = {
         "format": SYNTH_FORMAT, "seed": seed, "resolution": [height, width],
-        "depth_scale": DEPTH_PNG_SCALE, "config": asdict(cfg), "scenes": ids,
+        "depth_scale": DEPTH_PNG_SCALE, "config": config_record(cfg), "scenes": ids,
     }
     (out / "meta.json").write_text(json.dumps(settings, indent=1))
     for index in tqdm(range(scenes), desc="synth scenes", unit="scene", disable=not progress):
@@ -66,5 +81,7 @@ def write_synthetic_dataset(
             "spacing": seq.spacing, "frames": names, "resolution": [height, width],
             "depth_scale": DEPTH_PNG_SCALE, "sky": seq.scene.sky is not None,
         }
+        if cfg.target_offset[1] > 0:  # metres the middle frame stands off the first-last line
+            meta["target_offset"] = round(target_offset(seq.poses), 4)
         (folder / "meta.json").write_text(json.dumps(meta, indent=1))
     return out
