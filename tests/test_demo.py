@@ -15,7 +15,7 @@ from cylindersplat.scenes import demo_room
 def test_demo_end_to_end_and_reuse(tmp_path, capsys):
     out = tmp_path / "demo"
     args = ["demo", "--out", str(out), "--scenes", "3", "--held-out", "1", "--resolution", "16x32",
-            "--steps", "3,2", "--frames", "3"]
+            "--steps", "3,2,2", "--frames", "3"]
     assert main(args) == 0
     for name in ("comparison.png", "novel_view_rgb.png", "novel_view_depth.png", "flythrough.gif",
                  "gaussians.ply", "results.md", "results.json", "input/poses.json", "train/model.safetensors"):
@@ -23,7 +23,7 @@ def test_demo_end_to_end_and_reuse(tmp_path, capsys):
     table = (out / "results.md").read_text()
     assert "| CylinderSplat (tiny) |" in table and "| Forward warp |" in table
     means = next(iter(json.loads((out / "results.json").read_text())["means"].values()))
-    assert set(means) == {"CylinderSplat (tiny)", "Forward warp"}
+    assert set(means) == {"CylinderSplat (tiny)", "its pixel branch alone", "Forward warp"}
     # comparison: 3 rows (ground truth, ours, baseline) x (RGB | depth), shown at 2x
     assert Image.open(out / "comparison.png").size == (2 * (2 * 32 + 4), 2 * (3 * 16 + 2 * 4))
     assert Image.open(out / "flythrough.gif").n_frames == 3

@@ -273,3 +273,22 @@ def test_triplane_to_image_attention_reads_the_panorama_across_the_seam():
     base = module(zeros, columns)[1]  # theta-z plane (8, 4)
     rolled = module(zeros, torch.roll(columns, w // 8, dims=-1))[1]
     torch.testing.assert_close(torch.roll(base, 1, dims=1), rolled)
+
+
+def test_hidden_confidence_keeps_only_space_no_view_saw():
+    from cylindersplat.geometry import make_c2w
+    from cylindersplat.model.fusion import hidden_confidence
+
+    # Two cameras 2 m apart on x, each seeing a surface 3 m away in every direction.
+    c2w = torch.stack((make_c2w(translation=torch.tensor([0.0, 0.0, 0.0])),
+                       make_c2w(translation=torch.tensor([2.0, 0.0, 0.0]))))[None]
+    depth = torch.full((1, 2, 16, 32), 3.0)
+    points = torch.tensor([[[1.0, 0.0, 1.0],     # in front of both surfaces: seen empty by both
+                            [-1.5, 0.0, 0.0],    # 1.5 m from camera 0 (in front), 3.5 m from camera 1 (behind)
+                            [1.0, 0.0, 3.5]]])   # beyond 3 m from both cameras: hidden from every view
+    conf = hidden_confidence(points, c2w, depth, sigma=0.1)
+    assert conf[0, 0] < 1e-3 and conf[0, 1] < 0.01 and conf[0, 2] == pytest.approx(1.0)
+    # The product of the per-view front attenuations, each from the formula exp(-e^2 / (2 sigma^2)), e = min(0, d/d_pred - 1)
+    d0 = torch.linalg.vector_norm(points[0, 1]); d1 = torch.linalg.vector_norm(points[0, 1] - torch.tensor([2.0, 0, 0]))
+    expected = math.exp(-0.5 * (min(0.0, float(d0) / 3 - 1) / 0.1) ** 2) * math.exp(-0.5 * (min(0.0, float(d1) / 3 - 1) / 0.1) ** 2)
+    assert float(conf[0, 1]) == pytest.approx(expected, rel=1e-4)

@@ -1,7 +1,7 @@
 """``cylindersplat demo``: the main job, end to end on a default that needs no download.
 
 1. generate a small procedural panorama set (``OUT/data``);
-2. train the ``tiny`` model on all but the last ``--held-out`` scenes (pixel stage, then joint), or
+2. train the ``tiny`` model on all but the last ``--held-out`` scenes (curriculum stages 1-2-3), or
    reuse ``OUT/train/model.safetensors`` / ``--checkpoint`` when present;
 3. score it against ground truth and the forward-warp baseline on the held-out scenes
    (``OUT/results.md``/``.json``, comparison pictures in ``OUT/examples``);
@@ -24,6 +24,9 @@ import torch
 from ._arguments import model_resolution
 
 
+DEFAULT_STEPS = "400,100,100"
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "demo",
@@ -37,7 +40,9 @@ def register(subparsers) -> None:
     p.add_argument("--scenes", type=int, default=28, help="procedural scenes to generate (default 28)")
     p.add_argument("--held-out", type=int, default=8, help="last N scenes are not trained on and are scored (default 8)")
     p.add_argument("--resolution", type=model_resolution, default=(64, 128), help="panorama HxW (default 64x128)")
-    p.add_argument("--steps", default="500,100", help="training steps of stage 1 (pixel) and stage 3 (joint) (default 500,100)")
+    p.add_argument("--steps", default=DEFAULT_STEPS,
+                   help=f"training steps of curriculum stages 1 (pixel), 2 (volume) and 3 (joint); 0 skips a stage "
+                   f"(default {DEFAULT_STEPS})")
     p.add_argument("--lr", type=float, default=2e-3, help="peak learning rate of the short CPU schedule (default 2e-3)")
     p.add_argument("--checkpoint", type=Path, help="use these weights instead of training")
     p.add_argument("--retrain", action="store_true", help="train even if OUT/train/model.safetensors exists")
@@ -72,12 +77,15 @@ def _scene_ids(args) -> tuple[list[str], list[str]]:
 
 
 def generate_data(args) -> Path:
-    from ..data.synth import SequenceConfig, write_synthetic_dataset
+    from ..experiments.ablation import study_sequence_config
+    from ..data.synth import write_synthetic_dataset
 
     print(f"[1/4] procedural panoramas: {args.scenes} scenes x 3 frames at {args.resolution[0]}x{args.resolution[1]}")
     root = args.out / "data"
-    # Baselines 1-2 m between the outer frames (spacing 0.5-1.0 m), as in the paper's protocol.
-    write_synthetic_dataset(root, args.scenes, args.resolution, SequenceConfig(frames=3, spacing=(0.5, 1.0)), seed=0)
+    # Baselines 1-2 m between the outer frames; the target is off their line and occluders stand near the
+    # path (the "occlusion" profile), so part of every target is hidden from both inputs: only the volume
+    # branch can complete it.
+    write_synthetic_dataset(root, args.scenes, args.resolution, study_sequence_config(), seed=0)
     return root
 
 
@@ -97,12 +105,12 @@ def train_or_reuse(args, data: Path) -> Path:
     try:
         steps = [int(s) for s in args.steps.split(",")]
     except ValueError:
-        raise ValueError(f"--steps must be two integers like 250,100, got {args.steps!r}") from None
-    if len(steps) != 2 or min(steps) < 0:
-        raise ValueError(f"--steps must be two non-negative integers (stage 1, stage 3), got {args.steps!r}")
-    stages = [s for s, n in zip((1, 3), steps) if n > 0]
+        raise ValueError(f"--steps must be three integers like {DEFAULT_STEPS}, got {args.steps!r}") from None
+    if len(steps) != 3 or min(steps) < 0:
+        raise ValueError(f"--steps must be three non-negative integers (stages 1, 2, 3), got {args.steps!r}")
+    stages = [s for s, n in zip((1, 2, 3), steps) if n > 0]
     if not stages:
-        raise ValueError("--steps 0,0 trains nothing; give --checkpoint instead")
+        raise ValueError("--steps 0,0,0 trains nothing; give --checkpoint instead")
     train_ids, _ = _scene_ids(args)
     config = load_config("tiny", [
         f"data.root={data}", f"output_dir={run_dir}", f"data.resolution=[{args.resolution[0]},{args.resolution[1]}]",
@@ -130,7 +138,11 @@ def score_held_out(args, data: Path, checkpoint: Path) -> str:
     print(f"[3/4] scoring {len(held_out)} held-out scenes (2 panoramas in, the middle one predicted)")
     dataset = SyntheticDataset(data, views="two_view", scenes=held_out)
     model = load_model(checkpoint, map_location=args.device)
-    result = evaluate(dataset, [model_method(model, "CylinderSplat (tiny)", device=args.device), forward_warp_method()],
+    methods = [model_method(model, "CylinderSplat (tiny)", device=args.device)]
+    if model.mode == "both":  # the same weights with the pixel branch alone: what the volume branch adds
+        pixel_only = load_model(checkpoint, map_location=args.device).set_mode("pixel")
+        methods.append(model_method(pixel_only, "its pixel branch alone", device=args.device))
+    result = evaluate(dataset, methods + [forward_warp_method()],
                       example_dir=args.out / "examples", num_pictures=len(held_out), depth_range=DepthRange(0.05, 1000.0))
     results = {f"Held-out synthetic scenes — two_view ({result.num_examples} scenes, {args.resolution[0]}x{args.resolution[1]})":
                {name: dict(m) for name, m in result.means.items()}}

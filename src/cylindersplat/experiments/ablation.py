@@ -88,10 +88,11 @@ VARIANT_NAMES = tuple(v.name for v in default_variants())
 
 
 def study_sequence_config():
-    """Procedural sequences the study trains and scores on (baselines 1-2 m between the outer frames)."""
-    from ..data.synth import SequenceConfig
+    """Procedural sequences the study trains and scores on: the ``occlusion`` profile (targets off the
+    contexts' line, occluders, doorways), so that a real share of every target is hidden from both inputs."""
+    from ..data.synth import profile_config
 
-    return SequenceConfig(frames=3, spacing=(0.5, 1.0))
+    return profile_config("occlusion")
 
 # metric key -> (table header, higher is better, format); occluded-pixel metrics appear when eval reports them
 TABLE_METRICS = [
@@ -101,6 +102,7 @@ TABLE_METRICS = [
     ("abs_rel", "AbsRel ↓", False, "{:.3f}"),
     ("ws_psnr_occluded", "WS-PSNR occ. ↑", True, "{:.2f}"),
     ("abs_rel_occluded", "AbsRel occ. ↓", False, "{:.3f}"),
+    ("occluded_share", "occ. share", None, "{:.3f}"),
     ("gaussians", "Gaussians", None, "{:,.0f}"),
     ("train_s", "Train (s)", None, "{:.0f}"),
     ("time_s", "Time / scene (s)", None, "{:.2f}"),

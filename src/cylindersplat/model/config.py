@@ -131,7 +131,7 @@ class FusionConfig:
     strategy: Literal["concat", "depth_prune"] = "concat"
     sigma: float = 0.1  # relative depth deviation giving opacity factor exp(-1/2)
     prune_threshold: float = 0.005  # opacities below this after attenuation are marked pruned
-    side: Literal["both", "front"] = "both"  # "front": only attenuate Gaussians in front of the surface
+    side: Literal["both", "front", "hidden"] = "both"  # "front": only Gaussians in front of their own view's surface; "hidden": in front of any view's
 
 
 @dataclass
@@ -169,7 +169,7 @@ class ModelConfig:
              ("volume.placement='central' needs volume.init='shared' (the single central triplane has no view "
               "of its own to be isolated to)")),
             (self.fusion.strategy in ("concat", "depth_prune"), f"unknown fusion.strategy {self.fusion.strategy!r}"),
-            (self.fusion.side in ("both", "front"), f"fusion.side must be both or front, got {self.fusion.side!r}"),
+            (self.fusion.side in ("both", "front", "hidden"), f"fusion.side must be both, front or hidden, got {self.fusion.side!r}"),
             (0 < vol.min_scale_cells < vol.max_scale_cells, "need 0 < volume.min_scale_cells < volume.max_scale_cells"),
         ]
         for ok, message in checks:

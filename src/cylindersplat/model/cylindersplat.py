@@ -137,7 +137,9 @@ class CylinderSplat(nn.Module):
             volume, volume_points = vol.gaussians, vol.points_cam
             if vol.depth_view is not None:  # central triplane: its Gaussians are checked against one view
                 check_depth = check_depth[:, vol.depth_view : vol.depth_view + 1]
-        fused, keep = fuse_gaussians(pixel, volume, self.config.fusion, volume_points, check_depth)
+        if self.config.fusion.side == "hidden":
+            check_depth = pixel_out.refined_depth  # every view's, for every Gaussian
+        fused, keep = fuse_gaussians(pixel, volume, self.config.fusion, volume_points, check_depth, c2w)
         return ModelOutput(
             gaussians=fused,
             keep_mask=keep,

@@ -9,6 +9,9 @@
   completes). Gaussians whose attenuated opacity falls below ``prune_threshold`` are marked in
   ``keep_mask`` (batched outputs keep a fixed ``N``; :func:`compact` drops them for one scene).
   Pixel Gaussians lie on the refined depth by construction and are never attenuated.
+  ``side="hidden"``: the ``front`` attenuation against *every* input view's refined depth
+  (multiplied), so volume Gaussians survive only in space no input view saw: where completion is
+  needed, and where they cannot cover surfaces the pixel branch reconstructs.
 """
 
 from __future__ import annotations
@@ -20,11 +23,11 @@ from jaxtyping import Float
 from torch import Tensor
 
 from ..gaussians import Gaussians
-from ..geometry import project_equirect
+from ..geometry import project_equirect, world_to_camera
 from .config import FusionConfig
 from .sampling import sample_panorama
 
-__all__ = ["depth_confidence", "fuse_gaussians", "compact"]
+__all__ = ["depth_confidence", "hidden_confidence", "fuse_gaussians", "compact"]
 
 
 def depth_confidence(
@@ -45,18 +48,39 @@ def depth_confidence(
     return torch.exp(-0.5 * (error / sigma) ** 2)
 
 
+def hidden_confidence(
+    means_world: Float[Tensor, "B N 3"],
+    c2w: Float[Tensor, "B V 4 4"],
+    refined_depth: Float[Tensor, "B V H W"],
+    sigma: float,
+) -> Float[Tensor, "B N"]:
+    """How hidden world points are from every input view: the product over views of the ``front``
+    attenuation, so a point in front of *any* view's predicted surface (space that view saw empty)
+    fades, and only space no input view observed keeps full opacity."""
+    points = world_to_camera(means_world[:, None], c2w)  # (B, V, N, 3): every point in every view
+    return depth_confidence(points, refined_depth, sigma, "front").prod(dim=1)
+
+
 def fuse_gaussians(
     pixel: Gaussians | None,
     volume: Gaussians | None,
     cfg: FusionConfig,
     volume_points_cam: Tensor | None = None,
     refined_depth: Tensor | None = None,
+    c2w: Tensor | None = None,
 ) -> tuple[Gaussians, Float[Tensor, "B N"]]:
-    """Combined Gaussians ``(B, N, ...)`` and a keep mask ``(B, N)``."""
+    """Combined Gaussians ``(B, N, ...)`` and a keep mask ``(B, N)``.
+
+    ``side="hidden"`` needs the input poses ``c2w (B, V, 4, 4)`` and every view's refined depth."""
     if volume is not None and cfg.strategy == "depth_prune":
         if volume_points_cam is None or refined_depth is None:
             raise ValueError("depth_prune fusion needs the volume Gaussians' camera-frame points and the refined depth")
-        confidence = depth_confidence(volume_points_cam, refined_depth, cfg.sigma, cfg.side).flatten(1)
+        if cfg.side == "hidden":
+            if c2w is None:
+                raise ValueError("fusion.side=hidden needs the input poses")
+            confidence = hidden_confidence(volume.means, c2w, refined_depth, cfg.sigma)
+        else:
+            confidence = depth_confidence(volume_points_cam, refined_depth, cfg.sigma, cfg.side).flatten(1)
         volume = replace(volume, opacities=volume.opacities * confidence)
     elif cfg.strategy not in ("concat", "depth_prune"):
         raise ValueError(f"unknown fusion strategy {cfg.strategy!r}; expected 'concat' or 'depth_prune'")

@@ -63,6 +63,9 @@ class TrainConfig:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     amp: Literal["auto", "bf16", "off"] = "auto"  # auto: bf16 network forward on CUDA, fp32 on CPU
     device: str = "auto"  # auto: cuda when available
+    # Stage 2 renders the volume Gaussians alone ("volume", the paper) or together with the frozen pixel
+    # branch's ("fused"): then the volume branch is supervised only where the pixel branch leaves errors.
+    stage2_render: Literal["volume", "fused"] = "volume"
     volume_lr_scale: float = 1.0  # volume-branch learning rate = lr x this (a per-branch rate for the joint stage)
     render_backend: str = "auto"  # render_equirect backend: auto, torch (reference) or triton
     seed: int = 0
@@ -205,6 +208,8 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     bad = [s for s in cfg.train.stages if s not in (1, 2, 3)]
     if bad or not cfg.train.stages:
         raise ValueError(f"train.stages must be a non-empty list of 1, 2, 3; got {cfg.train.stages}")
+    if cfg.train.stage2_render not in ("volume", "fused"):
+        raise ValueError(f"train.stage2_render must be volume or fused, got {cfg.train.stage2_render!r}")
     if not cfg.train.volume_lr_scale > 0:
         raise ValueError(f"train.volume_lr_scale must be > 0, got {cfg.train.volume_lr_scale}")
     if cfg.train.max_nonfinite_steps < 0:

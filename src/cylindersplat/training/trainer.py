@@ -147,6 +147,8 @@ class Trainer:
         """Set the model's branch mode/freezing and a fresh optimizer + schedule for this stage."""
         tcfg = self.config.train
         self.model.configure_stage(self.stage)
+        if self.stage == 2 and tcfg.stage2_render == "fused":
+            self.model.set_mode("both")  # pixel branch still frozen: only the volume branch learns
         self.train_model = wrap_ddp(self.model, self.dist, self.device)
         volume = {id(p) for p in self.model.branch_parameters("volume")}
         groups = [
