@@ -188,3 +188,30 @@ def test_volume_lr_scale_gives_the_volume_branch_its_own_rate(tmp_path, synth_ro
     assert {r for i, r in rates.items() if i not in volume} == {cfg.train.lr}
     with pytest.raises(ValueError, match="volume_lr_scale"):
         load_config("tiny", ["train.volume_lr_scale=0"])
+
+
+def test_occluded_pixels_can_weigh_more(tmp_path, monkeypatch):
+    from cylindersplat.data.synth import profile_config
+    from cylindersplat.training.losses import LossConfig, RenderLoss
+
+    # The weighted L1 is the weighted mean of |rgb - target| over pixels and channels.
+    gen = torch.Generator().manual_seed(0)
+    rgb, target = torch.rand(1, 1, 3, 4, 8, generator=gen), torch.rand(1, 1, 3, 4, 8, generator=gen)
+    weight = 1 + 4 * (torch.rand(1, 1, 4, 8, generator=gen) > 0.7).float()
+    terms = RenderLoss(LossConfig(use_lpips="off", depth_l1=0))(rgb, torch.zeros(1, 1, 4, 8), torch.ones(1, 1, 4, 8),
+                                                                  target, None, pixel_weight=weight)
+    expected = (weight[:, :, None] * (rgb - target).abs()).sum() / (3 * weight.sum())
+    assert terms.parts["rgb_l1"] == pytest.approx(float(expected), rel=1e-6)
+
+    # The trainer derives the weights from the reference depths of targets and contexts.
+    root = tmp_path / "occ"
+    write_synthetic_dataset(root, 2, (32, 64), profile_config("occlusion"), seed=4, progress=False)
+    cfg = _config(root, tmp_path / "run", "train.stages=[1]", "train.steps_per_stage=[1]", "loss.occluded_weight=4")
+    trainer = Trainer(cfg)
+    seen = []
+    monkeypatch.setattr(trainer.loss_fn, "forward", lambda *a, pixel_weight=None: seen.append(pixel_weight) or
+                        RenderLoss.forward(trainer.loss_fn, *a, pixel_weight=pixel_weight))
+    trainer.fit()
+    assert seen[0] is not None and set(seen[0].unique().tolist()) <= {1.0, 5.0} and (seen[0] == 5).any()
+    with pytest.raises(ValueError, match="occluded_weight"):
+        load_config("tiny", ["loss.occluded_weight=-1"])

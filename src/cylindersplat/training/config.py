@@ -208,6 +208,8 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     bad = [s for s in cfg.train.stages if s not in (1, 2, 3)]
     if bad or not cfg.train.stages:
         raise ValueError(f"train.stages must be a non-empty list of 1, 2, 3; got {cfg.train.stages}")
+    if cfg.loss.occluded_weight < 0:
+        raise ValueError(f"loss.occluded_weight must be >= 0, got {cfg.loss.occluded_weight}")
     if cfg.train.stage2_render not in ("volume", "fused"):
         raise ValueError(f"train.stage2_render must be volume or fused, got {cfg.train.stage2_render!r}")
     if not cfg.train.volume_lr_scale > 0:

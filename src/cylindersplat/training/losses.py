@@ -32,6 +32,9 @@ class LossConfig:
     # Rendered depth is alpha-composited (sum_i w_i d_i, not divided by alpha) so the depth term
     # also pushes coverage up where the reference sees a surface; True divides by alpha first.
     normalize_depth: bool = False
+    # Extra weight of the RGB L1 on target pixels no context view sees (1 + w there): completion is
+    # supervised where only it can be right; 0 = off. Needs reference depths of targets and contexts.
+    occluded_weight: float = 0.0
 
 
 @dataclass
@@ -84,9 +87,15 @@ class RenderLoss(nn.Module):
         alpha: Float[Tensor, "*B V H W"],
         target_rgb: Float[Tensor, "*B V 3 H W"],
         reference_depth: Float[Tensor, "*B V H W"] | None,
+        pixel_weight: Float[Tensor, "*B V H W"] | None = None,
     ) -> LossTerms:
+        """``pixel_weight`` (optional) weights the RGB L1 per pixel (a weighted mean)."""
         cfg = self.config
-        rgb_l1 = (rgb - target_rgb).abs().mean()
+        if pixel_weight is None:
+            rgb_l1 = (rgb - target_rgb).abs().mean()
+        else:
+            w = pixel_weight.unsqueeze(-3).to(rgb.dtype)
+            rgb_l1 = (w * (rgb - target_rgb).abs()).sum() / (3 * w.sum()).clamp_min(1e-12)
         total = cfg.rgb_l1 * rgb_l1
         parts = {"rgb_l1": float(rgb_l1.detach())}
         if self.lpips_net is not None:

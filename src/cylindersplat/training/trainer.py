@@ -183,7 +183,28 @@ class Trainer:
                 background=tuple(self.config.train.background), backend=self.config.train.render_backend,
             )
             self._last_render = (render, batch)
-            return self.loss_fn(render.rgb, render.depth, render.alpha, batch.target_images, batch.target_depths)
+            return self.loss_fn(render.rgb, render.depth, render.alpha, batch.target_images, batch.target_depths,
+                                pixel_weight=self._occluded_weights(batch))
+
+    def _occluded_weights(self, batch: Sample) -> Tensor | None:
+        """``1 + loss.occluded_weight`` on target pixels no context view sees (from reference depths), else 1."""
+        weight = self.config.loss.occluded_weight
+        if weight == 0:
+            return None
+        if batch.target_depths is None or batch.context_gt_depths is None:
+            if not getattr(self, "_warned_occluded", False):
+                warnings.warn("loss.occluded_weight needs reference depths of targets and contexts; not applied",
+                              stacklevel=3)
+                self._warned_occluded = True
+            return None
+        from ..data.occlusion import occluded_mask
+
+        masks = torch.stack([
+            torch.stack([occluded_mask(batch.target_depths[b, t], batch.target_poses[b, t], batch.context_gt_depths[b],
+                                       batch.context_poses[b]) for t in range(batch.target_depths.shape[1])])
+            for b in range(batch.target_depths.shape[0])
+        ])
+        return 1.0 + weight * masks.to(batch.target_images.dtype)
 
     def _watch_gaussian_grads(self, gaussians) -> None:
         """Record per Gaussian tensor whether its grad is finite; a device-side flag, no sync."""
