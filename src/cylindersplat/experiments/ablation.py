@@ -59,16 +59,23 @@ class Variant:
         return tuple(s for s, _ in stages), tuple(n for _, n in stages)
 
 
+# The paper's volume-only rows: the volume branch alone renders every pixel (no fusion, no pruning).
+VOLUME_ONLY = ("model.fusion.strategy=concat", "train.stage2_render=volume")
+
+
 def default_variants() -> list[Variant]:
     """The paper's ablation rows (and the switches issue 11 asks for), in table order."""
     return [
-        Variant("full", "pixel + cylindrical volume branch, curriculum 1-2-3"),
+        Variant("full", "pixel + cylindrical volume branch, curriculum 1-2-3 (the tiny preset's recipe: stage 2 "
+                "beside the frozen pixel branch, volume Gaussians only where no input view saw empty space)"),
+        Variant("full_paper_recipe", "full, the paper's recipe: volume-only stage 2, concatenated Gaussians",
+                ("model.fusion.strategy=concat", "train.stage2_render=volume")),
         Variant("pixel_only", "pixel branch only", kind="pixel"),
-        Variant("volume_only_cylindrical", "volume branch only, cylindrical triplanes", kind="volume"),
+        Variant("volume_only_cylindrical", "volume branch only, cylindrical triplanes", VOLUME_ONLY, kind="volume"),
         Variant("volume_only_spherical", "volume branch only, spherical triplanes",
-                ("model.volume.coordinates=spherical",), kind="volume"),
+                VOLUME_ONLY + ("model.volume.coordinates=spherical",), kind="volume"),
         Variant("volume_only_cartesian", "volume branch only, Cartesian triplanes",
-                ("model.volume.coordinates=cartesian",), kind="volume"),
+                VOLUME_ONLY + ("model.volume.coordinates=cartesian",), kind="volume"),
         Variant("wo_rgb_retrieval", "full, colour decoded from triplane features (no RGB retrieval)",
                 ("model.volume.color=decoded",)),
         Variant("central_triplane", "full, one triplane at the centre of all views (not per camera)",
@@ -79,7 +86,7 @@ def default_variants() -> list[Variant]:
                 ("model.volume.image_query=full",)),
         Variant("isolated_init", "full, isolated triplane init (own view's points only)",
                 ("model.volume.init=isolated",)),
-        Variant("depth_fusion", "full, depth-guided fusion (volume Gaussians in front of the surface pruned)",
+        Variant("depth_fusion_own_view", "full, depth-guided fusion against each Gaussian's own view only",
                 ("model.fusion.strategy=depth_prune", "model.fusion.side=front")),
     ]
 
