@@ -178,11 +178,12 @@ def run_study(
     held_out: int = 8,
     resolution: tuple[int, int] = (64, 128),
     device: str = "cpu",
-    log=print,
+    log=None,
 ) -> dict:
     """Train and score every variant x seed; write ``ablation.json`` / ``ablation.md`` to ``out_dir``."""
     from ..data import SyntheticDataset
 
+    log = log or (lambda text: print(text, flush=True))  # progress lines reach a log file as they happen
     data_root, out_dir = Path(data_root), Path(out_dir)
     variants = variants or default_variants()
     scenes = SyntheticDataset(data_root).scenes
