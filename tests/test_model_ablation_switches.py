@@ -122,7 +122,7 @@ def test_switches_validate_with_clear_errors():
 
 
 def test_switches_are_experiment_overrides():
-    training = pytest.importorskip("cylindersplat.training")
+    import cylindersplat.training as training
     overrides = ["model.volume.color=decoded", "model.volume.placement=central",
                  "model.volume.scale_transform=cartesian", "model.volume.image_query=full"]
     cfg = training.load_config(None, overrides)

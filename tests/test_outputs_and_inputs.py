@@ -109,3 +109,24 @@ def test_reflection_is_not_a_pose():
     with pytest.raises(ValueError, match="reflection"):
         validate_c2w(mirror)
     validate_c2w(torch.eye(4))
+
+
+def test_image_modes_are_read_or_refused_explicitly(tmp_path):
+    from PIL import Image
+
+    from cylindersplat.data.io import read_depth_png, read_rgb
+
+    ramp = np.linspace(0, 1, 8 * 16).reshape(8, 16)
+    Image.fromarray((ramp * 65535).astype(np.uint16)).save(tmp_path / "g16.png")  # 16-bit grayscale
+    Image.fromarray(ramp.astype(np.float32), mode="F").save(tmp_path / "f.tiff")
+    Image.fromarray((ramp * 255).astype(np.uint8)).convert("RGBA").save(tmp_path / "rgba.png")
+    for name in ("g16.png", "f.tiff", "rgba.png"):
+        rgb = read_rgb(tmp_path / name)
+        assert rgb.shape == (3, 8, 16), name
+        np.testing.assert_allclose(rgb[1].numpy(), ramp, atol=1 / 255 + 1e-6, err_msg=name)  # not all white, not all black
+    Image.fromarray((ramp * 3).astype(np.float32), mode="F").save(tmp_path / "hdr.tiff")
+    with pytest.raises(ValueError, match="in \\[0, 1\\]"):
+        read_rgb(tmp_path / "hdr.tiff")
+    Image.fromarray((ramp * 255).astype(np.uint8)).save(tmp_path / "depth8.png")
+    with pytest.raises(ValueError, match="8-bit depth PNG"):
+        read_depth_png(tmp_path / "depth8.png")

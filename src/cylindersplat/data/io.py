@@ -66,17 +66,40 @@ def open_image(path: Path | str) -> Image.Image:
 def read_rgb(
     path: Path | str, size: tuple[int, int] | None = None, expected: tuple[int, int] | None = None
 ) -> Float[Tensor, "3 H W"]:
-    """8-bit panorama -> float ``(3, H, W)`` in ``[0, 1]``.
+    """Panorama -> float ``(3, H, W)`` in ``[0, 1]``.
 
+    8-bit RGB/RGBA/palette/CMYK images are converted to RGB (alpha dropped); grayscale is repeated
+    over the channels, 16-bit grayscale scaled by 65535, float images must already lie in [0, 1].
     ``expected`` (H, W) checks the stored size; ``size`` (H, W) resizes with Lanczos.
     """
     img = open_image(path)
     check_panorama_size(img.height, img.width, path, expected)
-    img = img.convert("RGB")
+    img = _to_rgb8(img, path)
     if size is not None and (img.height, img.width) != tuple(size):
         check_panorama_size(size[0], size[1], f"{path} (requested size)")
         img = img.resize((size[1], size[0]), Image.LANCZOS)
     return torch.from_numpy(np.asarray(img, dtype=np.uint8).copy()).permute(2, 0, 1).float() / 255.0
+
+
+def _to_rgb8(img: Image.Image, path) -> Image.Image:
+    """8-bit RGB from any image mode PIL decodes, scaling high-bit-depth and float data explicitly
+    (PIL's own ``convert("RGB")`` clips 16-bit values to 255 and float ones to 0/1)."""
+    if img.mode in ("RGB", "RGBA", "RGBX", "P", "PA", "L", "LA", "CMYK", "YCbCr", "1"):
+        return img.convert("RGB")
+    arr = np.asarray(img)
+    if img.mode.startswith("I;16"):
+        gray = arr.astype(np.float64) / 65535.0
+    elif img.mode == "I":
+        gray = arr.astype(np.float64) / (65535.0 if arr.max(initial=0) <= 65535 else float(np.iinfo(np.int32).max))
+    elif img.mode == "F":
+        if not np.isfinite(arr).all() or arr.min(initial=0) < 0 or arr.max(initial=0) > 1:
+            raise ValueError(f"{path}: float image values must be finite and in [0, 1] "
+                             f"(got {np.nanmin(arr):.3g}..{np.nanmax(arr):.3g}); save it as an 8-bit PNG/JPEG")
+        gray = arr.astype(np.float64)
+    else:
+        raise ValueError(f"{path}: unsupported image mode {img.mode!r}; save it as an 8-bit RGB PNG or JPEG")
+    gray8 = np.clip(np.round(gray * 255.0), 0, 255).astype(np.uint8)
+    return Image.fromarray(np.repeat(gray8[..., None], 3, axis=-1))
 
 
 def read_depth_png(
@@ -89,7 +112,10 @@ def read_depth_png(
     """16-bit depth PNG (``scale`` units per metre, 0 = hole) -> float ``(H, W)`` metres."""
     img = open_image(path)
     check_panorama_size(img.height, img.width, path, expected)
-    if img.mode not in ("I;16", "I;16B", "I;16L", "I", "L"):
+    if img.mode == "L":
+        raise ValueError(f"{path}: 8-bit depth PNG; depth must be a 16-bit PNG ({scale:g} units per metre, "
+                         "e.g. millimetres) or a float .npy in metres")
+    if img.mode not in ("I;16", "I;16B", "I;16L", "I"):
         raise ValueError(f"{path}: depth PNG must be single-channel 16-bit, got mode {img.mode}")
     depth = torch.from_numpy(np.asarray(img).astype(np.float32)) / scale
     if size is not None:
