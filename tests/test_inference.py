@@ -167,6 +167,10 @@ def test_render_and_export_cli(folder, checkpoint, tmp_path, capsys):
                  "--out", str(ply), "--min-opacity", "0"]) == 0
     exported = load_ply(ply)
     torch.testing.assert_close(exported.means, gaussians.means)
+    # Rendering again into the same folder with fewer views leaves no stale views of the first render.
+    assert main(["render", "--input", str(path), "--checkpoint", str(checkpoint), "--resolution", "16x32",
+                 "--out", str(out), "--frames", "0", "--min-opacity", "0"]) == 0
+    assert sorted(p.name for p in (out / "views").iterdir()) == ["view_000_depth.png", "view_000_rgb.png"]
 
 
 def test_cli_errors(folder, checkpoint, tmp_path, capsys):

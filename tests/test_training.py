@@ -95,7 +95,18 @@ def test_train_cli_end_to_end(synth_root, tmp_path, capsys):
         assert (out / f"model_stage{stage}.safetensors").is_file()
         assert any((out / "images").glob(f"stage{stage}_*.png"))
     assert (out / "metrics.jsonl").read_text().count("\n") >= 3
-    assert main(["train", "--data", str(tmp_path / "missing"), "--out", str(out)]) == 1
+    assert main(["train", "--data", str(tmp_path / "missing"), "--out", str(tmp_path / "other")]) == 1
+    capsys.readouterr()
+    # The folder holds a run now: a second train into it must not mix two runs.
+    history = (out / "metrics.jsonl").read_text()
+    args = ["train", "--data", str(synth_root), "--out", str(out), "--stages", "1", "--steps", "1",
+            "train.progress=false", "loss.use_lpips=off", "train.image_every=0"]
+    assert main(args) == 1
+    assert "--resume" in capsys.readouterr().err and (out / "metrics.jsonl").read_text() == history
+    (out / "notes.txt").write_text("mine")
+    assert main(args + ["--overwrite"]) == 0
+    assert (out / "metrics.jsonl").read_text() != history and (out / "notes.txt").read_text() == "mine"
+    assert not (out / "model_stage3.safetensors").exists()
 
 
 # -- non-finite guard ---------------------------------------------------------------------------

@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from ._arguments import model_resolution
+from ..utils.atomic import atomic_write_text
 
 
 def _steps(text: str) -> tuple[int, int, int]:
@@ -59,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
                        args.resolution, args.device)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=1))
+        atomic_write_text(args.json, json.dumps(report, indent=1))
     print((args.out / "ablation.md").read_text())
     return 0
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import torch
 
 from ._arguments import model_resolution
+from ..utils.atomic import atomic_write_text
 
 
 DEFAULT_STEPS = "400,100,100"
@@ -147,8 +148,8 @@ def score_held_out(args, data: Path, checkpoint: Path) -> str:
     results = {f"Held-out synthetic scenes — two_view ({result.num_examples} scenes, {args.resolution[0]}x{args.resolution[1]})":
                {name: dict(m) for name, m in result.means.items()}}
     table = results_to_markdown(results, title="Demo: novel views of unseen scenes")
-    (args.out / "results.md").write_text(table)
-    (args.out / "results.json").write_text(json.dumps({"means": results, "views": result.rows}, indent=1))
+    atomic_write_text(args.out / "results.md", table)
+    atomic_write_text(args.out / "results.json", json.dumps({"means": results, "views": result.rows}, indent=1))
     return table
 
 

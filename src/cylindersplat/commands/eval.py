@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 from ._arguments import equirect_resolution
+from ..utils.atomic import atomic_write_text
 
 
 def open_eval_dataset(args, protocol: str):
@@ -60,8 +61,8 @@ def run(args: argparse.Namespace) -> int:
         for note in result.notes:
             print(f"{protocol}: {note}")
     table = results_to_markdown(results, title="Evaluation")
-    (args.out / "results.md").write_text(table)
-    (args.out / "results.json").write_text(json.dumps({"means": results, "views": details}, indent=1))
+    atomic_write_text(args.out / "results.md", table)
+    atomic_write_text(args.out / "results.json", json.dumps({"means": results, "views": details}, indent=1))
     print(table)
     print(f"wrote {args.out}/results.md, results.json and examples/")
     return 0

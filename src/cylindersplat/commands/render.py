@@ -37,6 +37,11 @@ def run(args: argparse.Namespace) -> int:
     views = render_views(gaussians, poses, h, w, background, progress=True, desc="novel views")
     view_dir = args.out / "views"
     view_dir.mkdir(exist_ok=True)
+    stale = list(view_dir.glob("view_*_rgb.png")) + list(view_dir.glob("view_*_depth.png"))
+    for path in stale:  # views of an earlier render into this folder: never mix them with this one's
+        path.unlink()
+    if stale:
+        print(f"removed {len(stale)} view images of an earlier render in {view_dir}")
     for i in range(len(poses)):
         write_view(view_dir / f"view_{i:03d}_rgb.png", view_dir / f"view_{i:03d}_depth.png",
                    views.rgb[i], views.depth[i], views.alpha[i], near, far)

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import shutil
+from pathlib import Path
 
 
 def run(args: argparse.Namespace) -> int:
@@ -29,6 +31,8 @@ def run(args: argparse.Namespace) -> int:
 
         print(yaml.safe_dump(config_as_dict(config), sort_keys=False))
         return 0
+    if args.resume is None:
+        _refuse_to_trample(Path(config.output_dir), args.overwrite)
     trainer = Trainer(config, resume=args.resume)
     summary = trainer.fit(max_steps=args.max_steps)
     state = "finished" if summary["finished"] else f"stopped at step {summary['global_step']} (resume with --resume {config.output_dir})"
@@ -36,6 +40,24 @@ def run(args: argparse.Namespace) -> int:
     if summary["finished"]:
         print(f"weights: {summary['weights']}")
     return 0
+
+
+# What a run writes into its folder (``--overwrite`` removes exactly these, nothing else of the user's).
+RUN_OUTPUTS = ("checkpoints", "images", "tensorboard", "metrics.jsonl", "config.yaml", "model.safetensors",
+               "model_stage1.safetensors", "model_stage2.safetensors", "model_stage3.safetensors")
+
+
+def _refuse_to_trample(folder: Path, overwrite: bool) -> None:
+    """A folder that holds a run is resumed (``--resume``) or replaced on request, never mixed."""
+    present = [name for name in RUN_OUTPUTS if (folder / name).exists()]
+    if not present:
+        return
+    if not overwrite:
+        raise ValueError(f"{folder} already holds a training run ({', '.join(present[:3])}...); continue it with "
+                         f"--resume {folder}, start anew with --overwrite, or choose another --out")
+    for name in present:
+        path = folder / name
+        shutil.rmtree(path) if path.is_dir() else path.unlink()
 
 
 def register(subparsers) -> None:
@@ -59,6 +81,8 @@ def register(subparsers) -> None:
     parser.add_argument("--steps", help="optimizer steps per stage: one number or a comma list per stage")
     parser.add_argument("--init", help="model.safetensors to start from (fine-tuning)")
     parser.add_argument("--resume", help="run folder or checkpoint to continue from (must use the same stages)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the run already in the output folder (its checkpoints, logs and weights)")
     parser.add_argument("--max-steps", type=int, help="stop (with a checkpoint) after this many steps of this call")
     parser.add_argument("--device", help="cpu, cuda, cuda:1 ... (default: cuda when available)")
     parser.add_argument("--print-config", action="store_true", help="print the resolved config as YAML and exit")

@@ -19,6 +19,7 @@ import statistics
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from ..utils.atomic import atomic_write_text
 
 
 __all__ = ["Schedule", "Variant", "default_variants", "VARIANT_NAMES", "run_study", "study_table", "study_sequence_config"]
@@ -146,9 +147,10 @@ def _train(variant: Variant, seed: int, schedule: Schedule, data_root: Path, tra
     ]
     config = load_config("tiny", overrides)
     start = time.perf_counter()
-    summary = Trainer(config).fit()
+    resume = run_dir if (run_dir / "checkpoints").is_dir() else None  # a killed study continues its run
+    summary = Trainer(config, resume=resume).fit()
     train_s = time.perf_counter() - start
-    meta.write_text(json.dumps({"train_s": train_s, "skipped_steps": summary.get("skipped_steps", 0),
+    atomic_write_text(meta, json.dumps({"train_s": train_s, "skipped_steps": summary.get("skipped_steps", 0),
                                 "stages": stages, "steps": steps, "seed": seed, "overrides": list(variant.overrides)}))
     return Path(summary["weights"]), train_s, int(summary.get("skipped_steps", 0))
 
@@ -209,8 +211,8 @@ def run_study(
         report["variants"][variant.name] = _aggregate(variant, runs)
     report["study_s"] = time.perf_counter() - start
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "ablation.json").write_text(json.dumps(report, indent=1))
-    (out_dir / "ablation.md").write_text(study_table(report))
+    atomic_write_text(out_dir / "ablation.json", json.dumps(report, indent=1))
+    atomic_write_text(out_dir / "ablation.md", study_table(report))
     return report
 
 

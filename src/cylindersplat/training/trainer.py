@@ -37,6 +37,7 @@ from .distributed import cleanup_distributed, init_distributed, unwrap, wrap_ddp
 from .logger import MetricLogger
 from .losses import LossTerms, RenderLoss
 from .schedule import cosine_schedule
+from ..utils.atomic import atomic_write_text
 
 __all__ = ["Trainer", "batch_to_device", "select_device"]
 
@@ -286,7 +287,7 @@ class Trainer:
         tcfg = self.config.train
         if self.dist.is_main:
             self.output_dir.mkdir(parents=True, exist_ok=True)
-            (self.output_dir / "config.yaml").write_text(yaml.safe_dump(config_as_dict(self.config), sort_keys=False))
+            atomic_write_text(self.output_dir / "config.yaml", yaml.safe_dump(config_as_dict(self.config), sort_keys=False))
         history: list[dict[str, float]] = []
         step_times: list[float] = []
         budget = max_steps
