@@ -157,7 +157,7 @@ def evaluate(
     rows: list[dict] = []
     notes: list[str] = []
     pictures = 0
-    for index in tqdm(range(count), desc="evaluate", unit="example", disable=not progress):
+    for index in tqdm(range(count), desc="evaluate", unit="example", disable=None if progress else True):  # None: no bar when output is not a terminal
         sample = dataset[index]
         occluded, reason = occluded_masks(sample)
         if reason is not None and sample.target_depths is not None:

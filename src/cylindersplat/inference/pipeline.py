@@ -62,7 +62,7 @@ def render_views(
     """Render ``K`` panoramas in chunks of ``chunk`` cameras (bounded memory); results on the CPU."""
     device = gaussians.device
     parts = []
-    for start in tqdm(range(0, len(c2w), chunk), desc=desc, unit="chunk", disable=not progress):
+    for start in tqdm(range(0, len(c2w), chunk), desc=desc, unit="chunk", disable=None if progress else True):  # None: no bar when output is not a terminal
         out = render_equirect(gaussians, c2w[start:start + chunk].to(device), height, width, background=background)
         parts.append(RenderOutput(out.rgb.cpu(), out.depth.cpu(), out.alpha.cpu()))
     return RenderOutput(*(torch.cat([getattr(p, k) for p in parts]) for k in ("rgb", "depth", "alpha")))

@@ -306,7 +306,7 @@ class Trainer:
                 )
                 bar = tqdm(
                     total=total, initial=self.stage_step, desc=f"stage {self.stage}", unit="step",
-                    disable=not (tcfg.progress and self.dist.is_main), dynamic_ncols=True,
+                    disable=None if (tcfg.progress and self.dist.is_main) else True, dynamic_ncols=True,  # None: not in log files
                 )
                 for batch in build_loader(self.dataset, sampler, self.config.data.num_workers):
                     start = time.perf_counter()

@@ -65,7 +65,7 @@ def write_synthetic_dataset(
         "depth_scale": DEPTH_PNG_SCALE, "config": config_record(cfg), "scenes": ids,
     }
     (out / "meta.json").write_text(json.dumps(settings, indent=1))
-    for index in tqdm(range(scenes), desc="synth scenes", unit="scene", disable=not progress):
+    for index in tqdm(range(scenes), desc="synth scenes", unit="scene", disable=None if progress else True):  # None: no bar when output is not a terminal
         folder = out / ids[index]
         if (folder / "meta.json").is_file():
             continue
