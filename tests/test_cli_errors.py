@@ -59,3 +59,14 @@ def test_bugs_keep_their_traceback(exc):
 def test_debug_flag_shows_the_traceback(tmp_path):
     with pytest.raises(ValueError, match="train.seed"):
         main(["--debug", "train", "--data", str(tmp_path), "train.seed=abc"])
+
+
+def test_weights_with_nan_are_refused_by_name(tmp_path):
+    from cylindersplat.model import from_config, load_model, save_model
+
+    model = from_config("tiny")
+    with torch.no_grad():
+        next(model.parameters()).fill_(float("nan"))
+    save_model(model, tmp_path / "diverged.safetensors")
+    with pytest.raises(ValueError, match="NaN/inf.*diverged"):
+        load_model(tmp_path / "diverged.safetensors")

@@ -33,5 +33,10 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> Cy
     if CONFIG_KEY not in metadata:
         raise ValueError(f"{path} has no {CONFIG_KEY!r} metadata; was it written by save_model?")
     model = CylinderSplat(config_from_dict(json.loads(metadata[CONFIG_KEY])))
-    model.load_state_dict(load_file(str(path), device=str(map_location)))
+    state = load_file(str(path), device=str(map_location))
+    bad = [name for name, tensor in state.items() if tensor.is_floating_point() and not torch.isfinite(tensor).all()]
+    if bad:  # what a diverged run leaves; it would render nothing without a word
+        raise ValueError(f"{path}: {len(bad)} weight tensors contain NaN/inf (e.g. {bad[0]}); the training run "
+                         "diverged: use an earlier checkpoint or retrain with a lower learning rate")
+    model.load_state_dict(state)
     return model.to(map_location)
