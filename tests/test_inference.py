@@ -185,3 +185,30 @@ def test_cli_errors(folder, checkpoint, tmp_path, capsys):
     assert main(["render", "--input", str(path), "--checkpoint", str(checkpoint), "--resolution", "16x32",
                  "--depth-prior", "constant:abc", "--out", str(tmp_path / "r")]) == 1
     assert "not a valid depth" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("convention", ["opengl_c2w", "blender_c2w", "opencv_w2c", "opengl_w2c"])
+def test_pose_conventions_give_the_same_cameras(tmp_path, convention):
+    from cylindersplat.inference import read_poses_file
+
+    gl = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))
+    poses = [_yaw(0.3, (0.5, -0.2, 1.0)).double(), _yaw(-1.1, (2.0, 0.1, 0.0)).double()]
+    written = []
+    for c2w in poses:
+        m = c2w @ gl if convention.startswith(("opengl", "blender")) else c2w  # the same camera, other axes
+        written.append((torch.linalg.inv(m) if convention.endswith("w2c") else m).tolist())
+    (tmp_path / "a.json").write_text(json.dumps({"convention": convention, "poses": written}))
+    (tmp_path / "b.json").write_text(json.dumps({"poses": [p.tolist() for p in poses]}))
+    for (_, got, _), (_, ref, _) in zip(read_poses_file(tmp_path / "a.json"), read_poses_file(tmp_path / "b.json")):
+        torch.testing.assert_close(got, ref, atol=1e-5, rtol=0)
+
+
+def test_poses_file_types_are_checked(tmp_path):
+    from cylindersplat.inference import read_poses_file
+
+    for data, message in [({"convention": "colmap", "poses": [torch.eye(4).tolist()]}, "unknown pose convention"),
+                          ({"poses": "eye"}, "must be a list"),
+                          ({"frames": [{"image": 3, "c2w": torch.eye(4).tolist()}]}, "must be a file name")]:
+        (tmp_path / "p.json").write_text(json.dumps(data))
+        with pytest.raises(ValueError, match=message):
+            read_poses_file(tmp_path / "p.json")

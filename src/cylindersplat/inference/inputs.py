@@ -19,7 +19,8 @@ or gives only poses, matched to the folder's images in name order::
 
     {"poses": [[[...4x4...]], ...]}
 
-Poses are OpenCV camera-to-world (+x right, +y down, +z forward; 3x4 or 4x4) in metres. Every
+Poses are OpenCV camera-to-world (+x right, +y down, +z forward; 3x4 or 4x4) in metres, unless
+``"convention"`` says ``opengl_c2w``/``blender_c2w`` (+y up, +z back), ``opencv_w2c`` or ``opengl_w2c``. Every
 problem (missing/corrupt file, non-2:1 image, count mismatch, non-finite or non-rigid pose, depth
 of the wrong size) raises an error naming the file.
 """
@@ -59,7 +60,7 @@ class PanoramaInputs:
         return tuple(self.images.shape[-2:])
 
 
-def _parse_pose(value, where: str) -> Tensor:
+def _parse_pose(value, where: str, convention: str = "opencv_c2w") -> Tensor:
     try:
         pose = torch.tensor(value, dtype=torch.float64)
     except (TypeError, ValueError) as exc:
@@ -68,12 +69,32 @@ def _parse_pose(value, where: str) -> Tensor:
         pose = torch.cat((pose, torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=pose.dtype)))
     if pose.shape != (4, 4):
         raise ValueError(f"{where}: pose must be 3x4 or 4x4, got shape {tuple(pose.shape)}")
-    validate_c2w(pose, name=where)  # finite, orthonormal rotation, last row 0 0 0 1
-    return pose.float()
+    validate_c2w(pose, name=where)  # finite, orthonormal rotation (det +1), last row 0 0 0 1
+    return _to_opencv_c2w(pose, convention).float()
+
+
+# Pose conventions a poses file may declare ("convention"), each mapped to OpenCV camera-to-world.
+_GL_TO_CV = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))  # +y up, +z back -> +y down, +z forward
+POSE_CONVENTIONS = ("opencv_c2w", "opengl_c2w", "blender_c2w", "opencv_w2c", "opengl_w2c")
+
+
+def _to_opencv_c2w(pose: Tensor, convention: str) -> Tensor:
+    if convention.endswith("_w2c"):
+        rot, t = pose[:3, :3], pose[:3, 3]
+        pose = torch.eye(4, dtype=pose.dtype)
+        pose[:3, :3], pose[:3, 3] = rot.T, -rot.T @ t
+    if convention.startswith(("opengl", "blender")):
+        pose = pose @ _GL_TO_CV.to(pose.dtype)
+    return pose
 
 
 def read_poses_file(path: str | Path) -> list[tuple[str | None, Tensor, str | None]]:
-    """``[(image name or None, c2w (4, 4), depth file or None), ...]`` from a poses file."""
+    """``[(image name or None, c2w (4, 4), depth file or None), ...]`` from a poses file.
+
+    ``"convention"`` (default ``"opencv_c2w"``) says how the file's matrices are meant:
+    OpenCV (+x right, +y down, +z forward) or OpenGL/Blender (+x right, +y up, +z back) cameras,
+    camera-to-world (``_c2w``) or world-to-camera (``_w2c``); all are returned as OpenCV c2w.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"missing poses file: {path}")
@@ -85,15 +106,24 @@ def read_poses_file(path: str | Path) -> list[tuple[str | None, Tensor, str | No
         data = {"poses": data}
     if not isinstance(data, dict) or not ({"frames", "poses"} & set(data)):
         raise ValueError(f'{path}: expected {{"frames": [...]}} or {{"poses": [...]}} (see docs/inference.md)')
+    convention = data.get("convention", "opencv_c2w")
+    if convention not in POSE_CONVENTIONS:
+        raise ValueError(f"{path}: unknown pose convention {convention!r}; use one of {list(POSE_CONVENTIONS)}")
+    key = "frames" if "frames" in data else "poses"
+    if not isinstance(data[key], list):
+        raise ValueError(f'{path}: "{key}" must be a list, got {type(data[key]).__name__}')
     entries = []
-    if "frames" in data:
+    if key == "frames":
         for i, frame in enumerate(data["frames"]):
             where = f"{path} frame {i}"
             if not isinstance(frame, dict) or "c2w" not in frame:
                 raise ValueError(f'{where}: each frame needs "c2w" (and "image" for input folders)')
-            entries.append((frame.get("image"), _parse_pose(frame["c2w"], where), frame.get("depth")))
+            for name in ("image", "depth"):
+                if frame.get(name) is not None and not isinstance(frame[name], str):
+                    raise ValueError(f'{where}: "{name}" must be a file name, got {frame[name]!r}')
+            entries.append((frame.get("image"), _parse_pose(frame["c2w"], where, convention), frame.get("depth")))
     else:
-        entries = [(None, _parse_pose(p, f"{path} pose {i}"), None) for i, p in enumerate(data["poses"])]
+        entries = [(None, _parse_pose(p, f"{path} pose {i}", convention), None) for i, p in enumerate(data["poses"])]
     if not entries:
         raise ValueError(f"{path}: no poses")
     return entries
@@ -102,7 +132,7 @@ def read_poses_file(path: str | Path) -> list[tuple[str | None, Tensor, str | No
 def _depth_scale(path: Path) -> float:
     data = json.loads(path.read_text())
     scale = data.get("depth_scale", DEPTH_PNG_SCALE) if isinstance(data, dict) else DEPTH_PNG_SCALE
-    if not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
         raise ValueError(f"{path}: depth_scale must be a positive number, got {scale!r}")
     return float(scale)
 
