@@ -167,6 +167,18 @@ def test_render_and_export_cli(folder, checkpoint, tmp_path, capsys):
                  "--out", str(ply), "--min-opacity", "0"]) == 0
     exported = load_ply(ply)
     torch.testing.assert_close(exported.means, gaussians.means)
+    # The written PLY renders again without the model: same views, metric depth as .npy.
+    again = tmp_path / "from_ply"
+    assert main(["render", "--ply", str(out / "gaussians.ply"), "--views", str(views), "--output-resolution", "16x32",
+                 "--out", str(again), "--frames", "2", "--metric-depth"]) == 0
+    first = np.asarray(Image.open(out / "views" / "view_001_rgb.png"), dtype=float)
+    second = np.asarray(Image.open(again / "views" / "view_001_rgb.png"), dtype=float)
+    assert np.abs(first - second).max() <= 1  # same Gaussians, same camera (PLY stores float32)
+    depth = np.load(again / "views" / "view_001_depth.npy")
+    assert depth.shape == (16, 32) and depth.dtype == np.float32 and np.isfinite(depth).all() and depth.max() > 0
+    assert (again / "flythrough.gif").is_file() and not (again / "gaussians.ply").exists()
+    assert main(["render", "--ply", str(out / "gaussians.ply"), "--out", str(again)]) == 1
+    assert "--views" in capsys.readouterr().err
     # Rendering again into the same folder with fewer views leaves no stale views of the first render.
     assert main(["render", "--input", str(path), "--checkpoint", str(checkpoint), "--resolution", "16x32",
                  "--out", str(out), "--frames", "0", "--min-opacity", "0"]) == 0

@@ -9,10 +9,10 @@ from pathlib import Path
 from ._arguments import model_resolution
 
 
-def add_input_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--input", required=True, type=Path,
+def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
+    parser.add_argument("--input", required=required, type=Path,
                         help="folder of equirect panoramas + poses.json (OpenCV c2w; see docs/inference.md)")
-    parser.add_argument("--checkpoint", required=True, type=Path, help="model .safetensors (from cylindersplat train / demo)")
+    parser.add_argument("--checkpoint", required=required, type=Path, help="model .safetensors (from cylindersplat train / demo)")
     parser.add_argument("--poses-file", type=Path, help="poses file (default INPUT/poses.json)")
     parser.add_argument("--resolution", type=model_resolution,
                         help="HxW the model runs at (default: the model's nominal input height x 2)")
