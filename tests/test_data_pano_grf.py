@@ -161,3 +161,21 @@ def test_bad_folder_errors(tmp_path):
         PanoGRFDataset(tmp_path, stored_size=(8, 16))
     with pytest.raises(ValueError, match="png_render"):
         PanoGRFDataset(tmp_path)
+
+
+def test_no_default_silently_feeds_zero_priors(tiny_root, tmp_path, capsys):
+    """Training or evaluating PanoGRF data (which has no depth prior of its own) must name the choice."""
+    from cylindersplat.cli import main
+    from cylindersplat.training import load_config
+    from cylindersplat.training.data import build_dataset
+
+    _, folder = tiny_root
+    cfg = load_config("tiny", [f"data.root={folder}", "data.format=pano_grf", "data.split=test"])
+    with pytest.raises(ValueError, match="data.depth_prior=gt"):
+        build_dataset(cfg.data)
+    for choice in ("gt", "constant:2.0", "none"):  # an explicit choice is the user's
+        cfg = load_config("tiny", [f"data.root={folder}", "data.format=pano_grf", "data.split=test",
+                                   f"data.depth_prior={choice}"])
+        assert len(build_dataset(cfg.data)) == 2
+    assert main(["eval", "--format", "pano_grf", "--data", str(folder), "--out", str(tmp_path / "ev"), "--lpips", "off"]) == 1
+    assert "--depth-prior=gt" in capsys.readouterr().err

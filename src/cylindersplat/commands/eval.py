@@ -11,19 +11,24 @@ from ..utils.atomic import atomic_write_text
 
 
 def open_eval_dataset(args, protocol: str):
-    from ..data import Loc360Dataset, PanoGRFDataset, SyntheticDataset, make_depth_prior
+    from ..data import Loc360Dataset, PanoGRFDataset, SyntheticDataset
+    from ..data.depth_prior import parse_depth_prior, require_depth_prior
 
     kwargs = {"resolution": args.resolution}
     if args.depth_prior != "default":
-        kwargs["depth_prior"] = make_depth_prior(args.depth_prior)
+        kwargs["depth_prior"] = parse_depth_prior(args.depth_prior)
     if args.format == "synthetic":
         scenes = args.scenes.split(",") if args.scenes else None
-        return SyntheticDataset(args.data, views=protocol, scenes=scenes, **kwargs)
-    if args.format == "pano_grf":
-        return PanoGRFDataset(args.data, split=args.split, views=protocol, **kwargs)
-    if protocol != "all_between":
+        dataset = SyntheticDataset(args.data, views=protocol, scenes=scenes, **kwargs)
+    elif args.format == "pano_grf":
+        dataset = PanoGRFDataset(args.data, split=args.split, views=protocol, **kwargs)
+    elif protocol != "all_between":
         raise ValueError("360Loc is evaluated with its own protocol; use --protocols all_between")
-    return Loc360Dataset(args.data, split=args.split, **kwargs)
+    else:
+        dataset = Loc360Dataset(args.data, split=args.split, **kwargs)
+    if args.depth_prior == "default":
+        require_depth_prior(dataset, "--depth-prior")  # the methods would score black renders without a word
+    return dataset
 
 
 def run(args: argparse.Namespace) -> int:
@@ -88,7 +93,8 @@ def register(subparsers) -> None:
     parser.add_argument("--resolution", type=equirect_resolution, help="evaluate at HxW (default: stored size)")
     parser.add_argument("--split", default="test", help="split of pano_grf / loc360 data (default test)")
     parser.add_argument("--scenes", help="synthetic data: comma list of scene ids to use")
-    parser.add_argument("--depth-prior", default="default", help="depth prior given to the methods: default (the dataset's), none, gt, simulated, files")
+    parser.add_argument("--depth-prior", default="default", help="depth prior given to the methods: default (the dataset's; an error where it has none), none, gt, simulated, "
+                        "files, constant:METRES, exported:NET.pt2, unik3d:WEIGHTS_DIR")
     parser.add_argument("--depth-range", type=float, nargs=2, metavar=("NEAR", "FAR"), help="valid reference depth (default 0.45 10 for pano_grf, else 0.05 1000)")
     parser.add_argument("--max-examples", type=int, help="score only the first N examples")
     parser.add_argument("--pictures", type=int, default=4, help="comparison pictures per protocol (default 4)")

@@ -13,7 +13,8 @@ from collections.abc import Iterator
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
-from ..data import Loc360Dataset, PanoGRFDataset, SyntheticDataset, collate_samples, make_depth_prior
+from ..data import Loc360Dataset, PanoGRFDataset, SyntheticDataset, collate_samples
+from ..data.depth_prior import parse_depth_prior, require_depth_prior
 from .config import DataConfig
 
 __all__ = ["build_dataset", "ResumableBatchSampler", "build_loader"]
@@ -26,14 +27,18 @@ def build_dataset(cfg: DataConfig) -> Dataset:
     if cfg.resolution is not None:
         kwargs["resolution"] = tuple(cfg.resolution)
     if cfg.depth_prior != "default":
-        kwargs["depth_prior"] = make_depth_prior(cfg.depth_prior)
+        kwargs["depth_prior"] = parse_depth_prior(cfg.depth_prior)  # a name or name:value, e.g. unik3d:/weights
     if cfg.format == "synthetic":
-        return SyntheticDataset(cfg.root, views=cfg.views, **kwargs)
-    if cfg.format == "pano_grf":
-        return PanoGRFDataset(cfg.root, split=cfg.split, views=cfg.views, **kwargs)
-    if cfg.format == "loc360":
-        return Loc360Dataset(cfg.root, split=cfg.split, **kwargs)
-    raise ValueError(f"unknown data.format {cfg.format!r}; expected synthetic, pano_grf or loc360")
+        dataset = SyntheticDataset(cfg.root, views=cfg.views, **kwargs)
+    elif cfg.format == "pano_grf":
+        dataset = PanoGRFDataset(cfg.root, split=cfg.split, views=cfg.views, **kwargs)
+    elif cfg.format == "loc360":
+        dataset = Loc360Dataset(cfg.root, split=cfg.split, **kwargs)
+    else:
+        raise ValueError(f"unknown data.format {cfg.format!r}; expected synthetic, pano_grf or loc360")
+    if cfg.depth_prior == "default":
+        require_depth_prior(dataset, "data.depth_prior")  # never train on all-zero priors by default
+    return dataset
 
 
 class ResumableBatchSampler(Sampler[list[int]]):

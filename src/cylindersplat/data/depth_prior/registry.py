@@ -9,7 +9,7 @@ from .base import ConstantPrior, DepthPrior, GroundTruthPrior, NoPrior
 from .files import FilePrior
 from .simulated import SimulatedPrior
 
-__all__ = ["DEPTH_PRIORS", "register_depth_prior", "make_depth_prior", "parse_depth_prior"]
+__all__ = ["DEPTH_PRIORS", "register_depth_prior", "make_depth_prior", "parse_depth_prior", "require_depth_prior"]
 
 DEPTH_PRIORS: dict[str, Callable[..., DepthPrior]] = {}
 
@@ -52,3 +52,18 @@ def parse_depth_prior(spec: str, **kwargs) -> DepthPrior:
 for _cls in (NoPrior, GroundTruthPrior, ConstantPrior, SimulatedPrior, FilePrior, ExportedDepthPrior, UniK3DAdapter,
              DepthAnywhereAdapter, UniFuseAdapter):
     register_depth_prior(_cls.name, _cls)
+
+
+MISSING_PRIOR_HELP = ("the model needs a depth prior for every input view and this dataset has none (its default "
+                      "gives zeros, which renders black); choose one: {option}=gt (ground truth, an oracle), "
+                      "{option}=constant:METRES, {option}=exported:NET.pt2 (any exported panorama depth network), "
+                      "{option}=unik3d:WEIGHTS_DIR, or {option}=none to really run without one")
+
+
+def require_depth_prior(dataset, option: str = "data.depth_prior") -> None:
+    """Raise ``ValueError`` (one line, what to do) when ``dataset``'s *default* prior is all zeros; call
+    it only when the user did not choose a prior (an explicit ``none`` is their decision)."""
+    from .base import NoPrior
+
+    if isinstance(getattr(dataset, "depth_prior", None), NoPrior):
+        raise ValueError(MISSING_PRIOR_HELP.format(option=option))
