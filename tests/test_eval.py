@@ -111,7 +111,7 @@ def test_markdown_table():
     row_b = next(line for line in lines if line.startswith("| B "))
     assert row_a == "| A | **0.900** | 20.00 | **0.700** | **0.0100** | 1.00 |"
     assert row_b == "| B | 0.800 | **25.00** | 0.600 | 0.0200 | **0.10** |"
-    assert "Not available here: LPIPS, AbsRel, RMSE, δ1" in text
+    assert "Not available here: PSNR, LPIPS, AbsRel, RMSE, δ1" in text
 
 
 def test_eval_cli_writes_tables_and_pictures(synth_root, tiny_model, tmp_path, capsys):

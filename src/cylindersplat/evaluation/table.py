@@ -10,6 +10,7 @@ __all__ = ["METRIC_COLUMNS", "OCCLUDED_COLUMNS", "VIEW_COUNTS", "results_to_mark
 METRIC_COLUMNS = [
     ("pcc", "PCC ↑", True, "{:.3f}"),
     ("ws_psnr", "WS-PSNR ↑", True, "{:.2f}"),
+    ("psnr", "PSNR ↑", True, "{:.2f}"),
     ("ssim", "SSIM ↑", True, "{:.3f}"),
     ("lpips", "LPIPS ↓", False, "{:.3f}"),
     ("abs_rel", "AbsRel ↓", False, "{:.3f}"),
