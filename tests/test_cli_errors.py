@@ -70,3 +70,17 @@ def test_weights_with_nan_are_refused_by_name(tmp_path):
     save_model(model, tmp_path / "diverged.safetensors")
     with pytest.raises(ValueError, match="NaN/inf.*diverged"):
         load_model(tmp_path / "diverged.safetensors")
+
+
+def test_device_option_resolves_auto_and_refuses_missing_cuda():
+    import argparse
+
+    from cylindersplat.commands._arguments import device
+
+    assert device("auto") == ("cuda" if torch.cuda.is_available() else "cpu")
+    assert device("CPU") == "cpu"
+    with pytest.raises(argparse.ArgumentTypeError, match="not a torch device"):
+        device("gpu please")
+    if not torch.cuda.is_available():
+        with pytest.raises(argparse.ArgumentTypeError, match="no usable CUDA"):
+            device("cuda:0")

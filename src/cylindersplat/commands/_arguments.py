@@ -20,3 +20,25 @@ def equirect_resolution(text: str, min_height: int = 1) -> tuple[int, int]:
 def model_resolution(text: str) -> tuple[int, int]:
     """An equirect resolution the model can run at (the backbone downsamples: H >= 8)."""
     return equirect_resolution(text, min_height=8)
+
+
+def device(text: str) -> str:
+    """``auto`` (CUDA when available, else CPU), ``cpu``, ``cuda``, ``cuda:N``; an argparse type that
+    refuses a CUDA device this machine does not have (one line instead of a traceback later)."""
+    import torch
+
+    name = text.strip().lower()
+    if name == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    try:
+        dev = torch.device(name)
+    except RuntimeError:
+        raise argparse.ArgumentTypeError(f"not a torch device: {text!r} (auto, cpu, cuda, cuda:1, ...)") from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise argparse.ArgumentTypeError(f"{text!r}: this machine has no usable CUDA GPU; use cpu or auto")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise argparse.ArgumentTypeError(f"{text!r}: only {torch.cuda.device_count()} CUDA device(s) here")
+    elif dev.type != "cpu":
+        raise argparse.ArgumentTypeError(f"unsupported device {text!r}; use auto, cpu or cuda[:N]")
+    return name

@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from ._arguments import model_resolution
+from ._arguments import device, model_resolution
 
 
 def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
@@ -20,7 +20,7 @@ def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) 
                         help="for frames without a depth file: constant:METRES, exported:NET.pt2 (any exported depth "
                              "network), unik3d:WEIGHTS_DIR, ... (default: every frame needs <stem>_depth.png/.npy)")
     parser.add_argument("--min-opacity", type=float, default=0.005, help="drop Gaussians at or below this opacity (default 0.005)")
-    parser.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    parser.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
 
 
 def reconstruct_from_args(args: argparse.Namespace):

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ._arguments import model_resolution
+from ._arguments import device, model_resolution
 from ..utils.atomic import atomic_write_text
 
 
@@ -41,7 +41,7 @@ def register(subparsers) -> None:
     p.add_argument("--scenes", type=int, default=28, help="scenes to generate when --data is not given (default 28)")
     p.add_argument("--held-out", type=int, default=8, help="last N scenes are scored, not trained on (default 8)")
     p.add_argument("--resolution", type=model_resolution, default=(64, 128), help="panorama HxW (default 64x128)")
-    p.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    p.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
     p.add_argument("--json", type=Path, help="also copy ablation.json here (e.g. benchmarks/results/ablation.json)")
     p.set_defaults(func=run)
 

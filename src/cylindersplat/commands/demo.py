@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from ._arguments import model_resolution
+from ._arguments import device, model_resolution
 from ..utils.atomic import atomic_write_text
 
 
@@ -48,7 +48,7 @@ def register(subparsers) -> None:
     p.add_argument("--checkpoint", type=Path, help="use these weights instead of training")
     p.add_argument("--retrain", action="store_true", help="train even if OUT/train/model.safetensors exists")
     p.add_argument("--frames", type=int, default=16, help="fly-through frames, 0 = none (default 16)")
-    p.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    p.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
     p.add_argument("--room", action="store_true", help="only render the built-in Gaussian room (renderer smoke test)")
     p.set_defaults(func=run)
 

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ._arguments import equirect_resolution
+from ._arguments import device, equirect_resolution
 from ..utils.atomic import atomic_write_text
 
 
@@ -101,5 +101,5 @@ def register(subparsers) -> None:
     parser.add_argument("--lpips", default="auto", choices=["auto", "on", "off"], help="LPIPS column: auto uses local weights when found")
     parser.add_argument("--lpips-weights", help="LPIPS-VGG weights file (else $CYLINDERSPLAT_LPIPS_WEIGHTS)")
     parser.add_argument("--no-baseline", action="store_true", help="do not score the forward-warp baseline")
-    parser.add_argument("--device", default="cpu", help="device for the model (default cpu)")
+    parser.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
     parser.set_defaults(func=run)
