@@ -81,3 +81,33 @@ def test_ply_errors_are_clear(tmp_path):
     corrupt.write_bytes(b"ply\nformat nonsense\n")
     with pytest.raises(ValueError, match="corrupt.ply"):
         load_ply(corrupt)
+
+
+def test_splat_export_byte_layout(tmp_path):
+    """Parse the .splat bytes by hand (struct layout of the web viewers) and compare with the Gaussians."""
+    import struct
+
+    import numpy as np
+
+    from cylindersplat.gaussians import Gaussians, save_splat
+
+    gen = torch.Generator().manual_seed(3)
+    n = 6
+    g = Gaussians.from_rgb(torch.randn(n, 3, generator=gen), 0.01 + torch.rand(n, 3, generator=gen),
+                           torch.randn(n, 4, generator=gen), torch.rand(n, generator=gen), torch.rand(n, 3, generator=gen))
+    path = save_splat(g, tmp_path / "scene.splat")
+    raw = path.read_bytes()
+    assert len(raw) == 32 * n
+    rows = [struct.unpack("<3f3f4B4B", raw[32 * i: 32 * (i + 1)]) for i in range(n)]
+    # each row is one of the Gaussians (order: decreasing opacity x volume)
+    key = [r[9] / 255 * r[3] * r[4] * r[5] for r in rows]
+    assert all(a >= b * 0.98 for a, b in zip(key, key[1:]))  # decreasing opacity x volume (alpha is quantised)
+    for row in rows:
+        i = int(np.argmin(np.linalg.norm(g.means.numpy() - np.array(row[0:3]), axis=1)))
+        np.testing.assert_allclose(row[0:3], g.means[i].numpy(), rtol=1e-6)
+        np.testing.assert_allclose(row[3:6], g.scales[i].numpy(), rtol=1e-6)
+        rgb = (0.5 + 0.28209479177387814 * g.sh[i, 0]).clamp(0, 1).numpy()
+        np.testing.assert_allclose(np.array(row[6:9]) / 255, rgb, atol=1 / 255)
+        assert abs(row[9] / 255 - float(g.opacities[i])) <= 1 / 255
+        q = torch.nn.functional.normalize(g.rotations[i], dim=0).numpy()
+        np.testing.assert_allclose((np.array(row[10:14]) - 128) / 128, q, atol=1 / 128)

@@ -9,10 +9,13 @@ from ._inference import add_input_arguments, reconstruct_from_args
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..gaussians import save_ply
+    from ..gaussians import save_ply, save_splat
 
+    suffix = args.out.suffix.lower()
+    if suffix not in (".ply", ".splat"):
+        raise ValueError(f"--out must end in .ply (standard 3DGS PLY) or .splat (compact web-viewer format), got {args.out}")
     _, gaussians, _ = reconstruct_from_args(args)
-    path = save_ply(gaussians.to("cpu"), args.out)
+    path = (save_splat if suffix == ".splat" else save_ply)(gaussians.to("cpu"), args.out)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
     return 0
 
@@ -25,5 +28,6 @@ def register(subparsers) -> None:
         "Input format: docs/inference.md.",
     )
     add_input_arguments(parser)
-    parser.add_argument("--out", type=Path, default=Path("outputs/export/gaussians.ply"), help="PLY path (default outputs/export/gaussians.ply)")
+    parser.add_argument("--out", type=Path, default=Path("outputs/export/gaussians.ply"), help="output: .ply (standard 3DGS PLY, all SH) or .splat (32 bytes per Gaussian, "
+                        "degree-0 colour; web viewers) (default outputs/export/gaussians.ply)")
     parser.set_defaults(func=run)

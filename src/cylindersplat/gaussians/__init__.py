@@ -2,5 +2,6 @@
 
 from .container import SH_C0, Gaussians, rgb_to_sh0, sh0_to_rgb, sh_degree_from_count
 from .ply import load_ply, save_ply
+from .splat import save_splat
 
-__all__ = ["Gaussians", "SH_C0", "rgb_to_sh0", "sh0_to_rgb", "sh_degree_from_count", "load_ply", "save_ply"]
+__all__ = ["Gaussians", "SH_C0", "rgb_to_sh0", "sh0_to_rgb", "sh_degree_from_count", "load_ply", "save_ply", "save_splat"]
