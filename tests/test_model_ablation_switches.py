@@ -26,22 +26,14 @@ from cylindersplat.model.triplane import PLANE_AXES, encode_unit_coordinates
 from cylindersplat.model.triplane_attention import TriplaneImageAttention
 from cylindersplat.model.volume_branch import central_frame
 
+from model_inputs import make_inputs as shared_make_inputs
+
 H, W = 32, 64
 TINY_CELLS = 4 * 16 * 8  # tiny preset grid (4, 16, 8)
 
 
 def make_inputs(views: int = 2, batch: int = 1, seed: int = 0, height: int = H, width: int = W):
-    """Same scene recipe as tests/test_model_forward.py, at 32x64."""
-    g = torch.Generator().manual_seed(seed)
-    images = torch.rand(batch, views, 3, height, width, generator=g)
-    depth = 1.0 + 3.0 * torch.rand(batch, views, height, width, generator=g)
-    poses = []
-    for v in range(views):
-        yaw = 0.3 * v
-        rot = torch.tensor([[math.cos(yaw), 0, math.sin(yaw)], [0, 1, 0], [-math.sin(yaw), 0, math.cos(yaw)]])
-        poses.append(make_c2w(rot, torch.tensor([0.4 * v, 0.05 * v, -0.2 * v])))
-    c2w = torch.stack(poses).expand(batch, -1, -1, -1).clone()
-    return images, depth, c2w
+    return shared_make_inputs(views, batch, seed, height, width)
 
 
 SWITCHES = {

@@ -5,24 +5,16 @@ import math
 import pytest
 import torch
 
-from cylindersplat.geometry import equirect_rays, make_c2w
+from cylindersplat.geometry import equirect_rays
 from cylindersplat.model import from_config, get_config, load_model, save_model
+
+from model_inputs import make_inputs as shared_make_inputs
 
 H, W = 64, 128
 
 
-def make_inputs(views: int, batch: int = 1, seed: int = 0):
-    """Random images, depths of 1-4 m, cameras on a small circle with some yaw."""
-    g = torch.Generator().manual_seed(seed)
-    images = torch.rand(batch, views, 3, H, W, generator=g)
-    depth = 1.0 + 3.0 * torch.rand(batch, views, H, W, generator=g)
-    poses = []
-    for v in range(views):
-        yaw = 0.3 * v
-        rot = torch.tensor([[math.cos(yaw), 0, math.sin(yaw)], [0, 1, 0], [-math.sin(yaw), 0, math.cos(yaw)]])
-        poses.append(make_c2w(rot, torch.tensor([0.4 * v, 0.05 * v, -0.2 * v])))
-    c2w = torch.stack(poses).expand(batch, -1, -1, -1).clone()
-    return images, depth, c2w
+def make_inputs(views: int = 2, batch: int = 1, seed: int = 0, height: int = H, width: int = W):
+    return shared_make_inputs(views, batch, seed, height, width)
 
 
 @pytest.fixture(scope="module")
