@@ -168,3 +168,10 @@ def test_compiled_projection_matches_eager(monkeypatch):
     torch.testing.assert_close(fast.rgb, ref.rgb, atol=1e-5, rtol=0)
     for name, a, b in zip(g.tensors(), ref_grads, fast_grads):
         torch.testing.assert_close(b, a, atol=1e-4 * float(a.abs().max()) + 1e-7, rtol=0, msg=name)
+
+
+def test_a_scene_smaller_than_the_near_plane_warns():
+    g = shell_scene(10, seed=18, radius=(0.001, 0.005), scale=(1e-4, 2e-4))  # millimetres, as if units were off
+    with pytest.warns(RuntimeWarning, match="none of the 10 Gaussians is visible"):
+        out = render(g, torch.eye(4, dtype=torch.float64), Equirect(8, 16))
+    assert out.alpha.max() == 0

@@ -146,6 +146,11 @@ def render(
             raise ValueError("background must be finite")
     fn = _pick_backend(backend, gaussians.device)
     proj = camera.project(gaussians, c2w, settings)
+    if proj.camera.numel() == 0 and gaussians.means.shape[-2] > 0 and isinstance(camera, Equirect):
+        # A panorama sees every direction: nothing visible means a unit or pose problem, not framing.
+        warnings.warn(f"none of the {gaussians.means.shape[-2]:,} Gaussians is visible from these cameras (all closer "
+                      f"than settings.near={settings.near} m or transparent); check the scene's scale and the poses",
+                      RuntimeWarning, stacklevel=3)
     rgb, depth, alpha = _rasterize(fn, backend, proj, settings, background)
     h, w = camera.height, camera.width
     return RenderOutput(
