@@ -175,3 +175,15 @@ def test_a_scene_smaller_than_the_near_plane_warns():
     with pytest.warns(RuntimeWarning, match="none of the 10 Gaussians is visible"):
         out = render(g, torch.eye(4, dtype=torch.float64), Equirect(8, 16))
     assert out.alpha.max() == 0
+
+
+def test_renders_that_would_not_fit_in_memory_are_refused(monkeypatch):
+    from cylindersplat.render import rasterize as rast
+
+    g = shell_scene(30, seed=19)
+    out = render(g, torch.eye(4, dtype=torch.float64), Equirect(8, 16), backend="torch")  # fits
+    monkeypatch.setattr(rast, "available_memory", lambda device: 1000)  # 1 kB free
+    with pytest.raises(rast.RenderMemoryError, match="GiB for .* fragments"):
+        render(g, torch.eye(4, dtype=torch.float64), Equirect(8, 16), backend="torch")
+    assert out.alpha.max() > 0
+    assert rast.available_memory(torch.device("cpu")) is None or rast.available_memory(torch.device("cpu")) > 0

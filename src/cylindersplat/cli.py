@@ -67,6 +67,8 @@ def expected_failure(exc: BaseException) -> str | None:
 
     import torch
 
+    if isinstance(exc, MemoryError) and str(exc):  # our own estimate before allocating, with its numbers
+        return str(exc)
     if isinstance(exc, torch.OutOfMemoryError):
         return ("out of memory; use a smaller resolution or fewer views/cameras at once, or a machine with more "
                 f"memory ({str(exc).splitlines()[0][:200]})")

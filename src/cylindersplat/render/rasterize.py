@@ -117,6 +117,41 @@ def bin_to_tiles(proj: ProjectedGaussians, tile_size: int = 16) -> TileBins:
     return TileBins(g[order], tile[order], rows[order], cols[order], shift[order], tiles_x, tiles_y)
 
 
+# Peak bytes per fragment of a forward + backward through this reference (measured: 6.3 M fragments
+# -> 2.3 GiB peak RSS on CPU, see benchmarks/RESULTS.md), with some margin.
+BYTES_PER_FRAGMENT = 400
+
+
+class RenderMemoryError(MemoryError):
+    """The reference rasterizer would need more memory than the device has free."""
+
+
+def available_memory(device: torch.device) -> int | None:
+    """Free bytes on ``device`` (CUDA: the driver's count; CPU: ``MemAvailable``), or None if unknown."""
+    if device.type == "cuda":
+        return torch.cuda.mem_get_info(device)[0]
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def check_fragment_memory(num_fragments: int, device: torch.device) -> None:
+    """Refuse, with numbers and what to do, a render whose fragments would not fit in free memory
+    (instead of swapping the machine to a halt or failing deep in the allocator)."""
+    need = num_fragments * BYTES_PER_FRAGMENT
+    free = available_memory(device)
+    if free is not None and need > free:
+        raise RenderMemoryError(
+            f"this render needs about {need / 2**30:.1f} GiB for {num_fragments:,} fragments but {free / 2**30:.1f} GiB "
+            f"are free on {device}; render at a lower resolution or fewer cameras at once, prune transparent "
+            "Gaussians, or use the Triton backend on a GPU")
+
+
 def expand_fragments(proj: ProjectedGaussians, bins: TileBins, sigma_extent: float = 3.0) -> tuple[Tensor, Tensor]:
     """Stage 3: ``(gaussian, pixel)`` of every fragment inside a support ellipse, sorted by pixel then depth.
 
@@ -142,6 +177,7 @@ def expand_fragments(proj: ProjectedGaussians, bins: TileBins, sigma_extent: flo
     col0 = torch.maximum(torch.ceil(lo - 0.5).long() + shift, bins.cols[pair, 0])
     col1 = torch.minimum(torch.floor(hi - 0.5).long() + shift, bins.cols[pair, 1])
     nc = torch.where(disc >= 0, (col1 - col0 + 1).clamp_min(0), 0)
+    check_fragment_memory(int(nc.sum()), nc.device)
     # Level 2: fragments.
     item, j = _expand(nc)
     col = col0[item] + j
