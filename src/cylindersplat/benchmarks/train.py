@@ -42,6 +42,7 @@ def bench_stages(args) -> list[dict]:
         overrides = [f"model.preset={args.config}", "data.format=synthetic", f"data.root={tmp}",
                      f"data.resolution=[{height},{2 * height}]", f"train.device={args.device}",
                      f"train.steps_per_stage=[{args.steps + args.warmup}]", "train.progress=false",
+                     "model.fusion.strategy=concat", "train.stage2_render=volume",  # the paper's recipe
                      "train.tensorboard=false", f"output_dir={tmp}/run", "loss.use_lpips=off"]
         cfg = load_config("tiny", overrides)
         with warnings.catch_warnings():
