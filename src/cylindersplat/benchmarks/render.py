@@ -71,30 +71,26 @@ def bench(num: int, height: int, device: torch.device, backend: str, repeats: in
     params = [t.requires_grad_() for t in g.tensors().values()]
     c2w = torch.eye(4, device=device)
     width = 2 * height
-    if device.type == "cuda":
-        torch.cuda.reset_peak_memory_stats()
     row = {"num": num, "size": f"{height}x{width}", "device": str(device), "backend": backend}
-    try:
-        row["forward_ms"], row["fwd_bwd_ms"] = _forward_and_backward_ms(
-            lambda: render_equirect(g, c2w, height, width, backend=backend), params, device, repeats)
-        row["peak_mb"] = _peak_mb(device)
-    except torch.OutOfMemoryError:
-        row["error"] = "out of memory"
-        _free(params, device)
-    if cubemap:
+
+    def measure(prefix: str, render) -> None:
+        """Forward and forward+backward of ``render`` into ``row``; out of memory is recorded, not fatal."""
+        if device.type == "cuda":
+            torch.cuda.reset_peak_memory_stats()
         try:
-            if device.type == "cuda":
-                torch.cuda.reset_peak_memory_stats()
-            row["cubemap_forward_ms"], row["cubemap_fwd_bwd_ms"] = _forward_and_backward_ms(
-                lambda: render_cubemap(g, c2w, height, width, backend=backend), params, device, repeats)
-            row["cubemap_peak_mb"] = _peak_mb(device)
-        except torch.OutOfMemoryError:
-            row["cubemap_error"] = "out of memory"
+            row[f"{prefix}forward_ms"], row[f"{prefix}fwd_bwd_ms"] = _forward_and_backward_ms(render, params, device, repeats)
+            row[f"{prefix}peak_mb"] = _peak_mb(device)
+        except (torch.OutOfMemoryError, MemoryError):
+            row[f"{prefix}error"] = "out of memory"
             _free(params, device)
+
+    measure("", lambda: render_equirect(g, c2w, height, width, backend=backend))
+    if cubemap:
+        measure("cubemap_", lambda: render_cubemap(g, c2w, height, width, backend=backend))
     if stages:
         try:
             row["stages_ms"] = stage_breakdown(g, c2w, height, width, device, repeats, backend)
-        except torch.OutOfMemoryError:
+        except (torch.OutOfMemoryError, MemoryError):
             row["stages_error"] = "out of memory"
             _free(params, device)
     return row

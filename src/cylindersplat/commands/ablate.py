@@ -6,8 +6,9 @@ import argparse
 import json
 from pathlib import Path
 
-from ._arguments import device, model_resolution
 from ..utils.atomic import atomic_write_text
+
+from ._arguments import device, model_resolution
 
 
 def _steps(text: str) -> tuple[int, int, int]:

@@ -21,8 +21,9 @@ from pathlib import Path
 
 import torch
 
-from ._arguments import device, model_resolution
 from ..utils.atomic import atomic_write_text
+
+from ._arguments import device, model_resolution
 
 
 DEFAULT_STEPS = "400,100,100"

@@ -6,8 +6,9 @@ import argparse
 import json
 from pathlib import Path
 
-from ._arguments import device, equirect_resolution
 from ..utils.atomic import atomic_write_text
+
+from ._arguments import device, equirect_resolution
 
 
 def open_eval_dataset(args, protocol: str):

@@ -18,7 +18,7 @@ from torch import Tensor
 from ..geometry import camera_to_world, equirect_rays, ray_to_uv, world_to_camera
 from ..metrics.image import ws_weights
 
-__all__ = ["ConsistencyResult", "reprojection_consistency", "sample_equirect"]
+__all__ = ["ConsistencyResult", "reprojection_consistency", "sample_equirect", "reproject", "lift_to_world"]
 
 
 @dataclass
@@ -43,6 +43,23 @@ def sample_equirect(image: Float[Tensor, "C H W"], u: Tensor, v: Tensor, mode: s
     return out.reshape(c, *u.shape)
 
 
+def lift_to_world(depth: Float[Tensor, "H W"], c2w: Float[Tensor, "4 4"]) -> Float[Tensor, "HW 3"]:
+    """World points (float64, row-major pixels) of every pixel of an equirect depth map."""
+    h, w = depth.shape
+    rays = equirect_rays(h, w, device=depth.device, dtype=torch.float64)
+    return camera_to_world((rays * depth.double()[..., None]).reshape(-1, 3), c2w.double().to(depth.device))
+
+
+def reproject(
+    src_depth: Float[Tensor, "H W"], src_c2w: Float[Tensor, "4 4"], dst_c2w: Float[Tensor, "4 4"], dst_size: tuple[int, int]
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Where every source pixel's 3D point lands in a destination panorama of ``dst_size``: pixel
+    coordinates ``u, v`` and its distance from the destination camera, each ``(H*W,)``."""
+    in_dst = world_to_camera(lift_to_world(src_depth, src_c2w), dst_c2w.double().to(src_depth.device))
+    u, v = ray_to_uv(in_dst, *dst_size)
+    return u, v, torch.linalg.vector_norm(in_dst, dim=-1)
+
+
 @torch.no_grad()
 def reprojection_consistency(
     src_image: Float[Tensor, "3 H W"],
@@ -56,12 +73,7 @@ def reprojection_consistency(
 ) -> ConsistencyResult:
     """Reproject ``src`` into ``dst``; depths agree when ``|d_proj - d_dst| <= rel_tol * d_dst``."""
     h, w = src_depth.shape
-    rays = equirect_rays(h, w, dtype=torch.float64)
-    points = (rays * src_depth.double()[..., None]).reshape(1, -1, 3)
-    world = camera_to_world(points, src_c2w.double()[None])
-    in_dst = world_to_camera(world, dst_c2w.double()[None])[0]
-    u, v = ray_to_uv(in_dst, h, w)
-    proj_depth = torch.linalg.vector_norm(in_dst, dim=-1)
+    u, v, proj_depth = reproject(src_depth, src_c2w, dst_c2w, (h, w))
     colour = sample_equirect(dst_image.double(), u, v).reshape(3, h, w)
     depth_there = sample_equirect(dst_depth.double()[None], u, v, mode="nearest").reshape(h, w)
     proj_depth = proj_depth.reshape(h, w)

@@ -15,8 +15,7 @@ import torch
 from jaxtyping import Bool, Float
 from torch import Tensor
 
-from ..geometry import camera_to_world, equirect_rays, ray_to_uv, world_to_camera
-from .consistency import sample_equirect
+from .consistency import reproject, sample_equirect
 
 __all__ = ["occluded_mask", "occluded_fraction"]
 
@@ -39,17 +38,11 @@ def occluded_mask(
         raise ValueError(f"occluded_mask needs target depth (H, W), context depths (V, H, W) and poses (V, 4, 4); got "
                          f"{tuple(target_depth.shape)}, {tuple(context_depths.shape)}, {tuple(context_c2w.shape)}")
     h, w = target_depth.shape
-    hc, wc = context_depths.shape[-2:]
-    depth = target_depth.double()
-    valid = depth > min_depth
-    points = (equirect_rays(h, w, device=depth.device, dtype=torch.float64) * depth[..., None]).reshape(-1, 3)
-    world = camera_to_world(points, target_c2w.double().to(depth.device))
-    seen = torch.zeros(h * w, dtype=torch.bool, device=depth.device)
-    for ctx_depth, c2w in zip(context_depths.double().to(depth.device), context_c2w.double().to(depth.device)):
-        in_ctx = world_to_camera(world, c2w)
-        u, v = ray_to_uv(in_ctx, hc, wc)
-        d_proj = torch.linalg.vector_norm(in_ctx, dim=-1)
-        d_ctx = sample_equirect(ctx_depth[None], u, v, mode="nearest").reshape(-1)
+    valid = target_depth > min_depth
+    seen = torch.zeros(h * w, dtype=torch.bool, device=target_depth.device)
+    for ctx_depth, c2w in zip(context_depths.to(target_depth.device), context_c2w):
+        u, v, d_proj = reproject(target_depth, target_c2w, c2w, tuple(ctx_depth.shape))
+        d_ctx = sample_equirect(ctx_depth.double()[None], u, v, mode="nearest").reshape(-1)
         seen |= (d_ctx > min_depth) & (d_ctx >= (1.0 - rel_tol) * d_proj)
     return valid & ~seen.reshape(h, w)
 

@@ -17,8 +17,9 @@ import json
 import math
 import statistics
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
+
 from ..utils.atomic import atomic_write_text
 
 
@@ -125,7 +126,6 @@ class RunResult:
     gaussians: int
     visible_gaussians: int
     weights: str
-    extra: dict = field(default_factory=dict)
 
 
 def _train(variant: Variant, seed: int, schedule: Schedule, data_root: Path, train_ids: list[str], run_dir: Path,

@@ -11,6 +11,7 @@ adds others.
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 from typing import Callable
@@ -135,7 +136,7 @@ def render(
     settings = settings or RasterSettings()
     c2w = c2w.to(device=gaussians.device)
     out_shape = _output_shape(gaussians, c2w)
-    num_cameras = int(torch.tensor(out_shape).prod()) if out_shape else 1
+    num_cameras = math.prod(out_shape)
     if num_cameras == 0:
         raise ValueError("c2w holds no cameras")
     if background is not None:

@@ -100,15 +100,14 @@ def _flatten_cameras(gaussians: Gaussians, c2w: Tensor) -> tuple[Gaussians, Tens
     return gaussians, c2w, out_shape
 
 
-def _view_colors(gaussians: Gaussians, c2w: Tensor, index: Tensor, num_v: int) -> Tensor:
-    """RGB of the visible pairs ``index`` (flat over ``(B, V, N)``), ``(M, 3)``; view-independent for SH degree 0."""
-    num_n = gaussians.means.shape[-2]
-    gauss = index % num_n + (index // (num_v * num_n)) * num_n  # row of the (B*N) Gaussians
+def _view_colors(gaussians: Gaussians, c2w: Tensor, camera: Tensor, gauss: Tensor) -> Tensor:
+    """RGB ``(M, 3)`` of visible pairs: flat camera index ``camera`` (over ``B*V``) and Gaussian row
+    ``gauss`` (over ``B*N``); view-independent for SH degree 0."""
     sh = gaussians.sh.reshape(-1, *gaussians.sh.shape[-2:])
     if sh.shape[-2] == 1:
         return eval_sh(sh.index_select(0, gauss), None)
     means = gaussians.means.reshape(-1, 3).index_select(0, gauss)
-    origins = c2w[..., :3, 3].reshape(-1, 3).to(means.dtype).index_select(0, index // num_n)
+    origins = c2w[..., :3, 3].reshape(-1, 3).to(means.dtype).index_select(0, camera)
     dirs = means - origins
     dirs = dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True).clamp_min(1e-12)
     return eval_sh(sh.index_select(0, gauss), dirs)
@@ -173,14 +172,15 @@ def _compact(
     index = valid.reshape(-1).nonzero().squeeze(1)
     geo = geo.reshape(-1, 8).index_select(0, index).to(gaussians.dtype)
     gauss = index % num_n + (index // (num_v * num_n)) * num_n  # row of the (B*N) Gaussians
+    camera = index // num_n
     return ProjectedGaussians(
-        camera=index // num_n,
+        camera=camera,
         uv=geo[:, 0:2],
         conic=geo[:, 2:5],
         extent=geo[:, 5:7],
         depth=geo[:, 7],
         opacity=gaussians.opacities.reshape(-1).index_select(0, gauss),
-        color=_view_colors(gaussians, c2w, index, num_v),
+        color=_view_colors(gaussians, c2w, camera, gauss),
         num_cameras=num_b * num_v,
         height=height,
         width=width,

@@ -30,6 +30,7 @@ from tqdm.auto import tqdm
 from ..data import Sample
 from ..model import CylinderSplat, load_model, save_model
 from ..render import available_backends, render_equirect
+from ..utils.atomic import atomic_write_text
 from .checkpoint import capture_rng, prune_checkpoints, read_state, resolve_checkpoint, restore_rng, save_checkpoint
 from .config import ExperimentConfig, config_as_dict
 from .data import ResumableBatchSampler, build_dataset, build_loader
@@ -37,7 +38,6 @@ from .distributed import cleanup_distributed, init_distributed, unwrap, wrap_ddp
 from .logger import MetricLogger
 from .losses import LossTerms, RenderLoss
 from .schedule import cosine_schedule
-from ..utils.atomic import atomic_write_text
 
 __all__ = ["Trainer", "batch_to_device", "select_device"]
 
