@@ -17,6 +17,7 @@ def test_every_variant_gets_the_same_number_of_steps():
         assert stages == {"full": (1, 2, 3), "pixel": (1,), "volume": (1, 2)}[variant.kind]
 
 
+@pytest.mark.slow
 def test_study_trains_scores_resumes_and_tabulates(tmp_path):
     data = tmp_path / "data"
     write_synthetic_dataset(data, 3, (32, 64), SequenceConfig(frames=3, spacing=(0.5, 1.0)), seed=2, progress=False)

@@ -44,6 +44,9 @@ def test_synth_preview_info_roundtrip(tmp_path, capsys):
 @pytest.mark.parametrize("args, fragment", [
     (["--resolution", "64x64"], "W == 2H"),
     (["--spacing", "1:0.5"], "MIN <= MAX"),
+    (["--target-offset", "1:0.5"], "MIN <= MAX"),  # the disocclusion options (test_data_synth_occlusion.py)
+    (["--layouts", "room,castle"], "unknown layout"),
+    (["--profile", "nope"], "invalid choice"),
 ])
 def test_synth_rejects_bad_arguments(tmp_path, capsys, args, fragment):
     with pytest.raises(SystemExit):

@@ -8,6 +8,7 @@ import torch
 from PIL import Image
 
 from cylindersplat.data import Loc360Dataset, Sample, ViewSplit, collate_samples, select_views
+from cylindersplat.data.depth_prior import NoPrior
 from cylindersplat.data.io import read_depth_png, read_rgb, resize_depth, write_depth_png, write_rgb
 from cylindersplat.data.views import all_between, all_between_starts
 
@@ -30,7 +31,9 @@ def write_loc360(root, location="atrium", seq="daytime_360_0", frames=6, size=(8
 def test_loc360_layout_and_protocol(tmp_path):
     write_loc360(tmp_path)
     write_loc360(tmp_path, location="hall")  # a train location, not in the test split
-    ds = Loc360Dataset(tmp_path, split="test", times_per_sequence=3)
+    with pytest.raises(ValueError, match="has none of its own; choose one"):  # no silent zero prior by default
+        Loc360Dataset(tmp_path, split="test", times_per_sequence=3)[0]
+    ds = Loc360Dataset(tmp_path, split="test", times_per_sequence=3, depth_prior=NoPrior())
     assert len(ds) == 3
     s = ds[2]  # starts 0, 1, 2 for 6 frames and gap 3
     assert s.metadata["context_indices"] == [2, 5] and s.metadata["target_indices"] == [2, 3, 4, 5]

@@ -1,26 +1,18 @@
 """PanoGRF/PanSplat layout: the real Matterport3D triplet proves the pose convention; tiny
 written fixtures exercise the loader and its error messages."""
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 import torch
 from PIL import Image
 
 from cylindersplat.data import PanoGRFDataset, collate_samples, panogrf_c2w, reprojection_consistency
-
-FIXTURE = (
-    Path(__file__).resolve().parents[1].parent
-    / "shared/fixtures/pano_grf/png_render_test_1024x512_seq_len_3_m3d_dist_0.5"
-)
+from cylindersplat.data.depth_prior import GroundTruthPrior, NoPrior
 
 
 @pytest.fixture(scope="module")
-def real_sample():
-    if not (FIXTURE / "00000007").is_dir():
-        pytest.skip(f"real fixture missing: {FIXTURE}")
-    return PanoGRFDataset(FIXTURE, resolution=(256, 512))[0]
+def real_sample(pano_grf_fixture):  # conftest.py
+    return PanoGRFDataset(pano_grf_fixture, resolution=(256, 512), depth_prior=GroundTruthPrior())[0]
 
 
 def test_real_triplet_loads(real_sample):
@@ -104,19 +96,23 @@ def tiny_root(tmp_path):
 
 def test_tiny_loader_root_lookup_and_collate(tiny_root):
     root, folder = tiny_root
-    ds = PanoGRFDataset(root, stored_size=(8, 16), name="replica", dist=1.0)
+    with pytest.raises(ValueError, match="has none of its own; choose one"):  # default: no silent zeros
+        PanoGRFDataset(root, stored_size=(8, 16), name="replica", dist=1.0)[1]
+    ds = PanoGRFDataset(root, stored_size=(8, 16), name="replica", dist=1.0, depth_prior=NoPrior())
     assert ds.folder == folder and len(ds) == 2 and ds.dataset_name == "replica"
     s = ds[1]
     assert s.metadata["baseline"] == pytest.approx(2.0) and s.metadata["nominal_baseline"] == 2.0
     assert torch.allclose(s.target_depths, torch.full((1, 8, 16), 1.1))
-    assert torch.equal(s.context_depths, torch.zeros(2, 8, 16))  # default: no prior
+    assert torch.equal(s.context_depths, torch.zeros(2, 8, 16))  # none, asked for by name
+    (folder / "priors" / "x").mkdir(parents=True)  # prior files of `data priors` are not a scene
+    assert len(PanoGRFDataset(folder, depth_prior=NoPrior())) == 2
     batch = collate_samples([ds[0], ds[1]])
     assert batch.context_images.shape == (2, 2, 3, 8, 16) and batch.metadata["scene"] == ["00000001", "00000002"]
 
 
 def test_tiny_loader_one_view_and_resize(tiny_root):
     _, folder = tiny_root
-    s = PanoGRFDataset(folder, views="one_view", resolution=(4, 8))[0]
+    s = PanoGRFDataset(folder, views="one_view", resolution=(4, 8), depth_prior=GroundTruthPrior())[0]
     assert s.context_images.shape == (1, 3, 4, 8) and s.target_images.shape == (2, 3, 4, 8)
     assert s.metadata["context_indices"] == [1] and s.metadata["target_indices"] == [0, 2]
     assert torch.allclose(s.target_depths, torch.tensor([1.0, 1.2]).view(2, 1, 1).expand(2, 4, 8))
@@ -125,7 +121,7 @@ def test_tiny_loader_one_view_and_resize(tiny_root):
 def test_missing_depth_gives_none(tmp_path):
     folder = tmp_path / "png_render_test_16x8_seq_len_3_residential_dist_0.5"
     write_panogrf_scene(folder, depth=False)
-    s = PanoGRFDataset(folder)[0]
+    s = PanoGRFDataset(folder, depth_prior=NoPrior())[0]
     assert s.target_depths is None and s.context_gt_depths is None
 
 

@@ -1,5 +1,6 @@
 """Depth priors: simulated (seeded degradation), files, registry and foundation-model adapters."""
 
+import importlib.util
 import sys
 
 import numpy as np
@@ -13,7 +14,7 @@ from cylindersplat.data.depth_prior import (
     PriorQuery,
     SimulatedPrior,
     SimulatedPriorConfig,
-    DepthAnywhereAdapter,
+    DepthAnythingV2Adapter,
     ExportedDepthPrior,
     UniK3DAdapter,
     make_depth_prior,
@@ -72,26 +73,33 @@ def test_file_prior_png_npy_and_mirror(tmp_path):
 
 
 def test_registry_and_adapters(tmp_path):
-    assert {"none", "gt", "simulated", "file", "unik3d", "depth_anywhere", "unifuse"} <= set(DEPTH_PRIORS)
+    assert {"none", "gt", "simulated", "file", "constant", "exported", "unik3d", "depth_anything_v2"} == set(DEPTH_PRIORS)
     assert isinstance(make_depth_prior("simulated", seed=3), SimulatedPrior)
     with pytest.raises(ValueError, match="unknown depth prior"):
         make_depth_prior("midas")
+    for hollow in ("depth_anywhere", "unifuse"):  # no inference API: they are exported networks (exported:NET.pt2)
+        with pytest.raises(ValueError, match="unknown depth prior"):
+            parse_depth_prior(f"{hollow}:w.pth")
     # Packages are not installed here: a clear ImportError naming the package and how to install it.
-    for name in ("unik3d", "depth_anywhere", "unifuse"):
-        with pytest.raises(ImportError, match="pip install|install"):
+    for name, package in (("unik3d", "unik3d"), ("depth_anything_v2", "transformers")):
+        if importlib.util.find_spec(package) is not None:
+            continue
+        with pytest.raises(ModuleNotFoundError, match=f"pip install.*{package}|{package}.*pip install|install"):
             make_depth_prior(name, weights=tmp_path / "w.pth")
 
 
 def test_adapter_weight_checks(tmp_path, monkeypatch):
-    monkeypatch.setattr(DepthAnywhereAdapter, "package", "json")  # pretend the package is importable
-    with pytest.raises(FileNotFoundError, match="local weights"):
-        DepthAnywhereAdapter()
+    monkeypatch.setattr(UniK3DAdapter, "package", "json")  # pretend the package is importable
+    with pytest.raises(FileNotFoundError, match="needs weights"):
+        UniK3DAdapter()
     with pytest.raises(FileNotFoundError, match="not found"):
-        DepthAnywhereAdapter(weights=tmp_path / "missing.pth")
+        UniK3DAdapter(weights=tmp_path / "missing.pth")
+    with pytest.raises(FileNotFoundError, match="needs its weights"):
+        parse_depth_prior("unik3d")
     (tmp_path / "w.pth").write_bytes(b"")
-    adapter = DepthAnywhereAdapter(weights=tmp_path / "w.pth")
-    with pytest.raises(NotImplementedError, match="exported"):
-        adapter(_query())
+    assert UniK3DAdapter(weights=tmp_path / "w.pth").weights == tmp_path / "w.pth"
+    hub = UniK3DAdapter(weights="lpiccinelli/unik3d-vitl")  # a hub id: loaded by the package itself
+    assert hub.weights is None and hub.source == "lpiccinelli/unik3d-vitl"
 
 
 _FAKE_UNIK3D = {

@@ -141,14 +141,3 @@ def test_synth_profile_and_info_print_the_occluded_share(tmp_path, capsys):
     assert mean and float(mean.group(1)) == pytest.approx(np.mean([float(x[2]) for x in listed]), abs=0.01)
     assert main(["data", "info", "--data", str(out), "--count", "1", "--occlusion", "0"]) == 0
     assert "occluded" not in capsys.readouterr().out
-
-
-@pytest.mark.parametrize("args, fragment", [
-    (["--target-offset", "1:0.5"], "MIN <= MAX"),
-    (["--layouts", "room,castle"], "unknown layout"),
-    (["--profile", "nope"], "invalid choice"),
-])
-def test_synth_rejects_bad_disocclusion_arguments(tmp_path, capsys, args, fragment):
-    with pytest.raises(SystemExit):
-        main(["data", "synth", "--out", str(tmp_path), "--scenes", "1", *args])
-    assert fragment in capsys.readouterr().err

@@ -11,24 +11,15 @@ from PIL import Image
 
 from cylindersplat.cli import main
 from cylindersplat.data import SyntheticDataset
-from cylindersplat.data.synth import SequenceConfig, write_synthetic_dataset
 from cylindersplat.evaluation import evaluate, forward_warp_method, model_method, results_to_markdown
 from cylindersplat.evaluation.evaluate import comparison_image, normalized_depth
 from cylindersplat.metrics import DepthRange, abs_rel, delta1, lrce, pcc, psnr, rmse, ssim, ws_psnr
-from cylindersplat.model import from_config, save_model
+from cylindersplat.model import save_model
 
 
 @pytest.fixture(scope="module")
-def synth_root(tmp_path_factory):
-    root = tmp_path_factory.mktemp("synth_eval")
-    write_synthetic_dataset(root, 2, (32, 64), SequenceConfig(frames=3, spacing=(0.3, 0.5)), seed=3, progress=False)
-    return root
-
-
-@pytest.fixture(scope="module")
-def tiny_model():
-    torch.manual_seed(0)
-    return from_config("tiny").eval()
+def synth_root(synth_dataset):  # conftest.py; the same data as test_eval_occluded.py
+    return synth_dataset(2, seed=3)
 
 
 def test_scores_equal_direct_metric_calls(synth_root, tiny_model, tmp_path):

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +13,6 @@ import torch
 from cylindersplat.cli import main
 from cylindersplat.data import Sample, SyntheticDataset
 from cylindersplat.data.occlusion import occluded_fraction
-from cylindersplat.data.synth import SequenceConfig, write_synthetic_dataset
 from cylindersplat.evaluation import (
     MIN_OCCLUDED_PIXELS,
     OCCLUDED_METRICS,
@@ -32,19 +30,13 @@ from cylindersplat.evaluation.evaluate import normalized_depth
 from cylindersplat.metrics import DepthRange, abs_rel
 from cylindersplat.render.api import RenderOutput
 
-FIXTURE = (
-    Path(__file__).resolve().parents[1].parent
-    / "shared/fixtures/pano_grf/png_render_test_1024x512_seq_len_3_m3d_dist_0.5"
-)
 RANGE = DepthRange(0.05, 1000.0)
 
 
 @pytest.fixture(scope="module")
-def synth_root(tmp_path_factory):
+def synth_root(synth_dataset):  # conftest.py
     # When written, 32x64 two_view targets had < 16 occluded pixels (7, 8), one_view targets 39..96.
-    root = tmp_path_factory.mktemp("synth_occ")
-    write_synthetic_dataset(root, 2, (32, 64), SequenceConfig(frames=3, spacing=(0.3, 0.5)), seed=3, progress=False)
-    return root
+    return synth_dataset(2, seed=3)
 
 
 def _oracle(sample):
@@ -226,11 +218,9 @@ def test_eval_cli_writes_occluded_columns(synth_root, tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_eval_cli_on_the_real_triplet(tmp_path, capsys):
-    if not (FIXTURE / "00000007").is_dir():
-        pytest.skip(f"real fixture missing: {FIXTURE}")
+def test_eval_cli_on_the_real_triplet(pano_grf_fixture, tmp_path, capsys):
     out = tmp_path / "eval"
-    assert main(["eval", "--format", "pano_grf", "--data", str(FIXTURE), "--resolution", "128x256", "--out", str(out),
+    assert main(["eval", "--format", "pano_grf", "--data", str(pano_grf_fixture), "--resolution", "128x256", "--out", str(out),
                  "--protocols", "two_view,one_view", "--depth-prior", "gt", "--pictures", "0", "--lpips", "off"]) == 0
     means = json.loads((out / "results.json").read_text())["means"]
     two_view = next(v for k, v in means.items() if "two_view" in k)["Forward warp"]

@@ -56,8 +56,12 @@ def test_equirect_jacobian_matches_autograd_and_fixes_the_paper_sign():
     x, y, z = 1.0, 0.5, 2.0
     rho, r2 = math.hypot(x, z), x * x + y * y + z * z
     printed = H / math.pi * x * y / (r2 * rho)
-    got = equirect_jacobian(torch.tensor([x, y, z], dtype=torch.float64), H, W)[1, 0]
-    assert got == pytest.approx(-printed)
+    got = equirect_jacobian(torch.tensor([x, y, z], dtype=torch.float64), H, W)
+    assert got[1, 0] == pytest.approx(-printed)
+    # Its dv/dz = -H/pi * z y / (r^2 rho) is printed right: only dv/dx is mis-signed.
+    assert got[1, 2] == pytest.approx(-H / math.pi * z * y / (r2 * rho))
+    ref = torch.autograd.functional.jacobian(_project, torch.tensor([x, y, z], dtype=torch.float64))
+    assert ref[1, 2].item() == pytest.approx(-H / math.pi * z * y / (r2 * rho))
 
 
 @pytest.mark.parametrize("coords", [CylindricalCoords(), SphericalCoords(), CartesianCoords()])

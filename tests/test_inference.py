@@ -21,9 +21,7 @@ from cylindersplat.inference import (
     midpoint_poses,
     render_views,
     slerp,
-    write_panorama_folder,
 )
-from cylindersplat.model import from_config, save_model
 from cylindersplat.render import render_equirect
 from cylindersplat.scenes import demo_room
 
@@ -35,12 +33,8 @@ def _yaw(angle: float, t=(0.0, 0.0, 0.0)) -> torch.Tensor:
 
 
 @pytest.fixture()
-def folder(tmp_path):
-    torch.manual_seed(0)
-    images = torch.rand(2, 3, 16, 32)
-    depths = torch.rand(2, 16, 32) * 3 + 0.5
-    poses = torch.stack([_yaw(0.0), _yaw(0.3, (0.5, 0.0, 0.2))])
-    return write_panorama_folder(tmp_path / "scene", images, poses, depths), images, depths, poses
+def folder(panorama_folder):  # conftest.py
+    return panorama_folder
 
 
 def test_folder_round_trip(folder):
@@ -141,11 +135,8 @@ def test_chunked_rendering_equals_one_call():
 
 
 @pytest.fixture()
-def checkpoint(tmp_path):
-    torch.manual_seed(0)
-    path = tmp_path / "tiny.safetensors"
-    save_model(from_config("tiny"), path)
-    return path
+def checkpoint(tiny_checkpoint):  # conftest.py
+    return tiny_checkpoint
 
 
 def test_render_and_export_cli(folder, checkpoint, tmp_path, capsys):
@@ -182,13 +173,13 @@ def test_render_and_export_cli(folder, checkpoint, tmp_path, capsys):
     # Rendering again into the same folder with fewer views leaves no stale views of the first render.
     assert main(["render", "--input", str(path), "--checkpoint", str(checkpoint), "--resolution", "16x32",
                  "--out", str(out), "--frames", "0", "--min-opacity", "0"]) == 0
-    assert sorted(p.name for p in (out / "views").iterdir()) == ["view_000_depth.png", "view_000_rgb.png"]
+    assert sorted(p.name for p in (out / "views").iterdir()) == ["poses.json", "view_000_depth.png", "view_000_rgb.png"]
 
 
 def test_cli_errors(folder, checkpoint, tmp_path, capsys):
     path, *_ = folder
     assert main(["export", "--input", str(path), "--checkpoint", str(tmp_path / "missing.safetensors")]) == 1
-    assert "checkpoint not found" in capsys.readouterr().err
+    assert "missing.safetensors" in (err := capsys.readouterr().err) and "not found" in err
     assert main(["export", "--input", str(tmp_path / "nowhere"), "--checkpoint", str(checkpoint)]) == 1
     assert "input folder not found" in capsys.readouterr().err
     with pytest.raises(SystemExit):
@@ -224,3 +215,97 @@ def test_poses_file_types_are_checked(tmp_path):
         (tmp_path / "p.json").write_text(json.dumps(data))
         with pytest.raises(ValueError, match=message):
             read_poses_file(tmp_path / "p.json")
+
+
+def test_a_transforms_json_folder_reconstructs_like_poses_json(folder, checkpoint, tmp_path):
+    """A nerfstudio folder (transforms.json, OpenGL c2w, EQUIRECTANGULAR) just works for export/render."""
+    path, *_ = folder
+    gl = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0]))
+    frames = [{"file_path": f["image"], "depth_file_path": f["depth"], "transform_matrix": (torch.tensor(f["c2w"]) @ gl).tolist()}
+              for f in _frames(path)["frames"]]
+    ns = tmp_path / "ns"
+    ns.mkdir()
+    for f in path.iterdir():
+        if f.name != "poses.json":
+            (ns / f.name).write_bytes(f.read_bytes())
+    (ns / "transforms.json").write_text(json.dumps({"camera_model": "EQUIRECTANGULAR", "w": 32, "h": 16, "frames": frames}))
+    for source, out in ((path, tmp_path / "a.ply"), (ns, tmp_path / "b.ply")):
+        assert main(["export", "--input", str(source), "--checkpoint", str(checkpoint), "--resolution", "16x32",
+                     "--out", str(out), "--min-opacity", "0"]) == 0
+    a, b = load_ply(tmp_path / "a.ply"), load_ply(tmp_path / "b.ply")
+    torch.testing.assert_close(b.means, a.means, atol=1e-4, rtol=0)
+    (ns / "transforms.json").write_text(json.dumps({"camera_model": "OPENCV", "frames": frames}))
+    assert main(["export", "--input", str(ns), "--checkpoint", str(checkpoint), "--out", str(tmp_path / "c.ply")]) == 1
+
+
+def test_flythrough_streams_frames_into_the_video(tmp_path, monkeypatch):
+    """N frames rendered two at a time, each chunk written before the next is rendered; the GIF has N frames."""
+    from cylindersplat.inference import pipeline, video, write_flythrough
+
+    written, held = [], []
+    append = video._GifStream.append
+    monkeypatch.setattr(video._GifStream, "append", lambda self, frame: (written.append(1), append(self, frame)))
+    render = pipeline.render
+
+    def spy(gaussians, c2w, camera, **kwargs):
+        held.append(len(c2w) + (rendered[0] - len(written)))  # frames in memory: this chunk + any not yet written
+        rendered[0] += len(c2w)
+        return render(gaussians, c2w, camera, **kwargs)
+
+    rendered = [0]
+    monkeypatch.setattr(pipeline, "render", spy)
+    cams = torch.stack([_yaw(0.0), _yaw(0.5, (0.3, 0.0, 0.0))])
+    path = write_flythrough(tmp_path / "fly.gif", demo_room(4.0), cams, 8, 16, frames=9, fps=10)
+    assert len(written) == 9 and max(held) <= 2
+    gif = Image.open(path)
+    assert gif.n_frames == 9 and gif.size == (16, 2 * 8 + 4)
+
+
+def test_render_any_ply_pinhole_panorama_metric_depth_and_poses(tmp_path):
+    """render --ply: perspective and panoramic views, metric depth (npy exact, 16-bit PNG within 1 mm), the poses
+    written next to the images and of the fly-through round-trip, a fly-through along a given camera path."""
+    from cylindersplat.gaussians import save_ply
+    from cylindersplat.inference import normalized_depth, read_poses_file
+    from cylindersplat.inference.pipeline import pinhole_intrinsics
+    from cylindersplat.render import Pinhole, render
+
+    ply = save_ply(demo_room(4.0), tmp_path / "room.ply")
+    scene = load_ply(ply)
+    poses = torch.stack([_yaw(0.3, (0.2, 0.1, -0.3)), _yaw(-1.0, (-0.4, 0.0, 0.5))])
+    (tmp_path / "views.json").write_text(json.dumps({"poses": poses.tolist()}))
+    path = torch.stack([_yaw(0.1 * k, (0.05 * k, 0.0, 0.0)) for k in range(5)])
+    (tmp_path / "path.json").write_text(json.dumps({"convention": "opengl_c2w", "poses": (path @ torch.diag(
+        torch.tensor([1.0, -1.0, -1.0, 1.0]))).tolist()}))
+    out = tmp_path / "pin"
+    assert main(["render", "--ply", str(ply), "--views", str(tmp_path / "views.json"), "--camera", "pinhole", "--fov", "75",
+                 "--output-resolution", "12x20", "--metric-depth", "--camera-path", str(tmp_path / "path.json"),
+                 "--out", str(out)]) == 0
+    k = pinhole_intrinsics(12, 20, 75.0)
+    reference = render(scene, poses, Pinhole(k, 12, 20), background=(0.0, 0.0, 0.0))
+    written = read_poses_file(out / "views" / "poses.json")
+    record = json.loads((out / "views" / "poses.json").read_text())
+    assert record["camera"]["model"] == "pinhole" and np.allclose(record["camera"]["K"], k.tolist())
+    for i, (image, c2w, depth_file) in enumerate(written):
+        torch.testing.assert_close(c2w, poses[i])  # poses.json round-trips
+        rgb = np.asarray(Image.open(out / "views" / image))
+        assert rgb.shape == (12, 20, 3)
+        assert np.abs(rgb.astype(int) - (reference.rgb[i].clamp(0, 1) * 255 + 0.5).floor().permute(1, 2, 0).numpy()).max() <= 1
+        metric = normalized_depth(reference.depth[i], reference.alpha[i])
+        npy = np.load(out / "views" / depth_file)
+        assert npy.dtype == np.float32 and npy.shape == (12, 20) and (npy > 0).any()
+        np.testing.assert_allclose(npy, metric.numpy(), atol=1e-5, rtol=0)
+        png = np.asarray(Image.open(out / "views" / f"view_{i:03d}_depth_mm.png")).astype(np.float64) / 1000
+        assert np.abs(png - npy).max() <= 0.0005 + 1e-6  # within 1 mm (rounded to the nearest mm)
+    gif = Image.open(out / "flythrough.gif")
+    assert gif.n_frames == 5 and gif.size == (20, 2 * 12 + 4)  # one frame per camera-path pose
+    fly = torch.stack([p for _, p, _ in read_poses_file(out / "flythrough_poses.json")])
+    torch.testing.assert_close(fly, path, atol=1e-6, rtol=0)
+    # Panoramas: the generated fly-through passes through the views, poses.json loads as an input folder.
+    pano = tmp_path / "pano"
+    assert main(["render", "--ply", str(ply), "--views", str(tmp_path / "views.json"), "--output-resolution", "8x16",
+                 "--metric-depth", "--frames", "4", "--out", str(pano)]) == 0
+    assert Image.open(pano / "flythrough.gif").n_frames == 4
+    inputs = load_panorama_folder(pano / "views", (8, 16))
+    torch.testing.assert_close(inputs.c2w, poses)
+    assert main(["render", "--ply", str(ply), "--views", str(tmp_path / "views.json"), "--output-resolution", "8x20",
+                 "--out", str(pano)]) == 1  # a panorama must be 2:1

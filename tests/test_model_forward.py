@@ -17,12 +17,6 @@ def make_inputs(views: int = 2, batch: int = 1, seed: int = 0, height: int = H, 
     return shared_make_inputs(views, batch, seed, height, width)
 
 
-@pytest.fixture(scope="module")
-def tiny_model():
-    torch.manual_seed(0)
-    return from_config("tiny")
-
-
 @pytest.mark.parametrize("views", [1, 2, 3, 4])
 def test_shapes_counts_and_finite(tiny_model, views):
     images, depth, c2w = make_inputs(views)

@@ -59,21 +59,75 @@ def test_images_and_videos_are_written_atomically(tmp_path, monkeypatch):
     monkeypatch.setattr(Image.Image, "save", broken_save)
     with pytest.raises(OSError):
         write_rgb(tmp_path / "a.png", torch.rand(3, 4, 8))
-    with pytest.raises(OSError):
-        write_video(tmp_path / "v.gif", [np.zeros((4, 8, 3), np.uint8)] * 2)
     assert (tmp_path / "a.png").read_bytes() == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "d.png"]
+    monkeypatch.undo()
+    write_video(tmp_path / "v.gif", [np.zeros((4, 8, 3), np.uint8)] * 2)
+    video = (tmp_path / "v.gif").read_bytes()
+
+    def frames_then_full_disk():
+        yield np.zeros((4, 8, 3), np.uint8)
+        yield np.ones((4, 8, 3), np.uint8)
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError, match="No space"):  # fails half-way through streaming the new video
+        write_video(tmp_path / "v.gif", frames_then_full_disk())
+    assert (tmp_path / "v.gif").read_bytes() == video  # the earlier video, untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.png", "d.png", "v.gif"]  # no temporary left
+    with pytest.raises(ValueError, match="no frames"):
+        write_video(tmp_path / "empty.gif", iter([]))
+    assert not (tmp_path / "empty.gif").exists()
 
 
-def test_video_format_is_checked_before_any_work():
+def test_video_format_is_checked_before_any_work(monkeypatch):
+    from cylindersplat.inference import video
+
     check_video_format("x.gif")
     with pytest.raises(ValueError, match="gif, .mp4"):
         check_video_format("x.avi")
-    try:
-        import imageio_ffmpeg  # noqa: F401
-    except ImportError:
-        with pytest.raises(ValueError, match="imageio\\[ffmpeg\\]"):
-            check_video_format("x.mp4")
+    monkeypatch.setattr(video, "ffmpeg_available", lambda: False)  # as on a machine without imageio-ffmpeg
+    with pytest.raises(ValueError, match="imageio-ffmpeg"):
+        check_video_format("x.mp4")
+    path, note = video.video_path_with_fallback("out/fly.mp4")  # what `render` does: a GIF and one line
+    assert path.name == "fly.gif" and "imageio-ffmpeg" in note and "\n" not in note
+    assert video.video_path_with_fallback("out/fly.gif") == (path, None)
+
+
+def test_video_frames_stream_to_the_file(tmp_path, monkeypatch):
+    """Each frame is written before the next one is even produced: memory never holds the video."""
+    from PIL import Image
+
+    from cylindersplat.inference import video
+
+    written = []
+    append = video._GifStream.append
+    monkeypatch.setattr(video._GifStream, "append", lambda self, frame: (written.append(1), append(self, frame)))
+
+    def frames(n):
+        for k in range(n):
+            assert len(written) == k  # every earlier frame is already in the file
+            yield np.full((6, 10, 3), 20 * k, np.uint8)
+
+    path = write_video(tmp_path / "v.gif", frames(7), fps=10)
+    gif = Image.open(path)
+    assert gif.n_frames == 7 and gif.size == (10, 6) and gif.info["duration"] == 100 and gif.info["loop"] == 0
+    for k in range(7):
+        gif.seek(k)
+        assert np.array_equal(np.asarray(gif.convert("RGB")), np.full((6, 10, 3), 20 * k, np.uint8))
+    with pytest.raises(ValueError, match="same size"):
+        write_video(tmp_path / "w.gif", [np.zeros((6, 10, 3), np.uint8), np.zeros((6, 12, 3), np.uint8)])
+    assert not (tmp_path / "w.gif").exists()
+
+
+@pytest.mark.skipif(not __import__("cylindersplat.inference.video", fromlist=["x"]).ffmpeg_available(),
+                    reason="needs imageio-ffmpeg (the video extra)")
+def test_mp4_through_ffmpeg(tmp_path):
+    import imageio_ffmpeg
+
+    path = write_video(tmp_path / "v.mp4", (np.full((9, 13, 3), 30 * k, np.uint8) for k in range(5)), fps=10)
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    assert meta["size"] == (14, 10) and sum(1 for _ in reader) == 5  # odd sizes padded to even for H.264
+    assert [p.name for p in tmp_path.iterdir()] == ["v.mp4"]
 
 
 @pytest.mark.parametrize("field,column,value,message", [

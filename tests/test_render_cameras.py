@@ -151,6 +151,7 @@ def test_seam_rejects_bad_cameras_and_backends():
         register_backend("auto", lambda *a: None)
 
 
+@pytest.mark.slow
 def test_compiled_projection_matches_eager(monkeypatch):
     """``compile_projection()``: the dense projection math through torch.compile, outputs and gradients."""
     from cylindersplat.render import projection

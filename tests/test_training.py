@@ -8,15 +8,13 @@ import pytest
 import torch
 
 from cylindersplat.cli import main
-from cylindersplat.data.synth import SequenceConfig, write_synthetic_dataset
+from cylindersplat.data.synth import write_synthetic_dataset
 from cylindersplat.training import Trainer, load_config
 
 
 @pytest.fixture(scope="module")
-def synth_root(tmp_path_factory):
-    root = tmp_path_factory.mktemp("synth")
-    write_synthetic_dataset(root, 3, (32, 64), SequenceConfig(frames=3, spacing=(0.3, 0.5)), seed=1, progress=False)
-    return root
+def synth_root(synth_dataset):  # conftest.py
+    return synth_dataset(3, seed=1)
 
 
 def _config(root, out, *extra):
@@ -26,6 +24,7 @@ def _config(root, out, *extra):
     ])
 
 
+@pytest.mark.slow
 def test_training_lowers_the_loss(synth_root, tmp_path):
     # One scene, pixel stage, a few dozen steps: the model must fit it clearly better.
     cfg = _config(synth_root, tmp_path / "run", "train.stages=[1]", "train.steps_per_stage=[30]", "train.lr=2e-3",
@@ -45,6 +44,7 @@ def _params_and_optimizer(trainer):
     return params, moments
 
 
+@pytest.mark.slow
 def test_resume_after_kill_is_exact(synth_root, tmp_path):
     extra = ("train.stages=[1,3]", "train.steps_per_stage=[3,3]", "train.checkpoint_every=1")
     # Uninterrupted: 5 steps (stage 1 complete + 2 steps of stage 3).
@@ -85,6 +85,7 @@ def test_resume_with_other_stages_is_refused(synth_root, tmp_path):
         Trainer(_config(synth_root, tmp_path / "run", "train.stages=[3]"), resume=tmp_path / "run")
 
 
+@pytest.mark.slow
 def test_train_cli_end_to_end(synth_root, tmp_path, capsys):
     out = tmp_path / "cli"
     code = main(["train", "--data", str(synth_root), "--out", str(out), "--stages", "1,2,3", "--steps", "1",
@@ -124,6 +125,7 @@ def _nan_grad_on(trainer, steps: set[int]) -> list[str]:
     return name
 
 
+@pytest.mark.slow
 def test_nonfinite_step_is_skipped(synth_root, tmp_path):
     cfg = _config(synth_root, tmp_path / "run", "train.stages=[1]", "train.steps_per_stage=[3]",
                   "data.options={scenes: ['00000000']}")
@@ -156,6 +158,7 @@ def test_nonfinite_step_is_skipped(synth_root, tmp_path):
     assert [json.loads(line)["train/skipped"] for line in lines] == [0.0, 1.0, 0.0]
 
 
+@pytest.mark.slow
 def test_nonfinite_loss_every_step_diverges(synth_root, tmp_path, monkeypatch):
     cfg = _config(synth_root, tmp_path / "run", "train.stages=[1]", "train.steps_per_stage=[5]",
                   "train.max_nonfinite_steps=2", "data.options={scenes: ['00000000']}")

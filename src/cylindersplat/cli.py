@@ -8,9 +8,13 @@ adding a module to ``cylindersplat/commands/``: every module there is registered
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import os
 import pkgutil
+import re
 import sys
+from pathlib import Path
 
 
 def subcommand_modules() -> list[str]:
@@ -21,10 +25,18 @@ def subcommand_modules() -> list[str]:
     return [f"{commands.__name__}.{name}" for name in names]
 
 
+class OneLineErrorParser(argparse.ArgumentParser):
+    """argparse with its errors on one line (what is wrong, then where to read more) instead of the
+    whole usage block; subcommand parsers inherit it."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = OneLineErrorParser(
         prog="cylindersplat",
         description="Feed-forward 3D Gaussian Splatting from posed 360-degree panoramas.",
     )
@@ -55,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
         if message is None:
             raise  # a bug (or --debug): the traceback is what we need
         # Expected failures: one clear line, no traceback.
+        message = " ".join(line.strip() for line in message.splitlines() if line.strip())
         print(f"cylindersplat {args.command}: error: {message}", file=sys.stderr)
         return 1
     return int(result or 0)
@@ -63,29 +76,27 @@ def main(argv: list[str] | None = None) -> int:
 def expected_failure(exc: BaseException) -> str | None:
     """One line for failures a user can fix (bad input, missing files or packages, no CUDA, full disk,
     out of memory); ``None`` for anything else, which is a bug and keeps its traceback."""
-    import errno
-
     import torch
 
-    if isinstance(exc, MemoryError) and str(exc):  # our own estimate before allocating, with its numbers
-        return str(exc)
-    if isinstance(exc, torch.OutOfMemoryError):
-        return ("out of memory; use a smaller resolution or fewer views/cameras at once, or a machine with more "
-                f"memory ({str(exc).splitlines()[0][:200]})")
-    if isinstance(exc, OSError) and not isinstance(exc, FileNotFoundError):
-        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
-        if exc.errno == errno.ENOSPC:
-            return f"disk full{where}; free space or write somewhere else (--out)"
-        if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
-            return f"permission denied{where}; choose a folder you can write to"
-        if exc.errno in (errno.EISDIR, errno.ENOTDIR, errno.EEXIST):
-            return f"{exc.strerror}{where}"
-        if exc.errno == errno.EFBIG:
-            return f"file too large{where}"
-        return None
+    os_error = _os_error(exc)
+    if os_error is not None:
+        message = _file_system_failure(os_error)
+        if message is not None:
+            return message
+    if isinstance(exc, MemoryError):
+        # Our own estimates before allocating (RenderMemoryError, ...) carry numbers and advice.
+        return str(exc) if str(exc) else OUT_OF_MEMORY
+    text = str(exc)
+    if isinstance(exc, torch.OutOfMemoryError) or (isinstance(exc, RuntimeError) and any(
+            s in text for s in ("can't allocate memory", "CUDA out of memory", "CUDA error: out of memory"))):
+        return f"{OUT_OF_MEMORY} ({text.splitlines()[0][:200] if text else type(exc).__name__})"
+    if isinstance(exc, RuntimeError) and "PytorchStreamWriter failed writing" in text:
+        return "writing a PyTorch file failed (is the disk full or the folder not writable?): free space or choose another --out"
     if isinstance(exc, (ValueError, FileNotFoundError)):
-        return str(exc)
+        return text
     if isinstance(exc, ModuleNotFoundError):
+        if "pip install" in str(exc):  # our own message already says what to install
+            return str(exc)
         return f"the optional package {exc.name!r} is not installed ({exc}); install it with pip"
     if isinstance(exc, (AssertionError, RuntimeError)) and _no_cuda(exc):
         return "CUDA was asked for (--device cuda) but this machine has no usable CUDA GPU; use --device cpu"
@@ -93,7 +104,69 @@ def expected_failure(exc: BaseException) -> str | None:
     if name == "SafetensorError" or "safetensors" in type(exc).__module__:
         return f"could not read the weights file: {exc} (is it a complete .safetensors written by cylindersplat?)"
     if "yaml" in type(exc).__module__:
-        return f"malformed YAML: {str(exc).splitlines()[0]}"
+        return f"malformed YAML: {text.splitlines()[0]}"
+    return None
+
+
+OUT_OF_MEMORY = ("out of memory: use a smaller resolution (--resolution / --output-resolution), fewer panoramas or "
+                 "views at once, or another device (--device cuda, or a machine with more memory)")
+
+
+def _os_error(exc: BaseException) -> OSError | None:
+    """``exc`` if it is an ``OSError``, else an ``OSError`` with a storage errno it was raised from (libraries
+    that wrap a full disk in their own exception), else None."""
+    if isinstance(exc, OSError):
+        return exc
+    seen, cause = {id(exc)}, exc.__cause__ or exc.__context__
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, OSError) and cause.errno in _STORAGE_ERRNOS:
+            return cause
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    match = re.search(r"os error (\d+)\)(?: at path \"([^\"]*)\")?", str(exc))  # safetensors' I/O errors
+    if match and int(match.group(1)) in _STORAGE_ERRNOS:
+        return OSError(int(match.group(1)), os.strerror(int(match.group(1))), match.group(2))
+    return None
+
+
+_STORAGE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.ENOMEM}
+
+
+def _file_system_failure(exc: OSError) -> str | None:
+    """The one line for an ``OSError`` a user can act on (full disk, permissions, a file in the way), else None."""
+    path = os.fsdecode(exc.filename) if isinstance(exc.filename, (str, bytes, os.PathLike)) else None
+    writing = f" while writing {path}" if path else ""
+    if exc.errno == errno.ENOSPC:
+        return f"disk full{writing}: free space or choose another --out"
+    if exc.errno == errno.EDQUOT:
+        return f"disk quota exceeded{writing}: free space or choose another --out"
+    if exc.errno == errno.EFBIG:
+        return f"file too large{writing} (a file-size limit: ulimit -f, FAT32's 4 GiB): choose another --out"
+    if exc.errno == errno.EROFS:
+        return f"read-only file system{' at ' + path if path else ''}: choose another --out"
+    if exc.errno in (errno.EACCES, errno.EPERM):
+        return f"permission denied{' for ' + path if path else ''}: fix its permissions or choose a folder you can write to (--out)"
+    if exc.errno == errno.ENOMEM:
+        return OUT_OF_MEMORY
+    if exc.errno in (errno.EEXIST, errno.ENOTDIR):
+        blocker = _file_in_the_way(path) if path else None
+        if blocker is None:
+            return f"{exc.strerror}{f' ({path})' if path else ''}"
+        for_path = f" (for {path})" if str(blocker) != path else ""
+        return f"{blocker} is a file where a folder is needed{for_path}: choose another --out (or move the file away)"
+    if exc.errno == errno.EISDIR:
+        return f"{path or 'a path'} is a folder where a file is needed: give a file name"
+    if isinstance(exc, FileNotFoundError):
+        return str(exc)
+    return None
+
+
+def _file_in_the_way(path) -> Path | None:
+    """The first part of ``path``, from the root down, that exists but is not a folder."""
+    path = Path(os.fsdecode(path))
+    for part in reversed([path, *path.parents]):
+        if part.exists() and not part.is_dir():
+            return part
     return None
 
 

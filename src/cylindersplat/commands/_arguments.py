@@ -17,6 +17,18 @@ def equirect_resolution(text: str, min_height: int = 1) -> tuple[int, int]:
     return size
 
 
+def image_resolution(text: str) -> tuple[int, int]:
+    """``"HxW"`` -> ``(H, W)``, any positive size (pinhole views; panoramas are checked for W == 2H later)."""
+    h, _, w = text.lower().partition("x")
+    try:
+        size = int(h), int(w)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"resolution must be HxW, e.g. 256x512, got {text!r}") from None
+    if min(size) < 1:
+        raise argparse.ArgumentTypeError(f"resolution must be positive, got {text!r}")
+    return size
+
+
 def model_resolution(text: str) -> tuple[int, int]:
     """An equirect resolution the model can run at (the backbone downsamples: H >= 8)."""
     return equirect_resolution(text, min_height=8)
@@ -42,3 +54,25 @@ def device(text: str) -> str:
     elif dev.type != "cpu":
         raise argparse.ArgumentTypeError(f"unsupported device {text!r}; use auto, cpu or cuda[:N]")
     return name
+
+
+def check_output(path, folder: bool, option: str = "--out") -> None:
+    """Refuse, before any work, an output the command could not write: a file where a folder is wanted
+    (or the reverse), a path under a file, or a folder without write permission. ``ValueError`` naming
+    ``option``; what is not there yet is fine (it is created)."""
+    import os
+    from pathlib import Path
+
+    path = Path(path)
+    if path.exists():
+        if folder and not path.is_dir():
+            raise ValueError(f"{option} {path} is a file, but this command writes a folder there: choose another {option}")
+        if not folder and path.is_dir():
+            raise ValueError(f"{option} {path} is a folder, but this command writes a file: give a file name in it")
+    parent = path if path.is_dir() else path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ValueError(f"{option} {path}: {parent} is a file, not a folder: choose another {option}")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ValueError(f"{option} {path}: no permission to write in {parent}: choose another {option}")

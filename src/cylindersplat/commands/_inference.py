@@ -17,8 +17,10 @@ def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) 
     parser.add_argument("--resolution", type=model_resolution,
                         help="HxW the model runs at (default: the model's nominal input height x 2)")
     parser.add_argument("--depth-prior",
-                        help="for frames without a depth file: constant:METRES, exported:NET.pt2 (any exported depth "
-                             "network), unik3d:WEIGHTS_DIR, ... (default: every frame needs <stem>_depth.png/.npy)")
+                        help="for frames without a depth file: file:NAME (INPUT/priors/NAME/<stem>.png from "
+                             "`cylindersplat data priors`), exported:NET.pt2 (any exported depth network), "
+                             "unik3d:WEIGHTS, depth_anything_v2:MODEL, constant:METRES, none (zeros, on request only) "
+                             "(default: every frame needs <stem>_depth.png/.npy)")
     parser.add_argument("--min-opacity", type=float, default=0.005, help="drop Gaussians at or below this opacity (default 0.005)")
     parser.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
 
@@ -29,10 +31,13 @@ def reconstruct_from_args(args: argparse.Namespace):
     from ..inference import load_panorama_folder, reconstruct_gaussians
     from ..model import load_model
 
-    if not args.checkpoint.is_file():
-        raise FileNotFoundError(f"checkpoint not found: {args.checkpoint} (train one with `cylindersplat train` or run the demo)")
-    model = load_model(args.checkpoint, map_location=args.device)
+    model = load_model(args.checkpoint, map_location=args.device)  # refuses folders, pickles, broken files by name
     size = args.resolution or (model.config.image_height, 2 * model.config.image_height)
+    stride = model.config.backbone.token_stride
+    if size[0] % stride:
+        low = max(stride, size[0] // stride * stride)
+        raise ValueError(f"--resolution {size[0]}x{size[1]}: this model needs a height divisible by {stride}, "
+                         f"e.g. {low}x{2 * low} or {low + stride}x{2 * (low + stride)}")
     prior = parse_depth_prior(args.depth_prior) if args.depth_prior else None
     inputs = load_panorama_folder(args.input, size, depth_prior=prior, poses_file=args.poses_file)
     start = time.perf_counter()

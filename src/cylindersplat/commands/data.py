@@ -1,11 +1,11 @@
-"""``cylindersplat data``: generate synthetic panoramas, preview and inspect datasets."""
+"""``cylindersplat data``: generate synthetic panoramas, preview and inspect datasets, precompute depth priors."""
 
 from __future__ import annotations
 
 import argparse
 import time
 
-from ._arguments import equirect_resolution
+from ._arguments import device, equirect_resolution
 
 PROFILE_NAMES = ("default", "occlusion")  # cylindersplat.data.synth.PROFILES (not imported: keeps the CLI start fast)
 PROTOCOL_NAMES = ("two_view", "one_view", "n_view")  # cylindersplat.data.views.PROTOCOLS
@@ -110,6 +110,18 @@ def _info(args) -> int:
     return 0
 
 
+def _priors(args) -> int:
+    from ..data.depth_prior.precompute import write_priors
+
+    run = write_priors(args.data, args.net, name=args.name, out=args.out, layout=args.layout, split=args.split,
+                       file_format=args.format, resolution=args.resolution, batch_size=args.batch_size,
+                       device=args.device, overwrite=args.overwrite, net_size=args.net_size)
+    print(f"depth priors {args.net} -> {run.tree}: {run.written} written, {run.skipped} already there "
+          f"({run.frames} panoramas, {run.seconds:.1f} s on {args.device}); use them as "
+          f"file:{args.name if args.out is None else run.tree}")
+    return 0
+
+
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "data", help="generate, preview and inspect panoramic datasets",
@@ -172,3 +184,36 @@ def register(subparsers) -> None:
     info.add_argument("--occlusion", type=int, default=64, metavar="N",
                       help="average the occluded share over N evenly spaced examples (default 64; 0: skip it)")
     info.set_defaults(func=_info)
+
+    from ._import_poses import register as register_import_poses
+
+    register_import_poses(sub)
+
+    priors = sub.add_parser(
+        "priors", help="run a depth network once over a dataset and store its depth as prior files",
+        description="Run a depth network over every panorama of a dataset (synthetic, PanoGRF png_render_* folder, "
+        "360Loc root or an input folder with poses.json) and store radial depth per frame in DATA/priors/NAME/ "
+        "(mirroring the panoramas' paths; 16-bit PNG millimetres or .npy metres) with prior.json (network, "
+        "version/checksum, resolution, date). Use the files as file:NAME (data.depth_prior, loss.depth_reference, "
+        "eval --depth-prior/--pcc-reference, render --depth-prior). Re-running skips frames already written by the "
+        "same network. See docs/data.md, 'Depth priors'.")
+    priors.add_argument("--data", required=True, help="dataset folder")
+    priors.add_argument("--net", required=True, metavar="SPEC",
+                        help="exported:NET.pt2|.pt (torch.export / TorchScript), unik3d:WEIGHTS_DIR_OR_HUB_ID, "
+                        "depth_anything_v2:MODEL_DIR_OR_HUB_ID (needs transformers)")
+    priors.add_argument("--name", help="prior name: files go to DATA/priors/NAME and are read as file:NAME")
+    priors.add_argument("--out", help="write the tree here instead (e.g. for read-only data); read it as file:OUT")
+    priors.add_argument("--format", choices=["png", "npy"], default="png",
+                        help="png: 16-bit millimetres, 0 = unknown, up to 65.5 m (default); npy: float32 metres")
+    priors.add_argument("--resolution", type=equirect_resolution,
+                        help="HxW the network sees and the files have (default: each panorama's stored size)")
+    priors.add_argument("--net-size", type=equirect_resolution,
+                        help="exported networks: HxW the network runs at (for networks exported with fixed shapes; "
+                        "its output is resized back)")
+    priors.add_argument("--layout", choices=["auto", "synthetic", "pano_grf", "loc360", "input"], default="auto",
+                        help="dataset layout (default: detected)")
+    priors.add_argument("--split", default="all", help="360Loc: train, test or all locations (default all)")
+    priors.add_argument("--batch-size", type=int, default=4, help="panoramas per network call (default 4)")
+    priors.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
+    priors.add_argument("--overwrite", action="store_true", help="recompute every frame, replacing an existing tree")
+    priors.set_defaults(func=_priors)

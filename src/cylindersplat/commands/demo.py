@@ -95,8 +95,9 @@ def train_or_reuse(args, data: Path) -> Path:
     from ..training import Trainer, load_config
 
     if args.checkpoint:
-        if not args.checkpoint.is_file():
-            raise FileNotFoundError(f"checkpoint not found: {args.checkpoint}")
+        from ..model.checkpoint import check_weights_file
+
+        check_weights_file(args.checkpoint)  # a folder, a missing file or a pickle: one line, before any work
         print(f"[2/4] using weights {args.checkpoint}")
         return args.checkpoint
     run_dir = args.out / "train"

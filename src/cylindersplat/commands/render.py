@@ -1,112 +1,198 @@
-"""``cylindersplat render``: posed panoramas -> novel views (RGB + depth), a fly-through video, a PLY."""
+"""``cylindersplat render``: posed panoramas (or any 3DGS PLY) -> novel views (RGB + depth), a fly-through, a PLY."""
 
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
-from ._arguments import model_resolution
+from ._arguments import check_output, image_resolution
 from ._inference import add_input_arguments, reconstruct_from_args
+
+VIEW_PATTERNS = ("view_*_rgb.png", "view_*_depth.png", "view_*_depth.npy", "view_*_depth_mm.png", "poses.json")
+PLY_DEFAULT_HEIGHT = 512  # --ply without --output-resolution: 512x1024 panoramas, 512x682 pinhole views
+
+
+def _yaw(degrees: float):
+    """Rotation about the camera's own vertical (y) axis; positive turns toward +x (the panorama's right)."""
+    import torch
+
+    a = math.radians(degrees)
+    turn = torch.eye(4)
+    turn[0, 0], turn[0, 2], turn[2, 0], turn[2, 2] = math.cos(a), math.sin(a), -math.sin(a), math.cos(a)
+    return turn
+
+
+def _size(args, height: int) -> tuple[int, int]:
+    """--output-resolution, else panoramas ``height x 2 height`` or pinhole views ``height x 4/3 height``."""
+    if args.output_resolution:
+        return tuple(args.output_resolution)
+    return (height, 2 * height) if args.camera == "equirect" else (height, 2 * round(2 * height / 3))
+
+
+def _camera(args, height: int, width: int):
+    from ..inference.pipeline import pinhole_intrinsics
+    from ..render import Equirect, Pinhole
+
+    if args.camera == "pinhole":
+        return Pinhole(pinhole_intrinsics(height, width, args.fov), height, width)
+    if width != 2 * height:
+        raise ValueError(f"panoramas need W == 2H, got --output-resolution {height}x{width}; "
+                         "for other shapes render perspective views with --camera pinhole")
+    return Equirect(height, width)
+
+
+def camera_record(camera, fov: float | None = None) -> dict:
+    """How a view was rendered, for the poses files written next to the images."""
+    from ..render import Pinhole
+
+    if isinstance(camera, Pinhole):
+        k = camera.intrinsics
+        return {"model": "pinhole", "height": camera.height, "width": camera.width, "K": k.tolist(),
+                "fov_x_deg": fov, "note": "OpenCV intrinsics, pixel centres at +0.5 (principal point W/2, H/2 when centred)"}
+    return {"model": "equirect", "height": camera.height, "width": camera.width}
 
 
 def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..gaussians import save_ply
-    import numpy as np
-
-    from ..inference import (
-        depth_limits,
-        midpoint_poses,
-        normalized_depth,
-        read_poses_file,
-        render_views,
-        write_flythrough,
-        write_view,
-    )
-    from ..utils.atomic import atomic_path
-
-    from ..inference.video import check_video_format
+    from ..inference import depth_limits, flythrough_path, midpoint_poses, read_poses_file, write_flythrough, write_view
+    from ..inference.pipeline import iter_views, sampled_depth_limits, write_metric_depth
+    from ..inference.pose_formats import PoseRecord, write_poses_json
+    from ..inference.video import video_path_with_fallback
 
     if args.frames < 0:
         raise ValueError("--frames must be >= 0")
     if args.fps < 1:
         raise ValueError("--fps must be >= 1")
-    if args.frames:
-        check_video_format(f"flythrough.{args.video_format}")  # before minutes of work, not after
+    if not all(math.isfinite(c) and 0 <= c <= 1 for c in args.background):
+        raise ValueError(f"--background must be three numbers in [0, 1] (R G B), got {' '.join(map(str, args.background))}")
+    check_output(args.out, folder=True)
+    # Everything that can be checked is checked before minutes of reconstruction and rendering.
+    view_poses = torch.stack([pose for _, pose, _ in read_poses_file(args.views)]) if args.views else None
+    path_poses = torch.stack([pose for _, pose, _ in read_poses_file(args.camera_path)]) if args.camera_path else None
+    video = None
+    if args.frames or path_poses is not None:
+        video, note = video_path_with_fallback(args.out / f"flythrough.{args.video_format}")
+        if note:
+            print(note)
     if args.ply:  # an existing 3DGS scene: no model, no input panoramas
         from ..gaussians import load_ply
 
         if args.input or args.checkpoint:
             raise ValueError("give either --ply or --input/--checkpoint, not both")
-        if not args.views or not args.output_resolution:
-            raise ValueError("rendering a PLY needs --views (camera poses) and --output-resolution")
-        gaussians = load_ply(args.ply, device=args.device)
-        print(f"loaded {len(gaussians):,} Gaussians from {args.ply}")
-        path_c2w = None
+        if view_poses is None and path_poses is None:
+            raise ValueError("rendering a PLY needs camera poses: --views POSES (views, and a fly-through through them) "
+                             "and/or --camera-path POSES (a fly-through along exactly those poses)")
     else:
         if not args.input or not args.checkpoint:
             raise ValueError("give --input and --checkpoint (or --ply to render an existing 3DGS scene)")
+    if args.output_resolution:
+        _camera(args, *args.output_resolution)  # a bad size fails now, not after the reconstruction
+    turn = _yaw(args.yaw)
+
+    if args.ply:
+        gaussians = load_ply(args.ply, device=args.device)
+        print(f"loaded {len(gaussians):,} Gaussians from {args.ply}")
+        inputs = None
+    else:
         inputs, gaussians, _ = reconstruct_from_args(args)
-        path_c2w = inputs.c2w
-    h, w = args.output_resolution or inputs.size
+    h, w = _size(args, inputs.size[0] if inputs is not None else PLY_DEFAULT_HEIGHT)
+    camera = _camera(args, h, w)
+    record = camera_record(camera, args.fov if args.camera == "pinhole" else None)
     background = tuple(args.background)
     args.out.mkdir(parents=True, exist_ok=True)
 
-    # Novel views: the poses given, else halfway between consecutive input cameras.
-    if args.views:
-        poses = torch.stack([pose for _, pose, _ in read_poses_file(args.views)])
-    else:
-        poses = midpoint_poses(inputs.c2w)
-    if path_c2w is None:
-        path_c2w = poses
-    views = render_views(gaussians, poses, h, w, background, progress=True, desc="novel views")
-    near, far = depth_limits(inputs.depths if not args.ply else normalized_depth(views.depth, views.alpha))
+    # Novel views: the poses given, else halfway between consecutive input cameras (none for a PLY without --views).
+    keys = inputs.c2w if inputs is not None else view_poses  # what a generated fly-through passes through
+    if view_poses is None and inputs is not None:
+        view_poses = midpoint_poses(inputs.c2w)
+    if inputs is not None:
+        near, far = depth_limits(inputs.depths)
+    else:  # colours fixed before rendering, so views and frames are written as they come
+        near, far = sampled_depth_limits(gaussians, (view_poses if view_poses is not None else path_poses) @ turn)
     view_dir = args.out / "views"
-    view_dir.mkdir(exist_ok=True)
-    stale = [p for pattern in ("view_*_rgb.png", "view_*_depth.png", "view_*_depth.npy") for p in view_dir.glob(pattern)]
+    stale = [p for pattern in VIEW_PATTERNS for p in view_dir.glob(pattern)] if view_dir.is_dir() else []
     for path in stale:  # views of an earlier render into this folder: never mix them with this one's
         path.unlink()
     if stale:
-        print(f"removed {len(stale)} view images of an earlier render in {view_dir}")
-    for i in range(len(poses)):
-        write_view(view_dir / f"view_{i:03d}_rgb.png", view_dir / f"view_{i:03d}_depth.png",
-                   views.rgb[i], views.depth[i], views.alpha[i], near, far)
-        if args.metric_depth:  # metres along each ray (0 where less than half covered), for measuring
-            with atomic_path(view_dir / f"view_{i:03d}_depth.npy") as tmp:
-                np.save(tmp, normalized_depth(views.depth[i], views.alpha[i]).numpy().astype(np.float32))
-    print(f"wrote {len(poses)} novel views (RGB + depth colormap, {h}x{w}) to {view_dir}")
+        print(f"removed {len(stale)} files of an earlier render in {view_dir}")
+    if view_poses is not None:
+        view_poses = view_poses @ turn
+        view_dir.mkdir(exist_ok=True)
+        records, index = [], 0
+        for out in iter_views(gaussians, view_poses, h, w, background, progress=True, desc="novel views", camera=camera):
+            for k in range(len(out.rgb)):  # written as rendered: memory holds one chunk of views
+                stem = f"view_{index:03d}"
+                write_view(view_dir / f"{stem}_rgb.png", view_dir / f"{stem}_depth.png", out.rgb[k], out.depth[k],
+                           out.alpha[k], near, far)
+                if args.metric_depth:  # metres along each ray (0 where less than half covered), for measuring
+                    write_metric_depth(view_dir / f"{stem}_depth.npy", view_dir / f"{stem}_depth_mm.png",
+                                       out.depth[k], out.alpha[k])
+                records.append(PoseRecord(f"{stem}_rgb.png", view_poses[index],
+                                          f"{stem}_depth.npy" if args.metric_depth else None))
+                index += 1
+        extra = {"camera": record}
+        if args.metric_depth:
+            extra["depth_type"] = ("radial distance along each pixel's ray: view_NNN_depth.npy float32 metres, "
+                                   "view_NNN_depth_mm.png 16-bit depth_scale units per metre; 0 = no surface")
+        write_poses_json(view_dir / "poses.json", records, depth_scale=1000 if args.metric_depth else None, **extra)
+        what = "RGB + depth colormap" + (" + metric depth (.npy metres, 16-bit PNG mm)" if args.metric_depth else "")
+        print(f"wrote {index} {record['model']} views ({what}, {h}x{w}) and their poses.json to {view_dir}")
 
     if not args.no_ply and not args.ply:
         ply = save_ply(gaussians.to("cpu"), args.out / "gaussians.ply")
         print(f"wrote {ply}")
-    if args.frames:
-        video = write_flythrough(args.out / f"flythrough.{args.video_format}", gaussians, path_c2w, h, w,
-                                 frames=args.frames, fps=args.fps, near=near, far=far, background=background)
-        print(f"wrote {video} ({args.frames} frames, RGB above depth)")
+    if video is not None:
+        if path_poses is not None:
+            frames = path_poses @ turn
+        else:
+            frames = flythrough_path(keys, args.frames) @ turn
+        written = write_flythrough(video, gaussians, None, h, w, fps=args.fps, near=near, far=far, background=background,
+                                   camera=camera, poses=frames)
+        poses_file = write_poses_json(args.out / "flythrough_poses.json", [PoseRecord(None, p) for p in frames],
+                                      fps=args.fps, camera=record)
+        print(f"wrote {written} ({len(frames)} frames, RGB above depth) and {poses_file.name}")
     return 0
 
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
-        "render", help="render novel views and a fly-through of your own posed panoramas",
-        description="Reconstruct a folder of posed equirect panoramas with a trained model, then write novel views "
-        "(RGB + depth colormap) at the poses of --views (default: halfway between consecutive inputs), a "
-        "fly-through along the input cameras (GIF, or MP4 with imageio[ffmpeg]) and the Gaussians as a PLY. "
-        "Input format: docs/inference.md.",
+        "render", help="render novel views and a fly-through of your posed panoramas or of any 3DGS PLY",
+        description="Reconstruct a folder of posed equirect panoramas with a trained model (or load any 3DGS PLY with "
+        "--ply), then write views (RGB + depth colormap, optionally metric depth) at the poses of --views (default: "
+        "halfway between consecutive inputs) with their poses.json, a fly-through (GIF, or MP4 with imageio-ffmpeg) "
+        "along the input cameras or along --camera-path, and the Gaussians as a PLY. Panoramas by default, "
+        "perspective views with --camera pinhole. Input format: docs/inference.md.",
     )
     add_input_arguments(parser, required=False)
     parser.add_argument("--ply", type=Path, help="render this 3DGS PLY (from cylindersplat or any 3DGS tool) instead of "
-                        "reconstructing; needs --views and --output-resolution")
-    parser.add_argument("--metric-depth", action="store_true",
-                        help="also write each view's depth in metres as view_NNN_depth.npy (float32)")
+                        "reconstructing; needs --views and/or --camera-path")
     parser.add_argument("--out", type=Path, default=Path("outputs/render"), help="output folder (default outputs/render)")
-    parser.add_argument("--views", type=Path, help='JSON of novel-view poses ({"poses": [4x4, ...]} or "frames" with "c2w")')
-    parser.add_argument("--output-resolution", type=model_resolution,
-                        help="HxW of the rendered views (default: the input resolution)")
-    parser.add_argument("--frames", type=int, default=48, help="fly-through frames; 0 skips the video (default 48)")
+    parser.add_argument("--views", type=Path, help="poses file of the views to render: poses.json (any \"convention\") "
+                        "or nerfstudio transforms.json")
+    parser.add_argument("--camera", choices=["equirect", "pinhole"], default="equirect",
+                        help="equirect panoramas (default) or pinhole (perspective) views looking along each pose's +z")
+    parser.add_argument("--fov", type=float, default=90.0, help="pinhole horizontal field of view in degrees (default 90)")
+    parser.add_argument("--yaw", type=float, default=0.0,
+                        help="turn every rendered camera by this many degrees about its own vertical axis, positive to "
+                        "the right (e.g. to point a pinhole view elsewhere than the panorama's centre column)")
+    parser.add_argument("--output-resolution", type=image_resolution,
+                        help="HxW of the views and fly-through (default: the input resolution; with --ply 512x1024; "
+                        "pinhole: that height at 3:4)")
+    parser.add_argument("--metric-depth", action="store_true",
+                        help="also write each view's depth in metres: view_NNN_depth.npy (float32) and "
+                        "view_NNN_depth_mm.png (16-bit millimetres)")
+    parser.add_argument("--frames", type=int, default=48,
+                        help="frames of the generated fly-through through the input cameras (or --views); 0 skips "
+                        "the video (default 48)")
+    parser.add_argument("--camera-path", type=Path,
+                        help="fly-through along exactly these poses, one frame each (poses file, e.g. an earlier "
+                        "render's flythrough_poses.json); overrides --frames")
     parser.add_argument("--fps", type=int, default=12, help="fly-through frame rate (default 12)")
-    parser.add_argument("--video-format", default="gif", choices=["gif", "mp4", "webm"], help="fly-through format (default gif)")
+    parser.add_argument("--video-format", default="gif", choices=["gif", "mp4", "webm"],
+                        help="fly-through format (default gif; mp4/webm need imageio-ffmpeg, else a GIF is written)")
     parser.add_argument("--background", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("R", "G", "B"),
                         help="background colour in [0, 1] (default black)")
     parser.add_argument("--no-ply", action="store_true", help="do not write gaussians.ply")

@@ -6,6 +6,8 @@ import argparse
 import shutil
 from pathlib import Path
 
+from ._arguments import check_output
+
 
 def run(args: argparse.Namespace) -> int:
     from ..training import Trainer, load_config
@@ -31,6 +33,7 @@ def run(args: argparse.Namespace) -> int:
 
         print(yaml.safe_dump(config_as_dict(config), sort_keys=False))
         return 0
+    check_output(config.output_dir, folder=True)
     if args.resume is None:
         _refuse_to_trample(Path(config.output_dir), args.overwrite)
     trainer = Trainer(config, resume=args.resume)

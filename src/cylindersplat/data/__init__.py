@@ -15,6 +15,7 @@ from .depth_prior import (
     SimulatedPriorConfig,
     make_depth_prior,
 )
+from .datasets import DATASETS, make_dataset
 from .io import read_depth_png, read_rgb, resize_depth, write_depth_png, write_rgb
 from .loc360 import Loc360Dataset
 from .pano_grf import PanoGRFDataset, panogrf_c2w

@@ -16,7 +16,7 @@ from torch import Tensor
 from torch.utils.data import Dataset
 
 from ..geometry import validate_c2w
-from .depth_prior.base import DepthPrior, NoPrior, PriorQuery
+from .depth_prior.base import DepthPrior, MissingPrior, NoPrior, PriorQuery
 from .io import read_depth_png, read_rgb
 from .sample import Sample
 from .views import ViewSplit
@@ -47,9 +47,18 @@ class ExampleRef:
 class PanoramaDataset(Dataset):
     """Base class. ``resolution`` (H, W) resizes on load (None = stored size); ``stored_size``
     (H, W), when a layout fixes it, is checked against every file; ``depth_prior`` fills
-    ``Sample.context_depths`` (default: :class:`NoPrior`, zeros)."""
+    ``Sample.context_depths`` (default: :class:`MissingPrior`, an error asking for a choice; a
+    context prior without a single positive pixel is an error unless the prior is ``none``).
+
+    ``target_reference`` (a :class:`DepthPrior`, default ``None``) fills
+    ``Sample.target_reference_depths``: the reference depth of the target views (the depth loss's
+    ``D_ref``, or the evaluation's PCC reference). ``data_root`` is the folder the dataset was opened
+    at; file priors resolve ``<data_root>/priors/<name>/...`` against it.
+    """
 
     dataset_name = "base"
+    data_root: Path | None = None
+    target_reference: DepthPrior | None = None
 
     def __init__(
         self,
@@ -61,7 +70,7 @@ class PanoramaDataset(Dataset):
         if resolution is not None and resolution[1] != 2 * resolution[0]:
             raise ValueError(f"resolution must be (H, W) with W == 2H, got {resolution}")
         self.resolution = tuple(resolution) if resolution is not None else None
-        self.depth_prior = depth_prior or NoPrior()
+        self.depth_prior = depth_prior or MissingPrior()
         self.stored_size = stored_size
         self.depth_resize = depth_resize
 
@@ -71,6 +80,15 @@ class PanoramaDataset(Dataset):
 
     def example(self, index: int) -> ExampleRef:
         raise NotImplementedError
+
+    def frames(self) -> list[tuple[FrameRef, str]]:
+        """Every stored panorama the dataset uses, once, with its prior key ``"{dataset}/{scene}/{frame}"``."""
+        seen: dict[Path, tuple[FrameRef, str]] = {}
+        for index in range(len(self)):
+            ref = self.example(index)
+            for frame in ref.frames:
+                seen.setdefault(Path(frame.rgb), (frame, f"{self.dataset_name}/{ref.scene}/{frame.name}"))
+        return list(seen.values())
 
     # -- shared loading ----------------------------------------------------------------------------
     def _load_frame(self, frame: FrameRef) -> tuple[Tensor, Tensor | None]:
@@ -100,13 +118,22 @@ class PanoramaDataset(Dataset):
             return None if any(d is None for d in depths) else torch.stack(depths)
 
         ctx, tgt = ref.views.context, ref.views.target
-        priors = [
-            self.depth_prior(
-                PriorQuery(loaded[i][0], loaded[i][1], ref.frames[i].rgb,
-                           f"{self.dataset_name}/{ref.scene}/{ref.frames[i].name}")
-            ).float()
-            for i in ctx
-        ]
+
+        def query(i):
+            return PriorQuery(loaded[i][0], loaded[i][1], ref.frames[i].rgb,
+                              f"{self.dataset_name}/{ref.scene}/{ref.frames[i].name}", self.data_root)
+
+        priors = [self.depth_prior(query(i)).float() for i in ctx]
+        if not isinstance(self.depth_prior, NoPrior):  # zeros only when asked for by name
+            for i, prior in zip(ctx, priors):
+                if not bool((prior > 0).any()):
+                    raise ValueError(
+                        f"depth prior {self.depth_prior.spec!r} of {ref.frames[i].rgb} has no positive pixel (all "
+                        "zeros = unknown): the model would get no depth; check the prior's files or network, or "
+                        "choose the prior none explicitly")
+        references = None
+        if self.target_reference is not None:
+            references = torch.stack([self.target_reference(query(i)).float() for i in tgt])
         poses = torch.stack([f.c2w.float() for f in ref.frames])
         metadata = {
             "dataset": self.dataset_name,
@@ -115,7 +142,7 @@ class PanoramaDataset(Dataset):
             "context_indices": list(ctx),
             "target_indices": list(tgt),
             "frame_names": [ref.frames[i].name for i in needed],
-            "depth_prior": self.depth_prior.name,
+            "depth_prior": self.depth_prior.spec,
             **ref.metadata,
         }
         return Sample(
@@ -127,6 +154,7 @@ class PanoramaDataset(Dataset):
             target_poses=poses[list(tgt)],
             metadata=metadata,
             context_gt_depths=stack_depths(ctx),
+            target_reference_depths=references,
         )
 
 

@@ -15,6 +15,8 @@ Resizing (when a dataset is read at a lower resolution than stored):
 
 from __future__ import annotations
 
+import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -50,15 +52,39 @@ def check_panorama_size(height: int, width: int, path: Path | str, expected: tup
         raise ValueError(f"{path}: expected {expected[1]}x{expected[0]} (WxH), got {width}x{height}")
 
 
+# Larger images are refused before they are decoded (a 200 MP RGB image is 600 MB as 8-bit and 2.4 GB
+# as float; the model runs at a fraction of that anyway). PIL's own decompression-bomb limit is replaced by it.
+MAX_IMAGE_PIXELS = 200_000_000
+
+
+def _too_large(path: Path, width: int, height: int) -> ValueError:
+    return ValueError(f"{path}: {width}x{height} (WxH) is {width * height / 1e6:.3g} megapixels, more than the "
+                      f"{MAX_IMAGE_PIXELS / 1e6:.3g} MP this reads; downscale it first (e.g. to 4096x2048)")
+
+
 def open_image(path: Path | str) -> Image.Image:
-    """Open and fully decode an image file; corrupt or truncated files raise ``ValueError``."""
+    """Open and fully decode an image file; corrupt or truncated files raise ``ValueError``, and so do images of
+    more than ``MAX_IMAGE_PIXELS`` pixels (checked from the header, before decoding)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"missing file: {path}")
     try:
-        with Image.open(path) as img:
-            img.load()
-            return img.copy()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # our limit below decides
+            with Image.open(path) as img:
+                if img.width * img.height > MAX_IMAGE_PIXELS:
+                    raise _too_large(path, img.width, img.height)
+                img.load()
+                return img.copy()
+    except Image.DecompressionBombError as exc:  # beyond PIL's hard limit (2x its warning size): refused at open
+        size = re.search(r"\((\d+) pixels\)", str(exc))
+        pixels = int(size.group(1)) if size else None
+        if pixels is None or pixels > MAX_IMAGE_PIXELS:
+            limit = f"the {MAX_IMAGE_PIXELS / 1e6:.3g} MP this reads"
+        else:
+            limit = f"PIL's limit of {2 * (Image.MAX_IMAGE_PIXELS or 0) / 1e6:.3g} MP (PIL.Image.MAX_IMAGE_PIXELS)"
+        raise ValueError(f"{path}: {f'{pixels / 1e6:.3g} megapixels, ' if pixels else ''}more than {limit}; "
+                         "downscale it first (e.g. to 4096x2048)") from None
     except (UnidentifiedImageError, OSError, SyntaxError) as exc:
         raise ValueError(f"{path}: cannot decode image ({exc})") from exc
 

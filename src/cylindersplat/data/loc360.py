@@ -73,7 +73,8 @@ class Loc360Dataset(PanoramaDataset):
         locations = locations or LOC360_SPLITS.get(split)
         if locations is None:
             raise ValueError(f"unknown 360Loc split {split!r}; use one of {sorted(LOC360_SPLITS)} or pass locations")
-        self.root, self.gap = root, gap
+        self.root = self.data_root = root
+        self.gap = gap
         self.sequences: list[tuple[str, Path, list[tuple[str, torch.Tensor]]]] = []
         self.index: list[tuple[int, int]] = []
         for location in locations:
@@ -90,6 +91,11 @@ class Loc360Dataset(PanoramaDataset):
 
     def __len__(self) -> int:
         return len(self.index)
+
+    def frames(self) -> list[tuple[FrameRef, str]]:
+        """Every frame of every sequence (also those no example of this protocol uses)."""
+        return [(FrameRef(name, seq / "image" / name, c2w), f"{self.dataset_name}/{scene}/{name}")
+                for scene, seq, poses in self.sequences for name, c2w in poses]
 
     def example(self, index: int) -> ExampleRef:
         seq_id, start = self.index[index]

@@ -32,6 +32,7 @@ import torch
 from torch import Tensor
 
 from .base import ExampleRef, FrameRef, PanoramaDataset
+from .depth_prior.files import PRIORS_DIR
 from .io import read_matrix_txt
 from .views import select_views
 
@@ -62,7 +63,8 @@ class PanoGRFDataset(PanoramaDataset):
     ``folder`` is either that folder itself or a root holding it together with ``split``,
     ``stored_size`` (H, W), ``name`` and ``dist``. ``views`` picks the protocol
     (:func:`cylindersplat.data.views.select_views`). Ground-truth depth is loaded when every
-    frame has a ``depth.png``.
+    frame has a ``depth.png``. There is no depth prior of its own: pass ``depth_prior=`` (e.g.
+    ``FilePrior("unik3d")`` for files written by ``cylindersplat data priors``).
     """
 
     def __init__(
@@ -88,13 +90,14 @@ class PanoGRFDataset(PanoramaDataset):
             raise FileNotFoundError(f"missing dataset folder: {folder}")
         size = (int(match["h"]), int(match["w"]))
         super().__init__(resolution, depth_prior, stored_size=size, depth_resize=depth_resize)
-        self.folder = folder
+        self.folder = self.data_root = folder
         self.name = match["name"]
         self.dataset_name = self.name
         self.dist = float(match["d"])
         self.split = match["split"]
         self.views = views
-        self.scenes = sorted(p.name for p in folder.iterdir() if p.is_dir())
+        # (a `priors` folder holds depth priors written by `cylindersplat data priors`, not a scene)
+        self.scenes = sorted(p.name for p in folder.iterdir() if p.is_dir() and p.name != PRIORS_DIR)
         if not self.scenes:
             raise ValueError(f"{folder}: no scene folders found")
 

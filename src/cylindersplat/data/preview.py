@@ -28,7 +28,7 @@ def open_dataset(path: str | Path, resolution: tuple[int, int] | None = None, vi
     if (path / "meta.json").is_file():
         return SyntheticDataset(path, views=views, resolution=resolution, depth_prior=NoPrior())
     if path.name.startswith("png_render_"):
-        return PanoGRFDataset(path, views=views, resolution=resolution)
+        return PanoGRFDataset(path, views=views, resolution=resolution, depth_prior=NoPrior())  # pictures need no prior
     raise ValueError(f"{path}: neither a synthetic dataset (meta.json) nor a png_render_* folder")
 
 

@@ -20,11 +20,14 @@ class Sample:
     OpenCV camera-to-world 4x4 (world +y gravity-down where the data is gravity-aligned).
 
     * ``context_images`` ``(V, 3, H, W)``, ``context_depths`` ``(V, H, W)``: the depth *prior* fed
-      to the model (see :mod:`cylindersplat.data.depth_prior`; all zeros when there is none),
+      to the model (see :mod:`cylindersplat.data.depth_prior`; all zeros only for the prior ``none``),
       ``context_poses`` ``(V, 4, 4)``.
     * ``target_images`` ``(T, 3, H, W)``, ``target_depths`` ``(T, H, W)`` ground truth or ``None``,
       ``target_poses`` ``(T, 4, 4)``.
     * ``context_gt_depths``: ground-truth depth of the context views when the dataset has it.
+    * ``target_reference_depths`` ``(T, H, W)`` or ``None``: the chosen reference depth of the
+      targets (the depth loss's ``D_ref`` for ``loss.depth_reference`` = ``prior`` / ``file:NAME``,
+      or the PCC reference of the evaluation); ``None`` unless the dataset was asked for one.
     * ``metadata``: ``dataset``, ``scene``, ``baseline`` (metres between the outermost contexts),
       ``context_indices``, ``target_indices`` and dataset-specific extras.
     """
@@ -37,6 +40,7 @@ class Sample:
     target_poses: Float[Tensor, "T 4 4"]
     metadata: dict[str, Any] = field(default_factory=dict)
     context_gt_depths: Float[Tensor, "V H W"] | None = None
+    target_reference_depths: Float[Tensor, "T H W"] | None = None
 
     def __post_init__(self) -> None:
         v, _, h, w = self.context_images.shape
@@ -48,6 +52,7 @@ class Sample:
             "target_depths": (self.target_depths, (t, h, w)),
             "target_poses": (self.target_poses, (t, 4, 4)),
             "context_gt_depths": (self.context_gt_depths, (v, h, w)),
+            "target_reference_depths": (self.target_reference_depths, (t, h, w)),
         }
         if self.context_images.shape[1] != 3:
             raise ValueError(f"context_images must be (V, 3, H, W), got {tuple(self.context_images.shape)}")

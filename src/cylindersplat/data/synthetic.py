@@ -30,7 +30,7 @@ class SyntheticDataset(PanoramaDataset):
 
     ``views``: protocol of :func:`cylindersplat.data.views.select_views`. ``depth_prior`` defaults
     to :class:`SimulatedPrior` (ground truth degraded reproducibly) because that is what synthetic
-    data is for; pass :class:`~cylindersplat.data.depth_prior.NoPrior` to disable it.
+    data is for; pass :class:`~cylindersplat.data.depth_prior.NoPrior` for all-zero priors.
     ``scenes`` restricts the dataset to these scene ids (e.g. a train/test split), in that order.
     """
 
@@ -52,7 +52,7 @@ class SyntheticDataset(PanoramaDataset):
         if len(stored) != 2:
             raise ValueError(f"{root / 'meta.json'}: 'resolution' must be [H, W]")
         super().__init__(resolution, depth_prior or SimulatedPrior(), stored_size=stored, depth_resize=depth_resize)
-        self.root = root
+        self.root = self.data_root = root
         self.views = views
         self.scenes = [s for s in meta.get("scenes", []) if (root / s / "meta.json").is_file()]
         if not self.scenes:

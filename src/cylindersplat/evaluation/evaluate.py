@@ -66,8 +66,12 @@ def _finite_or_none(value) -> float | None:
 
 
 def score_views(render, target_images, target_depths, lpips_net=None, depth_range: DepthRange = DepthRange(),
-                occluded=None) -> list[dict]:
+                occluded=None, pcc_depths=None) -> list[dict]:
     """Per-view metrics. ``render``: RenderOutput ``(T, ...)``; targets ``(T, 3, H, W)`` / ``(T, H, W)`` or None.
+
+    ``pcc_depths`` ``(T, H, W)``: the PCC reference when it is not ``target_depths`` (e.g. files of
+    another depth network, as the paper scores PCC against Depth Anywhere); then PCC is computed even
+    without ground-truth depth.
 
     ``occluded``: ``(T, H, W)`` bool masks of the pixels no context sees (:func:`occluded_masks`);
     when given, every view also gets ``occluded_share`` (latitude-weighted share of the mask),
@@ -86,10 +90,12 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
         with torch.no_grad():
             scores["lpips"] = lpips_net(rgb, target).reshape(-1)
     depth = None
-    if target_depths is not None:
+    if target_depths is not None or pcc_depths is not None:
         depth = normalized_depth(render.depth.float(), render.alpha.float())
         # PCC over every reference pixel in range; pixels the method left empty count with depth 0.
-        scores["pcc"] = pcc(depth, target_depths.float(), depth_range=depth_range)
+        reference = pcc_depths if pcc_depths is not None else target_depths
+        scores["pcc"] = pcc(depth, reference.float().to(depth.device), depth_range=depth_range)
+    if target_depths is not None:
         scores["abs_rel"] = abs_rel(depth, target_depths.float(), depth_range=depth_range)
         scores["rmse"] = rmse(depth, target_depths.float(), depth_range=depth_range)
         scores["delta1"] = delta1(depth, target_depths.float(), depth_range=depth_range)
@@ -104,7 +110,7 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
             "psnr_occluded": masked_psnr(rgb, target, occluded),
             "l1_occluded": masked_l1(rgb, target, occluded),
         }
-        if depth is not None:
+        if target_depths is not None:
             masked["abs_rel_occluded"] = abs_rel(depth, target_depths.float(), mask=occluded, depth_range=depth_range)
         for i, row in enumerate(rows):
             pixels = int(occluded[i].sum())
@@ -144,8 +150,13 @@ def evaluate(
     num_pictures: int = 4,
     depth_range: DepthRange = DepthRange(),
     progress: bool = True,
+    pcc_reference: str = "gt",
 ) -> EvalResult:
     """Score ``methods`` on the first ``max_examples`` examples of ``dataset``.
+
+    ``pcc_reference``: ``"gt"`` scores PCC against ``Sample.target_depths``; ``"reference"`` against
+    ``Sample.target_reference_depths`` (a dataset with ``target_reference`` set, e.g. by
+    :func:`cylindersplat.data.make_dataset` with ``reference="file:depth_anywhere"``).
 
     ``time_s`` is the wall time of a method on one example (all its targets). Comparison pictures
     (ground truth, then each method; RGB | depth) of the first ``num_pictures`` targets go to
@@ -159,6 +170,12 @@ def evaluate(
     pictures = 0
     for index in tqdm(range(count), desc="evaluate", unit="example", disable=None if progress else True):  # None: no bar when output is not a terminal
         sample = dataset[index]
+        pcc_depths = None
+        if pcc_reference != "gt":
+            pcc_depths = getattr(sample, "target_reference_depths", None)
+            if pcc_depths is None:
+                raise ValueError("evaluate: pcc_reference='reference' but the samples have no target_reference_depths "
+                                 "(open the dataset with make_dataset(..., reference='file:NAME'))")
         occluded, reason = occluded_masks(sample)
         if reason is not None and sample.target_depths is not None:
             # Without target depth no depth metric exists and the table says so; a missing context
@@ -173,7 +190,8 @@ def evaluate(
             out = method.run(sample)
             seconds = time.perf_counter() - start
             renders[method.name] = out
-            scored = score_views(out, sample.target_images, sample.target_depths, lpips_net, depth_range, occluded)
+            scored = score_views(out, sample.target_images, sample.target_depths, lpips_net, depth_range, occluded,
+                                 pcc_depths=pcc_depths)
             for view, scores in enumerate(scored):
                 rows.append({"example": index, "scene": sample.metadata.get("scene", str(index)), "view": view,
                              "method": method.name, "time_s": seconds, **scores})

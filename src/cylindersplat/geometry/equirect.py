@@ -106,8 +106,9 @@ def equirect_jacobian(
 ) -> Float[Tensor, "*batch 2 3"]:
     """Jacobian d(u, v)/d(x, y, z) of the equirect projection at camera-frame points.
 
-    This is the *corrected* Jacobian (DESIGN.md section 3; the paper's printed d v/d x and
-    d v/d z have the wrong sign)::
+    This is the *corrected* Jacobian (DESIGN.md section 3): the paper prints d v/d x with the
+    wrong sign (``+H/pi * x y / (r^2 rho)``); its d v/d z is right (``tests/test_geometry.py``
+    checks every entry against autograd)::
 
         du/dx =  W/(2 pi) * z / rho^2      du/dy = 0      du/dz = -W/(2 pi) * x / rho^2
         dv/dx = -H/pi * x y / (r^2 rho)    dv/dy = H/pi * rho / r^2

@@ -4,13 +4,25 @@ from .camera_path import flythrough_path, interpolate_poses, midpoint_poses, sle
 from .inputs import PanoramaInputs, load_panorama_folder, read_poses_file, write_panorama_folder
 from .pipeline import (
     depth_limits,
+    iter_views,
     normalized_depth,
+    pinhole_intrinsics,
     reconstruct_gaussians,
     render_views,
+    sampled_depth_limits,
     view_picture,
     write_flythrough,
+    write_metric_depth,
     write_view,
 )
-from .video import write_video
+from .pose_formats import (
+    PoseRecord,
+    read_kitti,
+    read_opensfm,
+    read_transforms_json,
+    read_tum,
+    write_poses_json,
+)
+from .video import VideoWriter, write_video
 
 __all__ = [name for name in dir() if not name.startswith("_")]

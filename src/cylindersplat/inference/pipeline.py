@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import math
+import sys
+import time
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 import torch
@@ -10,15 +14,19 @@ from jaxtyping import Float
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from ..data.io import to_uint8, write_rgb
+from ..data.io import DEPTH_PNG_SCALE, to_uint8, write_depth_png, write_rgb
 from ..gaussians import Gaussians
-from ..render import render_equirect
+from ..render import Equirect, render
 from ..render.api import RenderOutput
+from ..render.cameras import CameraModel
+from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
 from .camera_path import flythrough_path
-from .video import write_video
+from .memory import check_forward_memory
+from .video import VideoWriter
 
-__all__ = ["reconstruct_gaussians", "render_views", "normalized_depth", "depth_limits", "view_picture", "write_view",
+__all__ = ["reconstruct_gaussians", "iter_views", "render_views", "normalized_depth", "depth_limits",
+           "sampled_depth_limits", "view_picture", "write_view", "write_metric_depth", "pinhole_intrinsics",
            "write_flythrough"]
 
 
@@ -34,11 +42,14 @@ def reconstruct_gaussians(
 ) -> Gaussians:
     """World-frame Gaussians (unbatched, float32, on ``device``) of one scene; drops those with opacity <=
     ``min_opacity``. ``amp``: ``"auto"`` runs the network under bf16 autocast on CUDA (as training
-    does; the Gaussians come out in float32), ``"off"`` in float32 everywhere."""
+    does; the Gaussians come out in float32), ``"off"`` in float32 everywhere. A resolution whose
+    forward pass would not fit in the device's free memory is refused first
+    (:class:`~cylindersplat.inference.memory.ReconstructionMemoryError`)."""
     if amp not in ("auto", "off"):
         raise ValueError(f"amp must be 'auto' or 'off', got {amp!r}")
     model.eval()
     device = torch.device(device)
+    check_forward_memory(model.config, images.shape[0], images.shape[-2], images.shape[-1], device, model.mode)
     use_bf16 = amp == "auto" and device.type == "cuda"
     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_bf16):
         out = model(images[None].to(device), depths[None].to(device), c2w[None].to(device))
@@ -48,7 +59,64 @@ def reconstruct_gaussians(
     return gaussians
 
 
+class _Progress:
+    """Progress over ``total`` items: a tqdm bar on a terminal; where stderr is not one (log files, pipes),
+    one line at each quarter instead of a bar's carriage returns; nothing when disabled."""
+
+    def __init__(self, total: int, desc: str, unit: str, enabled: bool = True) -> None:
+        self.total, self.desc, self.unit, self.done = total, desc, unit, 0
+        self.enabled = enabled and total > 0
+        self._bar = tqdm(total=total, desc=desc, unit=unit) if self.enabled and sys.stderr.isatty() else None
+        self._marks = sorted({max(1, round(total * q / 4)) for q in (1, 2, 3, 4)})
+        self._start = time.perf_counter()
+
+    def update(self, n: int) -> None:
+        before, self.done = self.done, self.done + n
+        if not self.enabled:
+            return
+        if self._bar is not None:
+            self._bar.update(n)
+        elif any(before < mark <= self.done for mark in self._marks):
+            print(f"{self.desc}: {self.done}/{self.total} {self.unit}s ({time.perf_counter() - self._start:.1f} s)",
+                  file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
 @torch.no_grad()
+def iter_views(
+    gaussians: Gaussians,
+    c2w: Float[Tensor, "K 4 4"],
+    height: int,
+    width: int,
+    background=(0.0, 0.0, 0.0),
+    chunk: int = 4,
+    progress: bool = False,
+    desc: str = "render",
+    camera: CameraModel | None = None,
+    unit: str = "view",
+) -> Iterator[RenderOutput]:
+    """Render ``K`` views ``chunk`` cameras at a time, yielding each chunk (on the CPU) as soon as it is
+    done: a caller that writes and drops them holds at most ``chunk`` views. ``camera``: any camera
+    model (default ``Equirect(height, width)``; e.g. ``Pinhole(K, height, width)``)."""
+    if chunk < 1:
+        raise ValueError(f"chunk must be >= 1, got {chunk}")
+    camera = camera if camera is not None else Equirect(height, width)
+    if (camera.height, camera.width) != (height, width):
+        raise ValueError(f"camera is {camera.height}x{camera.width} but {height}x{width} was asked for")
+    device = gaussians.device
+    bar = _Progress(len(c2w), desc, unit, progress)
+    try:
+        for start in range(0, len(c2w), chunk):
+            out = render(gaussians, c2w[start:start + chunk].to(device), camera, background=background)
+            bar.update(len(out.rgb))
+            yield RenderOutput(out.rgb.cpu(), out.depth.cpu(), out.alpha.cpu())
+    finally:
+        bar.close()
+
+
 def render_views(
     gaussians: Gaussians,
     c2w: Float[Tensor, "K 4 4"],
@@ -58,13 +126,11 @@ def render_views(
     chunk: int = 4,
     progress: bool = False,
     desc: str = "render",
+    camera: CameraModel | None = None,
 ) -> RenderOutput:
-    """Render ``K`` panoramas in chunks of ``chunk`` cameras (bounded memory); results on the CPU."""
-    device = gaussians.device
-    parts = []
-    for start in tqdm(range(0, len(c2w), chunk), desc=desc, unit="chunk", disable=None if progress else True):  # None: no bar when output is not a terminal
-        out = render_equirect(gaussians, c2w[start:start + chunk].to(device), height, width, background=background)
-        parts.append(RenderOutput(out.rgb.cpu(), out.depth.cpu(), out.alpha.cpu()))
+    """Render ``K`` views (default panoramas; ``camera`` any camera model) in chunks of ``chunk`` cameras
+    (bounded render memory); all results on the CPU, stacked."""
+    parts = list(iter_views(gaussians, c2w, height, width, background, chunk, progress, desc, camera))
     return RenderOutput(*(torch.cat([getattr(p, k) for p in parts]) for k in ("rgb", "depth", "alpha")))
 
 
@@ -97,6 +163,40 @@ def write_view(rgb_path: str | Path, depth_path: str | Path, rgb: Tensor, depth:
     write_rgb(depth_path, colorize_depth(normalized_depth(depth, alpha), near, far, as_uint8=True))
 
 
+def write_metric_depth(npy_path: str | Path | None, png_path: str | Path | None, depth: Tensor, alpha: Tensor,
+                       min_alpha: float = 0.5) -> Tensor:
+    """A rendered view's depth in metres (radial distance along each pixel's ray; 0 where the view is less than
+    ``min_alpha`` covered) as float32 ``.npy`` and/or a 16-bit PNG in millimetres (0 also beyond 65.535 m).
+    Returns the metric depth ``(H, W)``."""
+    metric = normalized_depth(depth, alpha, min_alpha).float()
+    if npy_path is not None:
+        with atomic_path(npy_path) as tmp:
+            with open(tmp, "wb") as f:
+                np.save(f, metric.numpy().astype(np.float32))
+    if png_path is not None:
+        write_depth_png(png_path, metric, scale=DEPTH_PNG_SCALE)
+    return metric
+
+
+def pinhole_intrinsics(height: int, width: int, fov_deg: float = 90.0) -> Tensor:
+    """OpenCV ``K`` (3x3) of a centred pinhole camera with a horizontal field of view of ``fov_deg``
+    (square pixels; pixel centres at ``+0.5``, so the principal point is ``(W/2, H/2)``)."""
+    if not 0 < fov_deg < 180:
+        raise ValueError(f"a pinhole field of view must be between 0 and 180 degrees, got {fov_deg}")
+    f = width / 2 / math.tan(math.radians(fov_deg) / 2)
+    return torch.tensor([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
+
+
+@torch.no_grad()
+def sampled_depth_limits(gaussians: Gaussians, c2w: Float[Tensor, "K 4 4"], samples: int = 4,
+                         size: tuple[int, int] = (32, 64)) -> tuple[float | None, float | None]:
+    """:func:`depth_limits` of small panoramas at up to ``samples`` poses spread over ``c2w``: a colormap
+    range known before the views themselves are rendered (so they can be written as they come)."""
+    index = torch.linspace(0, len(c2w) - 1, min(samples, len(c2w))).round().long().unique()
+    out = render(gaussians, c2w[index].to(gaussians.device), Equirect(*size))
+    return depth_limits(normalized_depth(out.depth, out.alpha).cpu())
+
+
 def write_flythrough(
     path: str | Path,
     gaussians: Gaussians,
@@ -108,9 +208,20 @@ def write_flythrough(
     near: float | None = None,
     far: float | None = None,
     background=(0.0, 0.0, 0.0),
+    camera: CameraModel | None = None,
+    poses: Float[Tensor, "K 4 4"] | None = None,
+    chunk: int = 2,
+    progress: bool = True,
 ) -> Path:
-    """Render a looped path through the cameras ``c2w`` (RGB above depth per frame) and save it as a video."""
-    poses = flythrough_path(c2w, frames, loop=True)
-    out = render_views(gaussians, poses, height, width, background, progress=True, desc="fly-through")
-    pictures = [view_picture(out.rgb[i], out.depth[i], out.alpha[i], near, far) for i in range(len(poses))]
-    return write_video(path, pictures, fps=fps)
+    """Render a looped path of ``frames`` poses through the cameras ``c2w`` (or exactly the poses ``poses``,
+    one frame each) as RGB above depth and stream the frames into a video (``.gif``, or ``.mp4``/``.webm``
+    with ffmpeg): ``chunk`` frames are rendered at a time and written at once, so memory never holds the
+    whole video. ``camera``: default panoramas, or e.g. ``Pinhole(K, height, width)`` for a perspective
+    fly-through. Returns the video's path; nothing is left at ``path`` if rendering or writing fails."""
+    if poses is None:
+        poses = flythrough_path(c2w, frames, loop=True)
+    with VideoWriter(path, fps) as video:
+        for out in iter_views(gaussians, poses, height, width, background, chunk, progress, "fly-through", camera, "frame"):
+            for i in range(len(out.rgb)):
+                video.append(view_picture(out.rgb[i], out.depth[i], out.alpha[i], near, far))
+    return video.path

@@ -1,16 +1,39 @@
-"""Writing fly-through videos: GIF with Pillow (always there), MP4 when an imageio backend exists."""
+"""Writing fly-through videos frame by frame: GIF with Pillow (always there), MP4/WebM/MKV through ffmpeg.
+
+:class:`VideoWriter` sends every appended frame straight to the file (a GIF is encoded frame by
+frame, an MP4 is piped to an ``ffmpeg`` process from ``imageio-ffmpeg``), so a fly-through of any
+length holds one frame in memory, not all of them. The video is written under a temporary name in
+the same folder and renamed when complete: an interrupted or failed write leaves no half-written
+file (and an earlier video at the path intact).
+"""
 
 from __future__ import annotations
 
+import contextlib
+import struct
+import sys
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
 from ..utils.atomic import atomic_path
 
-__all__ = ["write_video", "check_video_format"]
+__all__ = ["VideoWriter", "write_video", "check_video_format", "ffmpeg_available", "video_path_with_fallback"]
 
 VIDEO_SUFFIXES = (".gif", ".mp4", ".webm", ".mkv")
+FFMPEG_HINT = "`pip install imageio-ffmpeg` (the `video` extra: `pip install cylindersplat[video]`)"
+
+
+def ffmpeg_available() -> bool:
+    """Whether ``imageio-ffmpeg`` and its ffmpeg binary are there (needed for .mp4/.webm/.mkv)."""
+    try:
+        import imageio_ffmpeg
+
+        imageio_ffmpeg.get_ffmpeg_exe()
+    except (ImportError, RuntimeError, OSError):
+        return False
+    return True
 
 
 def check_video_format(path: str | Path) -> None:
@@ -18,35 +41,166 @@ def check_video_format(path: str | Path) -> None:
     suffix = Path(path).suffix.lower()
     if suffix not in VIDEO_SUFFIXES:
         raise ValueError(f"{path}: video must be .gif, .mp4, .webm or .mkv")
-    if suffix == ".gif":
-        return
-    try:
-        import imageio_ffmpeg  # noqa: F401  (the backend imageio uses for mp4/webm/mkv)
-    except ImportError:
-        raise ValueError(f"cannot write {suffix} videos: no ffmpeg backend; install it with "
-                         "`pip install imageio[ffmpeg]` (or `pip install cylindersplat[video]`), or write a .gif") from None
+    if suffix != ".gif" and not ffmpeg_available():
+        raise ValueError(f"cannot write {suffix} videos: no ffmpeg backend; install it with {FFMPEG_HINT}, or write a .gif")
 
 
-def write_video(path: str | Path, frames: list[np.ndarray], fps: int = 12) -> Path:
-    """Save uint8 ``(H, W, 3)`` frames as ``.gif`` or ``.mp4``/``.webm`` (needs ``pip install imageio[ffmpeg]``)."""
+def video_path_with_fallback(path: str | Path) -> tuple[Path, str | None]:
+    """``(path, None)`` when its format can be written here, else ``(path with .gif, one-line reason)``.
+
+    Unknown suffixes are still an error (:func:`check_video_format`).
+    """
     path = Path(path)
-    if not frames:
-        raise ValueError("no frames to write")
-    check_video_format(path)
-    suffix = path.suffix.lower()
-    with atomic_path(path) as tmp:  # a failed write leaves no truncated video (and an earlier one intact)
-        if suffix == ".gif":
-            from PIL import Image
+    try:
+        check_video_format(path)
+    except ValueError:
+        if path.suffix.lower() not in VIDEO_SUFFIXES:
+            raise
+        gif = path.with_suffix(".gif")
+        return gif, f"no ffmpeg for {path.suffix} videos, writing {gif.name} instead; for {path.suffix}: {FFMPEG_HINT}"
+    return path, None
 
-            images = [Image.fromarray(f) for f in frames]
-            images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=round(1000 / fps), loop=0,
-                           optimize=False)
-            return path
-        import imageio.v3 as iio
 
+class _GifStream:
+    """An animated GIF written one frame at a time (each frame with its own 256-colour palette)."""
+
+    def __init__(self, path: Path, fps: float) -> None:
+        self._file = open(path, "wb")  # noqa: SIM115 - closed in close()
+        self._duration = max(1, round(1000 / fps))  # GIF delays are in 1/100 s; Pillow rounds
+        self._size: tuple[int, int] | None = None
+
+    def append(self, frame: np.ndarray) -> None:
+        from PIL import GifImagePlugin, Image
+
+        h, w = frame.shape[:2]
+        if self._size is None:
+            self._size = (h, w)
+            # Header, logical screen (no global colour table: every frame brings its own), loop forever.
+            self._file.write(b"GIF89a" + struct.pack("<HHBBB", w, h, 0, 0, 0))
+            self._file.write(b"!\xff\x0bNETSCAPE2.0\x03\x01" + struct.pack("<H", 0) + b"\x00")
+        # The same adaptive palette Pillow's GIF saver picks for an RGB frame.
+        image = Image.fromarray(frame).convert("P", palette=Image.Palette.ADAPTIVE, colors=256)
+        for chunk in GifImagePlugin.getdata(image, (0, 0), duration=self._duration, include_color_table=True):
+            self._file.write(chunk)
+
+    def close(self) -> None:
+        if self._size is not None:
+            self._file.write(b";")  # trailer
+        self._file.close()
+
+    def abort(self) -> None:
+        self._file.close()
+
+
+class _FfmpegStream:
+    """Frames piped to an ffmpeg process (imageio-ffmpeg): H.264 for .mp4/.mkv, VP9 for .webm."""
+
+    def __init__(self, path: Path, fps: float) -> None:
+        self._path, self._fps = path, fps
+        self._writer = None
+        self._size: tuple[int, int] | None = None
+
+    def append(self, frame: np.ndarray) -> None:
+        import imageio_ffmpeg
+
+        if frame.shape[0] % 2 or frame.shape[1] % 2:  # yuv420p needs even sizes: repeat the last row/column
+            frame = np.pad(frame, ((0, frame.shape[0] % 2), (0, frame.shape[1] % 2), (0, 0)), mode="edge")
+        if self._writer is None:
+            self._size = frame.shape[:2]
+            codec = "libvpx-vp9" if self._path.suffix.lower() == ".webm" else "libx264"
+            self._writer = imageio_ffmpeg.write_frames(str(self._path), (frame.shape[1], frame.shape[0]), fps=self._fps,
+                                                       codec=codec, macro_block_size=1, quality=8,
+                                                       ffmpeg_log_level="error")
+            self._writer.send(None)  # start ffmpeg
         try:
-            iio.imwrite(tmp, np.stack(frames), fps=fps, codec="libx264" if suffix == ".mp4" else None)
-        except Exception as exc:  # noqa: BLE001 - which backend fails varies; say what to do
-            raise ValueError(f"cannot write {path} ({type(exc).__name__}: {exc}); install a video backend with "
-                             "`pip install imageio[ffmpeg]` or write a .gif") from exc
-    return path
+            self._writer.send(np.ascontiguousarray(frame, dtype=np.uint8).tobytes())
+        except (BrokenPipeError, RuntimeError) as exc:  # ffmpeg stopped (codec missing, bad size, ...)
+            raise ValueError(f"ffmpeg could not write {self._path.suffix} video ({type(exc).__name__}: {exc}); "
+                             "write a .gif instead") from exc
+        except OSError as exc:
+            if exc.errno is not None:  # disk full, permissions: reported as such by the CLI
+                raise
+            raise ValueError(f"ffmpeg could not write {self._path.suffix} video ({exc}); write a .gif instead") from exc
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()  # waits for ffmpeg to finish the file
+
+    def abort(self) -> None:
+        with contextlib.suppress(Exception):
+            self.close()
+
+
+class VideoWriter:
+    """``with VideoWriter("fly.gif", fps=12) as video: video.append(frame)`` for uint8 ``(H, W, 3)`` frames.
+
+    Frames go to the file as they come (memory holds one frame); the file appears under ``path``
+    only when the block ends without an error. ``.gif`` always works; ``.mp4``/``.webm``/``.mkv``
+    need ``imageio-ffmpeg`` (:func:`video_path_with_fallback` picks a GIF when it is missing).
+    """
+
+    def __init__(self, path: str | Path, fps: float = 12) -> None:
+        self.path = Path(path)
+        check_video_format(self.path)
+        if not fps > 0:
+            raise ValueError(f"fps must be positive, got {fps}")
+        self.fps = fps
+        self.frames = 0
+        self._stack: contextlib.ExitStack | None = None
+        self._stream = None
+        self._size: tuple[int, ...] | None = None
+
+    def __enter__(self) -> "VideoWriter":
+        self._stack = contextlib.ExitStack()
+        tmp = self._stack.enter_context(atomic_path(self.path))
+        try:
+            self._stream = (_GifStream if self.path.suffix.lower() == ".gif" else _FfmpegStream)(tmp, self.fps)
+        except BaseException:
+            self._stack.__exit__(*sys.exc_info())
+            raise
+        return self
+
+    def append(self, frame: np.ndarray) -> None:
+        if self._stream is None:
+            raise RuntimeError("use VideoWriter in a `with` block")
+        frame = np.asarray(frame)
+        if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+            raise ValueError(f"video frames must be uint8 (H, W, 3), got {frame.dtype} {frame.shape}")
+        if self._size is None:
+            self._size = frame.shape
+        elif frame.shape != self._size:
+            raise ValueError(f"every video frame must have the same size; frame {self.frames} is {frame.shape[:2]}, "
+                             f"the first was {self._size[:2]}")
+        self._stream.append(frame)
+        self.frames += 1
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        stream, stack = self._stream, self._stack
+        self._stream = self._stack = None
+        if exc_type is None and self.frames == 0:
+            exc_type, exc = ValueError, ValueError(f"no frames to write to {self.path}")
+            stream.abort()
+            stack.__exit__(exc_type, exc, None)
+            raise exc
+        if exc_type is None:
+            try:
+                stream.close()
+            except BaseException as error:  # noqa: BLE001 - ffmpeg failed: drop the temporary file, report
+                stack.__exit__(type(error), error, error.__traceback__)
+                if isinstance(error, (RuntimeError, BrokenPipeError)):  # ffmpeg gave up
+                    raise ValueError(f"cannot write {self.path} ({type(error).__name__}: {error})") from error
+                raise
+            stack.close()  # rename the finished file into place
+            return False
+        stream.abort()
+        stack.__exit__(exc_type, exc, tb)  # removes the temporary file
+        return False
+
+
+def write_video(path: str | Path, frames: Iterable[np.ndarray], fps: int = 12) -> Path:
+    """Save uint8 ``(H, W, 3)`` frames (a list or any iterable, consumed one at a time) as ``.gif`` or
+    ``.mp4``/``.webm``/``.mkv`` (needs ``imageio-ffmpeg``)."""
+    with VideoWriter(path, fps) as video:
+        for frame in frames:
+            video.append(frame)
+    return video.path

@@ -9,7 +9,7 @@ import json
 from pathlib import Path
 
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file, save
 from safetensors import safe_open
 
 from .config import config_from_dict, config_to_dict
@@ -21,22 +21,65 @@ CONFIG_KEY = "cylindersplat_config"
 
 
 def save_model(model: CylinderSplat, path: str | Path) -> None:
+    """Weights + config as one ``.safetensors``, written atomically (a failure keeps an earlier file)."""
+    from ..utils.atomic import atomic_write_bytes
+
     state = {k: v.detach().contiguous().cpu() for k, v in model.state_dict().items()}
     # The branch mode in use (e.g. "pixel" after curriculum stage 1) travels with the weights.
     config = model.config.replace(mode=model.mode)
-    save_file(state, str(path), metadata={CONFIG_KEY: json.dumps(config_to_dict(config))})
+    atomic_write_bytes(path, save(state, metadata={CONFIG_KEY: json.dumps(config_to_dict(config))}))
+
+
+WEIGHTS_HINT = "give the model.safetensors written by `cylindersplat train` or the demo"
+
+
+def check_weights_file(path: str | Path) -> None:
+    """Refuse, by name and with what to give instead, a folder, a missing file or a PyTorch pickle."""
+    path = Path(path)
+    if path.is_dir():
+        inside = sorted(path.glob("model.safetensors")) or sorted(path.glob("*/model.safetensors"))
+        hint = f"e.g. {inside[-1]}" if inside else WEIGHTS_HINT
+        raise ValueError(f"{path} is a folder, not a weights file: {hint}")
+    if not path.is_file():
+        raise FileNotFoundError(f"weights file not found: {path} ({WEIGHTS_HINT})")
+    with open(path, "rb") as f:
+        head = f.read(9)  # safetensors: 8 bytes of header length, then the JSON header
+    if head[8:9] != b"{" and (head[:2] == b"PK" or head[:1] == b"\x80"):  # torch.save's zip archive / a raw pickle
+        raise ValueError(f"{path} is a PyTorch pickle (torch.save), not a .safetensors file; cylindersplat never "
+                         f"unpickles weights: {WEIGHTS_HINT}")
+    if len(head) < 9:
+        raise ValueError(f"{path} is not a .safetensors weights file ({path.stat().st_size} bytes): {WEIGHTS_HINT}")
 
 
 def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> CylinderSplat:
-    with safe_open(str(path), framework="pt") as f:
-        metadata = f.metadata() or {}
+    """The model saved by :func:`save_model`. A folder, a missing, truncated, foreign or diverged file, or
+    weights that do not fit their stored config raise ``ValueError``/``FileNotFoundError`` naming ``path``."""
+    path = Path(path)
+    check_weights_file(path)
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            metadata = f.metadata() or {}
+    except Exception as exc:  # noqa: BLE001 - SafetensorError and its kin: truncated, random bytes, ...
+        raise ValueError(f"{path} is not a readable .safetensors file ({exc}); is it complete? {WEIGHTS_HINT}") from None
     if CONFIG_KEY not in metadata:
-        raise ValueError(f"{path} has no {CONFIG_KEY!r} metadata; was it written by save_model?")
-    model = CylinderSplat(config_from_dict(json.loads(metadata[CONFIG_KEY])))
-    state = load_file(str(path), device=str(map_location))
+        raise ValueError(f"{path} has no {CONFIG_KEY!r} metadata; was it written by save_model? ({WEIGHTS_HINT})")
+    try:
+        config = config_from_dict(json.loads(metadata[CONFIG_KEY]))
+        model = CylinderSplat(config)
+    except (ValueError, TypeError, AttributeError) as exc:  # JSON errors are ValueErrors
+        raise ValueError(f"{path}: its model config cannot be read by this version of cylindersplat ({exc})") from None
+    try:
+        state = load_file(str(path), device=str(map_location))
+    except Exception as exc:  # noqa: BLE001 - truncated tensor data
+        raise ValueError(f"{path}: cannot read its tensors ({exc}); is the file complete? {WEIGHTS_HINT}") from None
     bad = [name for name, tensor in state.items() if tensor.is_floating_point() and not torch.isfinite(tensor).all()]
     if bad:  # what a diverged run leaves; it would render nothing without a word
         raise ValueError(f"{path}: {len(bad)} weight tensors contain NaN/inf (e.g. {bad[0]}); the training run "
                          "diverged: use an earlier checkpoint or retrain with a lower learning rate")
-    model.load_state_dict(state)
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as exc:  # missing/unexpected keys, shapes: weights of another architecture
+        first = " ".join(str(exc).split())[:160]
+        raise ValueError(f"{path}: the weights do not match the model config stored with them ({first}...); "
+                         f"was the file assembled by hand? {WEIGHTS_HINT}") from None
     return model.to(map_location)

@@ -81,6 +81,9 @@ class PixelBranchConfig:
     max_log_depth_offset: float = 0.7  # refined = prior * exp(max * tanh(.)): factor in [0.5, 2]
     min_depth: float = 0.05  # radial depth floor (m) when the prior is missing everywhere
     scale_range: tuple[float, float] = (0.25, 4.0)  # Gaussian std-dev in units of the pixel footprint
+    # > 0: pixel opacity x exp(-g^2 / (2 edge_sigma^2)), g = largest |log depth| step to a neighbour pixel;
+    # fades the "flying" Gaussians a smooth depth map strings across occlusion boundaries (0 = off)
+    edge_sigma: float = 0.0
 
 
 @dataclass

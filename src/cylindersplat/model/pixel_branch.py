@@ -32,7 +32,24 @@ from .backbone import ConvNormAct, PanoConv2d, ResNetBackbone, pano_pad
 from .config import ModelConfig
 from .gaussian_heads import PixelGaussianHead
 
-__all__ = ["PixelBranchOutput", "fill_depth_prior", "encode_inputs", "RayEmbedding", "PanoDecoder", "PixelBranch"]
+__all__ = ["PixelBranchOutput", "depth_edge_confidence", "fill_depth_prior", "encode_inputs", "RayEmbedding", "PanoDecoder", "PixelBranch"]
+
+
+def depth_edge_confidence(depth: Float[Tensor, "N H W"], sigma: float) -> Float[Tensor, "N H W"]:
+    """``exp(-g^2 / (2 sigma^2))`` with ``g`` the largest ``|log d - log d_n|`` over the 8 neighbours
+    (columns wrap around the seam; the top and bottom rows compare with themselves).
+
+    A depth map that is smooth across an occlusion boundary puts pixels between the foreground and
+    the background; their Gaussians, seen from another viewpoint, string across the disoccluded
+    region. This factor fades exactly them (flat or slanted surfaces have small steps)."""
+    log_depth = depth.clamp_min(1e-6).log()[:, None]
+    padded = F.pad(F.pad(log_depth, (1, 1, 0, 0), mode="circular"), (0, 0, 1, 1), mode="replicate")
+    h, w = depth.shape[-2:]
+    step = torch.zeros_like(log_depth)
+    for dy in range(3):
+        for dx in range(3):
+            step = torch.maximum(step, (padded[..., dy : dy + h, dx : dx + w] - log_depth).abs())
+    return torch.exp(-0.5 * (step[:, 0] / sigma) ** 2)
 
 
 def fill_depth_prior(prior: Float[Tensor, "N H W"], min_depth: float) -> tuple[Tensor, Tensor]:
@@ -166,6 +183,9 @@ class PixelBranch(nn.Module):
         params = None
         if predict_gaussians:
             params = self.gaussian_head(features, flat_images, depth)
+            if self.cfg.edge_sigma > 0:  # fade flying pixels at depth discontinuities (config docstring)
+                edge = depth_edge_confidence(depth.detach(), self.cfg.edge_sigma)
+                params["opacities"] = params["opacities"] * edge.flatten(1)
             params = {k: t.reshape(b, v, h * w, -1) for k, t in params.items()}
             params["opacities"] = params["opacities"].squeeze(-1)
         return PixelBranchOutput(

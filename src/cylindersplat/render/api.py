@@ -138,13 +138,16 @@ def render(
     out_shape = _output_shape(gaussians, c2w)
     num_cameras = math.prod(out_shape)
     if num_cameras == 0:
-        raise ValueError("c2w holds no cameras")
+        raise ValueError(f"c2w holds no cameras (shape {tuple(c2w.shape)}); give at least one 4x4 camera-to-world pose")
     if background is not None:
-        background = torch.as_tensor(background, dtype=gaussians.dtype, device=gaussians.device)
+        try:
+            background = torch.as_tensor(background, dtype=gaussians.dtype, device=gaussians.device)
+        except (TypeError, ValueError, RuntimeError):
+            raise TypeError(f"background must be RGB numbers in [0, 1] (3 floats or a tensor), got {background!r:.80}") from None
         if background.shape[-1:] != (3,) or background.numel() not in (3, 3 * num_cameras):
             raise ValueError(f"background must be RGB, (3,) or one per camera {(*out_shape, 3)}, got {tuple(background.shape)}")
         if not torch.isfinite(background).all():
-            raise ValueError("background must be finite")
+            raise ValueError(f"background must be finite (RGB in [0, 1]), got {background.tolist() if background.numel() <= 12 else 'NaN/inf values'}")
     fn = _pick_backend(backend, gaussians.device)
     proj = camera.project(gaussians, c2w, settings)
     if proj.camera.numel() == 0 and gaussians.means.shape[-2] > 0 and isinstance(camera, Equirect):

@@ -11,6 +11,7 @@ The ``latest`` pointer is written last, so a crash while saving leaves the previ
 
 from __future__ import annotations
 
+import io
 import random
 import shutil
 from pathlib import Path
@@ -20,11 +21,13 @@ import numpy as np
 import torch
 
 from ..model import CylinderSplat, save_model
+from ..utils.atomic import atomic_write_bytes, atomic_write_text
 
 __all__ = ["capture_rng", "restore_rng", "save_checkpoint", "resolve_checkpoint", "read_state", "prune_checkpoints"]
 
 MODEL_FILE = "model.safetensors"
 STATE_FILE = "state.pt"
+STATE_KEYS = ("stages", "global_step", "stage_index", "stage_step", "optimizer", "scheduler", "rng")
 
 
 def capture_rng() -> dict[str, Any]:
@@ -54,10 +57,10 @@ def save_checkpoint(folder: str | Path, model: CylinderSplat, state: dict[str, A
     target = root / f"step_{state['global_step']:07d}"
     target.mkdir(parents=True, exist_ok=True)
     save_model(model, target / MODEL_FILE)
-    torch.save(state, target / STATE_FILE)
-    pointer = root / "latest.tmp"
-    pointer.write_text(target.name + "\n")
-    pointer.replace(root / "latest")
+    buffer = io.BytesIO()  # in memory first: a full disk is then an OSError naming the file, and nothing half-written
+    torch.save(state, buffer)
+    atomic_write_bytes(target / STATE_FILE, buffer.getbuffer())
+    atomic_write_text(root / "latest", target.name + "\n")
     return target
 
 
@@ -76,7 +79,20 @@ def resolve_checkpoint(path: str | Path) -> Path:
 
 
 def read_state(folder: Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
-    return torch.load(folder / STATE_FILE, map_location=map_location, weights_only=True)
+    """The resume state saved by :func:`save_checkpoint`; a truncated, foreign or incomplete file raises
+    ``ValueError`` naming it (and what to do)."""
+    path = Path(folder) / STATE_FILE
+    advice = "resume from an earlier step_* folder of the run (its checkpoints/) or start anew with --overwrite"
+    try:
+        state = torch.load(path, map_location=map_location, weights_only=True)
+    except OSError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - truncated, foreign, random bytes: the unpickler fails in any way
+        raise ValueError(f"{path}: cannot read this training state ({' '.join(str(exc).split())[:200]}); {advice}") from None
+    missing = [key for key in STATE_KEYS if key not in state] if isinstance(state, dict) else list(STATE_KEYS)
+    if missing:
+        raise ValueError(f"{path} is not a training state written by cylindersplat (no {', '.join(missing)}); {advice}")
+    return state
 
 
 def prune_checkpoints(folder: str | Path, keep: int) -> None:

@@ -17,12 +17,14 @@ from typing import Any, Literal
 
 import yaml
 
+from ..data.datasets import check_reference_spec
 from ..model.config import ModelConfig, config_to_dict, get_config
 from .losses import LossConfig
 
 __all__ = [
     "DataConfig",
     "TrainConfig",
+    "EvalConfig",
     "ExperimentConfig",
     "CONFIG_DIR",
     "available_presets",
@@ -42,7 +44,10 @@ class DataConfig:
     resolution: tuple[int, int] | None = None  # (H, W) resize on load; None = stored size
     split: str = "train"  # pano_grf / loc360 split
     views: str = "two_view"  # protocol of cylindersplat.data.select_views
-    depth_prior: str = "default"  # "default" (the dataset's) or a name of cylindersplat.data.depth_prior
+    # The model's input prior: "default" (the dataset's own: simulated for synthetic data, else an error asking for a
+    # choice), file:NAME (from `cylindersplat data priors`), simulated, gt, constant:M, none, or a network spec
+    # (unik3d:DIR, exported:NET.pt2, depth_anything_v2:MODEL)
+    depth_prior: str = "default"
     options: dict[str, Any] = field(default_factory=dict)  # extra loader kwargs, e.g. {dist: 1.0}
     batch_size: int = 1  # per process
     num_workers: int = 0
@@ -79,6 +84,13 @@ class TrainConfig:
 
 
 @dataclass
+class EvalConfig:
+    # Reference depth of the PCC column (`cylindersplat eval --config PRESET` / --pcc-reference): gt (the dataset's
+    # ground truth) or file:NAME (e.g. file:depth_anywhere, the paper's reference, from `cylindersplat data priors`)
+    pcc_reference: str = "gt"
+
+
+@dataclass
 class ExperimentConfig:
     name: str = "experiment"
     output_dir: str = "outputs/train"
@@ -86,6 +98,7 @@ class ExperimentConfig:
     data: DataConfig = field(default_factory=DataConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     loss: LossConfig = field(default_factory=LossConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
 
     def steps_for(self, stage: int, batches_per_epoch: int | None = None) -> int:
         """Optimizer steps of curriculum ``stage``."""
@@ -208,6 +221,8 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     bad = [s for s in cfg.train.stages if s not in (1, 2, 3)]
     if bad or not cfg.train.stages:
         raise ValueError(f"train.stages must be a non-empty list of 1, 2, 3; got {cfg.train.stages}")
+    check_reference_spec(cfg.loss.depth_reference, "loss.depth_reference")
+    check_reference_spec(cfg.eval.pcc_reference, "eval.pcc_reference", allowed=("gt",))
     if cfg.loss.occluded_weight < 0:
         raise ValueError(f"loss.occluded_weight must be >= 0, got {cfg.loss.occluded_weight}")
     if cfg.train.stage2_render not in ("volume", "fused"):

@@ -13,32 +13,23 @@ from collections.abc import Iterator
 import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
-from ..data import Loc360Dataset, PanoGRFDataset, SyntheticDataset, collate_samples
-from ..data.depth_prior import parse_depth_prior, require_depth_prior
+from ..data import collate_samples
+from ..data.datasets import make_dataset
 from .config import DataConfig
+from .losses import LossConfig
 
 __all__ = ["build_dataset", "ResumableBatchSampler", "build_loader"]
 
 
-def build_dataset(cfg: DataConfig) -> Dataset:
+def build_dataset(cfg: DataConfig, loss: LossConfig | None = None) -> Dataset:
+    """The dataset of ``data.*`` (layouts: :data:`cylindersplat.data.DATASETS`), delivering the depth loss's
+    reference (``loss.depth_reference``) when ``loss`` is given and its depth term is on. Missing priors,
+    prior files or reference depths fail here, before any step."""
     if not cfg.root:
         raise ValueError("data.root is not set: give a dataset folder (e.g. from `cylindersplat data synth`)")
-    kwargs = dict(cfg.options)
-    if cfg.resolution is not None:
-        kwargs["resolution"] = tuple(cfg.resolution)
-    if cfg.depth_prior != "default":
-        kwargs["depth_prior"] = parse_depth_prior(cfg.depth_prior)  # a name or name:value, e.g. unik3d:/weights
-    if cfg.format == "synthetic":
-        dataset = SyntheticDataset(cfg.root, views=cfg.views, **kwargs)
-    elif cfg.format == "pano_grf":
-        dataset = PanoGRFDataset(cfg.root, split=cfg.split, views=cfg.views, **kwargs)
-    elif cfg.format == "loc360":
-        dataset = Loc360Dataset(cfg.root, split=cfg.split, **kwargs)
-    else:
-        raise ValueError(f"unknown data.format {cfg.format!r}; expected synthetic, pano_grf or loc360")
-    if cfg.depth_prior == "default":
-        require_depth_prior(dataset, "data.depth_prior")  # never train on all-zero priors by default
-    return dataset
+    reference = loss.depth_reference if loss is not None and loss.depth_l1 > 0 else "none"
+    return make_dataset(cfg.format, cfg.root, views=cfg.views, split=cfg.split, resolution=cfg.resolution,
+                        depth_prior=cfg.depth_prior, reference=reference, **cfg.options)
 
 
 class ResumableBatchSampler(Sampler[list[int]]):

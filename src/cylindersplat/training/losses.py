@@ -2,9 +2,11 @@
 
     L_render = |I_hat - I_gt|_1 + 0.05 * LPIPS(I_hat, I_gt) + 0.1 * |D_hat - D_ref|_1
 
-``D_hat`` is the rendered radial depth, ``D_ref`` the reference depth of the target view (UniK3D in
-the paper; whatever the dataset puts in ``Sample.target_depths`` here). The depth term is averaged
-over pixels where the reference is valid (> 0). The LPIPS term needs VGG/LPIPS weights on disk
+``D_hat`` is the rendered radial depth, ``D_ref`` the reference depth of the target view, chosen by
+``loss.depth_reference`` (:func:`reference_depths`): ``prior`` (the input prior computed for the
+target views -- UniK3D in the paper), ``gt`` (the dataset's ground truth), ``file:NAME`` (files from
+``cylindersplat data priors``) or ``none`` (no depth term). The depth term is averaged over pixels
+where the reference is valid (> 0). The LPIPS term needs VGG/LPIPS weights on disk
 (:func:`cylindersplat.metrics.load_lpips`); ``lpips="auto"`` uses it only when they are found.
 """
 
@@ -19,7 +21,7 @@ import torch
 from jaxtyping import Float
 from torch import Tensor, nn
 
-__all__ = ["LossConfig", "RenderLoss", "LossTerms"]
+__all__ = ["LossConfig", "RenderLoss", "LossTerms", "reference_depths"]
 
 
 @dataclass
@@ -33,14 +35,31 @@ class LossConfig:
     # also pushes coverage up where the reference sees a surface; True divides by alpha first.
     normalize_depth: bool = False
     # Extra weight of the RGB L1 on target pixels no context view sees (1 + w there): completion is
-    # supervised where only it can be right; 0 = off. Needs reference depths of targets and contexts.
+    # supervised where only it can be right; 0 = off. Needs ground-truth depths of targets and contexts.
     occluded_weight: float = 0.0
+    # D_ref of the depth term: gt (dataset ground truth), prior (the input prior of the target views,
+    # the paper's UniK3D), file:NAME (precomputed files) or none. Unavailable -> error at start-up.
+    depth_reference: str = "gt"
 
 
 @dataclass
 class LossTerms:
     total: Tensor  # scalar, differentiable
     parts: dict[str, float]  # unweighted terms, detached, for logging
+
+
+def reference_depths(batch, depth_reference: str) -> Tensor | None:
+    """The depth loss's ``D_ref`` of a (batched) Sample for ``loss.depth_reference``; ``None`` for ``none``."""
+    if depth_reference == "none":
+        return None
+    if depth_reference == "gt":
+        depth, what = batch.target_depths, "ground-truth depth of the targets"
+    else:
+        depth, what = getattr(batch, "target_reference_depths", None), f"{depth_reference} reference depth"
+    if depth is None:
+        raise ValueError(f"loss.depth_reference={depth_reference}: this batch has no {what}; build the dataset with "
+                         "cylindersplat.training.data.build_dataset(data, loss) (or choose loss.depth_reference=none)")
+    return depth
 
 
 class RenderLoss(nn.Module):

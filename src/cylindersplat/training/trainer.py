@@ -36,7 +36,7 @@ from .config import ExperimentConfig, config_as_dict
 from .data import ResumableBatchSampler, build_dataset, build_loader
 from .distributed import cleanup_distributed, init_distributed, unwrap, wrap_ddp
 from .logger import MetricLogger
-from .losses import LossTerms, RenderLoss
+from .losses import LossTerms, RenderLoss, reference_depths
 from .schedule import cosine_schedule
 
 __all__ = ["Trainer", "batch_to_device", "select_device"]
@@ -100,7 +100,7 @@ class Trainer:
         self.output_dir = Path(config.output_dir)
         self.model = CylinderSplat(config.model).to(self.device)
         self.loss_fn = RenderLoss(config.loss, self.device)
-        self.dataset = dataset if dataset is not None else build_dataset(config.data)
+        self.dataset = dataset if dataset is not None else build_dataset(config.data, config.loss)
         if len(self.dataset) == 0:
             raise ValueError("the training dataset is empty")
         self.use_bf16 = self._autocast_enabled()
@@ -184,7 +184,8 @@ class Trainer:
                 background=tuple(self.config.train.background), backend=self.config.train.render_backend,
             )
             self._last_render = (render, batch)
-            return self.loss_fn(render.rgb, render.depth, render.alpha, batch.target_images, batch.target_depths,
+            reference = reference_depths(batch, self.config.loss.depth_reference) if self.config.loss.depth_l1 > 0 else None
+            return self.loss_fn(render.rgb, render.depth, render.alpha, batch.target_images, reference,
                                 pixel_weight=self._occluded_weights(batch))
 
     def _occluded_weights(self, batch: Sample) -> Tensor | None:

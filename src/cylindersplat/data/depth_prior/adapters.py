@@ -1,27 +1,35 @@
-"""Adapters for panoramic depth foundation models (UniK3D, Depth Anywhere, UniFuse).
+"""Depth networks as depth priors: exported models, UniK3D, Depth Anything V2.
 
-Nothing is ever downloaded. An adapter is usable only when its Python package is importable
-*and* its weights exist at a local path the user gives; otherwise constructing it raises a clear
-error saying what to install and where to put the weights. Subclasses implement
-:meth:`FoundationDepthAdapter.load` and :meth:`FoundationDepthAdapter.predict`.
+Every adapter is a :class:`NetworkDepthPrior`: ``prior(query)`` gives one view's radial depth in
+metres, ``prior.predict_batch(images)`` several at once (``cylindersplat data priors`` runs a
+network once over a dataset this way and stores the result as files), and ``prior.describe()``
+says which network and which weights made the depth (recorded next to the files).
 
 * :class:`ExportedDepthPrior` runs *any* depth network exported once with ``torch.export.save``
   (``.pt2``) or TorchScript (``.pt``) — the route for Depth Anywhere, UniFuse or your own model:
   export where the model's code lives, then only that file is needed here.
-* :class:`UniK3DAdapter` calls the ``unik3d`` package directly (``UniK3D.from_pretrained`` on a
-  local checkpoint folder, a full-sphere ``Spherical`` camera, the ``distance`` output = radial depth).
-* :class:`DepthAnywhereAdapter`, :class:`UniFuseAdapter`: availability checks only; their research
-  code has no stable inference API, so ``load`` explains the TorchScript export route instead.
+* :class:`UniK3DAdapter` calls the ``unik3d`` package (``UniK3D.from_pretrained`` on a local
+  checkpoint folder or a hub id, a full-sphere ``Spherical`` camera, the ``distance`` output =
+  radial depth).
+* :class:`DepthAnythingV2Adapter` calls Depth Anything V2 through ``transformers``
+  (``AutoModelForDepthEstimation`` on a local model folder or a hub id). Metric checkpoints give
+  metres; relative ones give disparity up to scale and shift, turned into depth ``1 / disparity``
+  scaled so that its median is ``median_depth`` metres (no metric scale: a weak prior).
 
-Alternatively run any model offline and store its output next to the panoramas for
-:class:`~cylindersplat.data.depth_prior.files.FilePrior`.
+A missing package or missing weights is an error saying what to install or where the weights should
+be (``ModuleNotFoundError`` / ``FileNotFoundError``, one line on the command line). A local folder
+never touches the network; a hub id (``org/name``) is fetched by the package's own
+``from_pretrained`` when it is not cached.
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib
+import importlib.metadata
 import importlib.util
 import math
+import re
 import warnings
 import zipfile
 from pathlib import Path
@@ -34,7 +42,31 @@ from torch import Tensor
 from ..io import resize_depth
 from .base import DepthPrior, PriorQuery
 
-__all__ = ["FoundationDepthAdapter", "UniK3DAdapter", "DepthAnywhereAdapter", "UniFuseAdapter", "ExportedDepthPrior"]
+__all__ = ["NetworkDepthPrior", "FoundationDepthAdapter", "UniK3DAdapter", "DepthAnythingV2Adapter",
+           "ExportedDepthPrior", "file_sha256"]
+
+_HUB_ID = re.compile(r"[A-Za-z0-9][\w.-]*/[\w.-]+")
+
+
+def file_sha256(path: str | Path) -> str:
+    """SHA-256 of a file, or of a folder's files (relative names and contents, in name order)."""
+    path = Path(path)
+    digest = hashlib.sha256()
+    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+    for file in files:
+        if file != path:
+            digest.update(file.relative_to(path).as_posix().encode() + b"\0")
+        with open(file, "rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+    return digest.hexdigest()
+
+
+def _package_version(distribution: str) -> str | None:
+    try:
+        return importlib.metadata.version(distribution)
+    except importlib.metadata.PackageNotFoundError:
+        return None
 
 
 def _clean_depth(depth: Tensor, size: tuple[int, int], where: str) -> Tensor:
@@ -52,8 +84,33 @@ def _clean_depth(depth: Tensor, size: tuple[int, int], where: str) -> Tensor:
     return depth
 
 
-class ExportedDepthPrior(DepthPrior):
-    """Any exported depth network: ``(1, 3, h, w)`` image in ``[0, 1]`` -> depth map.
+def _per_image(out: Tensor, count: int, where: str) -> list[Tensor]:
+    """Split a batched network output ``(B, 1, h, w)`` / ``(B, h, w)`` (or one map for ``B = 1``) per image."""
+    if out.ndim == 4 and out.shape[0] == count and out.shape[1] == 1:
+        return list(out[:, 0])
+    if out.ndim == 3 and out.shape[0] == count:
+        return list(out)
+    if count == 1:
+        return [out]
+    raise ValueError(f"{where}: expected depth maps (B, 1, H, W) or (B, H, W) for a batch of {count}, got {tuple(out.shape)}")
+
+
+class NetworkDepthPrior(DepthPrior):
+    """A depth network: one view per call, or a batch with :meth:`predict_batch`."""
+
+    name = "network"
+
+    def predict_batch(self, images: Tensor) -> Tensor:
+        """``(B, 3, H, W)`` panoramas in ``[0, 1]`` -> ``(B, H, W)`` radial depth in metres (0 = unknown)."""
+        return torch.stack([self(PriorQuery(image, None, None, f"batch/{i}")) for i, image in enumerate(images)])
+
+    def describe(self) -> dict:
+        """Which network and weights (with a version or checksum) produce this depth; JSON-ready."""
+        return {"network": self.name}
+
+
+class ExportedDepthPrior(NetworkDepthPrior):
+    """Any exported depth network: ``(B, 3, h, w)`` image in ``[0, 1]`` -> depth map(s).
 
     Args:
         weights: a ``.pt2`` file from ``torch.export.save`` or a ``.pt`` file from ``torch.jit.save``.
@@ -62,6 +119,9 @@ class ExportedDepthPrior(DepthPrior):
         output: ``"depth"`` (radial metres), ``"inverse_depth"`` (1/metres) or ``"log_depth"``.
         scale: multiplies the (converted) depth, e.g. for networks trained in other units.
         mean, std: per-channel input normalisation applied before the call (e.g. ImageNet's).
+
+    A batch is passed to the network in one call; a network exported for batch size 1 is called once
+    per image instead.
     """
 
     name = "exported"
@@ -100,17 +160,21 @@ class ExportedDepthPrior(DepthPrior):
         self.path, self.device, self.input_size, self.output, self.scale = path, device, input_size, output, scale
         self.mean = torch.tensor(mean).view(1, 3, 1, 1) if mean is not None else None
         self.std = torch.tensor(std).view(1, 3, 1, 1) if std is not None else None
+        self._batched = True  # False once the network refused a batch (exported for batch size 1)
+        self._sha256: str | None = None
 
-    @torch.no_grad()
-    def __call__(self, query: PriorQuery) -> Tensor:
-        x = query.image[None].float()
-        if self.input_size is not None and tuple(self.input_size) != query.size:
-            x = F.interpolate(x, size=tuple(self.input_size), mode="bilinear", align_corners=False, antialias=True)
-        if self.mean is not None:
-            x = x - self.mean
-        if self.std is not None:
-            x = x / self.std
-        out = self.module(x.to(self.device))
+    def _run(self, x: Tensor) -> list[Tensor]:
+        try:
+            out = self.module(x.to(self.device))
+        except torch.OutOfMemoryError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a shape guard, a wrong dtype, ...: the user's network and input
+            if len(x) > 1:
+                raise
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ValueError(f"{self.path}: the network failed on a {tuple(x.shape)} input ({first}); a network "
+                             "exported with fixed shapes needs its own input size (input_size=(h, w); "
+                             "`data priors --net-size HxW`)") from exc
         if isinstance(out, (tuple, list)):
             out = out[0]
         if isinstance(out, dict):
@@ -120,64 +184,116 @@ class ExportedDepthPrior(DepthPrior):
             out = torch.where(out > 0, 1.0 / out.clamp_min(1e-8), torch.zeros_like(out))
         elif self.output == "log_depth":
             out = out.exp()
-        return _clean_depth(out * self.scale, query.size, f"depth prior 'exported' ({self.path})")
+        return _per_image(out * self.scale, x.shape[0], f"depth prior 'exported' ({self.path})")
+
+    @torch.no_grad()
+    def predict_batch(self, images: Tensor) -> Tensor:
+        size = tuple(images.shape[-2:])
+        x = images.float()
+        if self.input_size is not None and tuple(self.input_size) != size:
+            x = F.interpolate(x, size=tuple(self.input_size), mode="bilinear", align_corners=False, antialias=True)
+        if self.mean is not None:
+            x = x - self.mean
+        if self.std is not None:
+            x = x / self.std
+        outputs = None
+        if self._batched or len(x) == 1:
+            try:
+                outputs = self._run(x)
+            except Exception:  # noqa: BLE001 - a network exported with batch size 1 refuses more (many error types)
+                if len(x) == 1:
+                    raise
+                self._batched = False
+        if outputs is None:
+            outputs = [o for i in range(len(x)) for o in self._run(x[i : i + 1])]
+        return torch.stack([_clean_depth(o, size, f"depth prior 'exported' ({self.path})") for o in outputs])
+
+    def __call__(self, query: PriorQuery) -> Tensor:
+        return self.predict_batch(query.image[None])[0]
+
+    def describe(self) -> dict:
+        if self._sha256 is None:
+            self._sha256 = file_sha256(self.path)
+        return {"network": self.name, "weights": str(self.path.resolve()), "sha256": self._sha256, "torch": torch.__version__,
+                "output": self.output, "scale": self.scale,
+                "input_size": list(self.input_size) if self.input_size is not None else None,
+                "mean": self.mean.flatten().tolist() if self.mean is not None else None,
+                "std": self.std.flatten().tolist() if self.std is not None else None}
 
 
-class FoundationDepthAdapter(DepthPrior):
-    """Base: checks ``package`` is importable and ``weights`` exists, then lazily loads the model."""
+class FoundationDepthAdapter(NetworkDepthPrior):
+    """Base: checks ``package`` is importable and ``weights`` is a local path or a hub id, loads lazily."""
 
     name = "foundation"
     package = ""  # importable module name
+    distribution = ""  # pip distribution name (for its version), default: package
     install_hint = ""  # how to install the package
-    weights_hint = ""  # which checkpoint file to fetch (by the user) and where it comes from
+    weights_hint = ""  # which checkpoint to give and where it comes from
 
     def __init__(self, weights: str | Path | None = None, device: str = "cpu") -> None:
         if importlib.util.find_spec(self.package) is None:
-            raise ImportError(
+            raise ModuleNotFoundError(
                 f"depth prior {self.name!r} needs the Python package '{self.package}', which is not installed: "
-                f"{self.install_hint}"
+                f"{self.install_hint}", name=self.package,
             )
-        if weights is None:
+        if weights is None or str(weights) == "":
             raise FileNotFoundError(
-                f"depth prior {self.name!r} needs local weights: pass weights=/path/to/checkpoint ({self.weights_hint})"
+                f"depth prior {self.name!r} needs weights: give {self.name}:PATH_OR_HUB_ID ({self.weights_hint})"
             )
-        path = Path(weights)
-        if not path.exists():
+        path = Path(weights).expanduser()
+        text = str(weights)
+        if path.exists():
+            self.source, self.weights = str(path.resolve()), path
+        elif _HUB_ID.fullmatch(text) and not text.startswith((".", "/", "~")):
+            self.source, self.weights = text, None  # a hub id, fetched (or read from the cache) by the package
+        else:
             raise FileNotFoundError(f"depth prior {self.name!r}: weights not found at {path} ({self.weights_hint})")
-        self.weights, self.device, self._model = path, device, None
+        self.device, self._model = device, None
+        self._sha256: str | None = None
 
     def load(self):
-        """Build the network from ``self.weights`` (subclass)."""
-        raise NotImplementedError(
-            f"depth prior {self.name!r} has no stable inference API to call: export the network once with "
-            "torch.export.save (or torch.jit.trace) where its code lives and use the 'exported' prior, or precompute its depth "
-            "into <frame>/depth_prior.png (16-bit mm) / .npy and use the 'file' prior"
-        )
+        """Build the network from ``self.source`` (subclass)."""
+        raise NotImplementedError
+
+    def _loaded(self):
+        if self._model is None:
+            try:
+                self._model = self.load()
+            except (ModuleNotFoundError, FileNotFoundError, ValueError):
+                raise
+            except Exception as exc:  # noqa: BLE001 - the packages raise OSError, HTTP errors, ...
+                first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                where = "a local folder" if self.weights is not None else "a hub id (needs network access or the cache)"
+                raise ValueError(f"depth prior {self.name!r}: could not load {self.source!r}, {where} ({first})") from exc
+        return self._model
 
     def predict(self, image: Tensor) -> Tensor:
         """Radial depth ``(H, W)`` in metres for one panorama ``(3, H, W)`` (subclass)."""
         raise NotImplementedError
 
     def __call__(self, query: PriorQuery) -> Tensor:
-        if self._model is None:
-            self._model = self.load()
+        self._loaded()
         return self.predict(query.image)
+
+    def describe(self) -> dict:
+        if self.weights is not None and self._sha256 is None:
+            self._sha256 = file_sha256(self.weights)
+        return {"network": self.name, "weights": self.source, "sha256": self._sha256,
+                "package": self.package, "package_version": _package_version(self.distribution or self.package)}
 
 
 class UniK3DAdapter(FoundationDepthAdapter):
-    """UniK3D metric distance for full equirect panoramas (``weights``: a local ``from_pretrained`` folder)."""
+    """UniK3D metric distance for full equirect panoramas (``weights``: a ``from_pretrained`` folder or hub id)."""
 
     name = "unik3d"
     package = "unik3d"
     install_hint = "pip install git+https://github.com/lpiccinelli-eth/UniK3D (and its requirements)"
-    weights_hint = (
-        "a UniK3D checkpoint folder (config.json + model.safetensors, e.g. a local copy of unik3d-vitl); "
-        "it is not fetched from the hub"
-    )
+    weights_hint = ("a UniK3D checkpoint folder (config.json + model.safetensors, e.g. a local copy of "
+                    "lpiccinelli/unik3d-vitl) or that hub id")
 
     def load(self):
         models = importlib.import_module("unik3d.models")
-        model = models.UniK3D.from_pretrained(str(self.weights))
+        model = models.UniK3D.from_pretrained(self.source)
         return model.to(self.device).eval()
 
     @torch.no_grad()
@@ -192,15 +308,56 @@ class UniK3DAdapter(FoundationDepthAdapter):
         return _clean_depth(out["distance"], (h, w), "depth prior 'unik3d'")
 
 
-class DepthAnywhereAdapter(FoundationDepthAdapter):
-    name = "depth_anywhere"
-    package = "depth_anywhere"
-    install_hint = "install the Depth Anywhere code (github.com/albert100121/Depth-Anywhere) so it imports as 'depth_anywhere'"
-    weights_hint = "a Depth Anywhere student checkpoint (.pth) downloaded by hand"
+class DepthAnythingV2Adapter(FoundationDepthAdapter):
+    """Depth Anything V2 through ``transformers`` (``weights``: a model folder or hub id).
 
+    ``model.config.depth_estimation_type`` decides the output: ``"metric"`` checkpoints
+    (``...-Metric-Indoor-...``, ``...-Metric-Outdoor-...``) predict metres, used as they are;
+    ``"relative"`` ones (the default checkpoints) predict disparity without scale or shift, turned
+    into ``1 / disparity`` and scaled so that the median is ``median_depth`` metres. The network is
+    a perspective model applied to the whole equirect image (no seam or pole handling): a rough prior.
+    """
 
-class UniFuseAdapter(FoundationDepthAdapter):
-    name = "unifuse"
-    package = "unifuse"
-    install_hint = "install UniFuse (github.com/alibaba/UniFuse-Unidirectional-Fusion) so it imports as 'unifuse'"
-    weights_hint = "a UniFuse Matterport3D checkpoint directory (model.pth) downloaded by hand"
+    name = "depth_anything_v2"
+    package = "transformers"
+    install_hint = "pip install transformers"
+    weights_hint = ("a Depth Anything V2 model folder in the transformers format (config.json, model.safetensors, "
+                    "preprocessor_config.json; e.g. a local copy of depth-anything/Depth-Anything-V2-Small-hf) or that hub id")
+
+    def __init__(self, weights: str | Path | None = None, device: str = "cpu", median_depth: float = 2.0) -> None:
+        super().__init__(weights, device)
+        if not (math.isfinite(median_depth) and median_depth > 0):
+            raise ValueError(f"depth prior {self.name!r}: median_depth must be positive, got {median_depth}")
+        self.median_depth = float(median_depth)
+
+    def load(self):
+        transformers = importlib.import_module("transformers")
+        self.processor = transformers.AutoImageProcessor.from_pretrained(self.source)
+        model = transformers.AutoModelForDepthEstimation.from_pretrained(self.source)
+        self.kind = getattr(model.config, "depth_estimation_type", None) or "relative"
+        return model.to(self.device).eval()
+
+    @torch.no_grad()
+    def predict_batch(self, images: Tensor) -> Tensor:
+        model = self._loaded()
+        h, w = images.shape[-2:]
+        arrays = [(image.clamp(0, 1) * 255 + 0.5).to(torch.uint8).permute(1, 2, 0).cpu().numpy() for image in images]
+        pixels = self.processor(images=arrays, return_tensors="pt")["pixel_values"].to(self.device)
+        out = model(pixel_values=pixels).predicted_depth.float()  # (B, h', w')
+        out = F.interpolate(out[:, None], size=(h, w), mode="bilinear", align_corners=False)[:, 0].cpu()
+        if self.kind != "metric":
+            disparity = out
+            out = torch.where(disparity > 0, 1.0 / disparity.clamp_min(1e-8), torch.zeros_like(disparity))
+            for i in range(len(out)):
+                valid = out[i] > 0
+                if valid.any():
+                    out[i] = out[i] * (self.median_depth / out[i][valid].median())
+        return torch.stack([_clean_depth(o, (h, w), "depth prior 'depth_anything_v2'") for o in out])
+
+    def predict(self, image: Tensor) -> Tensor:
+        return self.predict_batch(image[None])[0]
+
+    def describe(self) -> dict:
+        self._loaded()
+        return {**super().describe(), "output": self.kind,
+                "median_depth": self.median_depth if self.kind != "metric" else None}

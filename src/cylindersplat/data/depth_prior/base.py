@@ -9,7 +9,7 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-__all__ = ["PriorQuery", "DepthPrior", "NoPrior", "GroundTruthPrior", "ConstantPrior"]
+__all__ = ["PriorQuery", "DepthPrior", "NoPrior", "MissingPrior", "GroundTruthPrior", "ConstantPrior", "MISSING_PRIOR_HELP"]
 
 
 @dataclass
@@ -18,13 +18,15 @@ class PriorQuery:
 
     ``image`` ``(3, H, W)`` at the loader's output resolution; ``gt_depth`` ``(H, W)`` or ``None``;
     ``rgb_path`` the stored panorama (file priors look next to it); ``key`` a stable id
-    ``"{dataset}/{scene}/{frame}"`` (seeds the simulated prior).
+    ``"{dataset}/{scene}/{frame}"`` (seeds the simulated prior); ``dataset_root`` the folder the
+    dataset was opened at (file priors find ``<dataset_root>/priors/<name>/...`` relative to it).
     """
 
     image: Float[Tensor, "3 H W"]
     gt_depth: Float[Tensor, "H W"] | None
     rgb_path: Path | None
     key: str
+    dataset_root: Path | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -36,17 +38,41 @@ class DepthPrior:
 
     name = "base"
 
+    @property
+    def spec(self) -> str:
+        """The spec that asks for this prior (``parse_depth_prior``), for messages and records."""
+        return getattr(self, "_spec", self.name)
+
     def __call__(self, query: PriorQuery) -> Float[Tensor, "H W"]:
         raise NotImplementedError
 
 
 class NoPrior(DepthPrior):
-    """All-zero prior (no depth information)."""
+    """All-zero prior (no depth information): only ever used when asked for by name (``none``)."""
 
     name = "none"
 
     def __call__(self, query: PriorQuery) -> Tensor:
         return torch.zeros(query.size)
+
+
+MISSING_PRIOR_HELP = ("the model needs a depth prior for every input view and this dataset has none of its own; "
+                      "choose one: {option}=file:NAME (files written by `cylindersplat data priors --name NAME`), "
+                      "{option}=unik3d:WEIGHTS_DIR, {option}=exported:NET.pt2, {option}=gt (ground truth, an oracle), "
+                      "{option}=constant:METRES, or {option}=none to really run without one")
+
+
+class MissingPrior(DepthPrior):
+    """The default of datasets without a depth prior of their own (PanoGRF layout, 360Loc): asking it for
+    depth is an error that says how to choose one (there is no silent all-zero default)."""
+
+    name = "unset"
+
+    def __init__(self, option: str = "depth_prior") -> None:
+        self.option = option
+
+    def __call__(self, query: PriorQuery) -> Tensor:
+        raise ValueError(f"{query.key}: " + MISSING_PRIOR_HELP.format(option=self.option))
 
 
 class GroundTruthPrior(DepthPrior):

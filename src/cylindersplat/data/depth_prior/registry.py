@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from typing import Callable
 
-from .adapters import DepthAnywhereAdapter, ExportedDepthPrior, UniFuseAdapter, UniK3DAdapter
-from .base import ConstantPrior, DepthPrior, GroundTruthPrior, NoPrior
+from .adapters import DepthAnythingV2Adapter, ExportedDepthPrior, NetworkDepthPrior, UniK3DAdapter
+from .base import MISSING_PRIOR_HELP, ConstantPrior, DepthPrior, GroundTruthPrior, MissingPrior, NoPrior
 from .files import FilePrior
 from .simulated import SimulatedPrior
 
-__all__ = ["DEPTH_PRIORS", "register_depth_prior", "make_depth_prior", "parse_depth_prior", "require_depth_prior"]
+__all__ = ["DEPTH_PRIORS", "NETWORK_PRIORS", "register_depth_prior", "make_depth_prior", "parse_depth_prior",
+           "parse_network_prior", "require_depth_prior"]
 
 DEPTH_PRIORS: dict[str, Callable[..., DepthPrior]] = {}
 
@@ -21,23 +22,33 @@ def register_depth_prior(name: str, factory: Callable[..., DepthPrior]) -> None:
     DEPTH_PRIORS[name] = factory
 
 
-def make_depth_prior(name: str, **kwargs) -> DepthPrior:
-    """Instantiate the prior registered as ``name`` with ``kwargs``."""
+def make_depth_prior(name: str, /, **kwargs) -> DepthPrior:
+    """Instantiate the prior registered as ``name`` with ``kwargs`` (``make_depth_prior("file", name="unik3d")``)."""
     if name not in DEPTH_PRIORS:
-        raise ValueError(f"unknown depth prior {name!r}; available: {sorted(DEPTH_PRIORS)}")
+        hint = _EXPORT_HINT if name in ("depth_anywhere", "unifuse") else ""
+        raise ValueError(f"unknown depth prior {name!r}; available: {sorted(DEPTH_PRIORS)}{hint}")
     return DEPTH_PRIORS[name](**kwargs)
+
+
+_EXPORT_HINT = ("; Depth Anywhere and UniFuse have no package API to call: export the network once with torch.export.save "
+                "where its code lives and give exported:NET.pt2 (docs/data.md)")
 
 
 # The one positional argument a "name:value" spec fills in, per prior.
 _SPEC_ARGUMENT = {"constant": ("depth", float), "file": ("name", str), "simulated": ("seed", int),
-                  "exported": ("weights", str), "unik3d": ("weights", str), "depth_anywhere": ("weights", str),
-                  "unifuse": ("weights", str)}
+                  "exported": ("weights", str), "unik3d": ("weights", str), "depth_anything_v2": ("weights", str)}
+
+# Priors that run a depth network (what `cylindersplat data priors --net` accepts).
+NETWORK_PRIORS = ("exported", "unik3d", "depth_anything_v2")
 
 
 def parse_depth_prior(spec: str, **kwargs) -> DepthPrior:
     """A prior from a command-line spec: ``name`` or ``name:value`` (``constant:2.5``, ``exported:net.pt2``,
-    ``unik3d:/models/unik3d-vitl``)."""
+    ``unik3d:/models/unik3d-vitl``, ``depth_anything_v2:depth-anything/Depth-Anything-V2-Small-hf``,
+    ``file:unik3d`` or ``file:/priors/unik3d``). ``kwargs`` go to the prior (e.g. ``device=`` of a network)."""
     name, sep, value = spec.partition(":")
+    if name not in DEPTH_PRIORS:
+        make_depth_prior(name)  # the unknown-name error
     if sep:
         if name not in _SPEC_ARGUMENT:
             raise ValueError(f"depth prior {name!r} takes no ':value' (spec {spec!r})")
@@ -46,24 +57,33 @@ def parse_depth_prior(spec: str, **kwargs) -> DepthPrior:
             kwargs[key] = kind(value)
         except ValueError:
             raise ValueError(f"depth prior spec {spec!r}: {value!r} is not a valid {key}") from None
-    return make_depth_prior(name, **kwargs)
+    elif name in NETWORK_PRIORS:
+        raise FileNotFoundError(f"depth prior {name!r} needs its weights: write {name}:PATH (see docs/data.md)")
+    if name not in NETWORK_PRIORS:
+        kwargs.pop("device", None)  # only networks run on a device
+    prior = make_depth_prior(name, **kwargs)
+    prior._spec = spec
+    return prior
+
+
+def parse_network_prior(spec: str, **kwargs) -> NetworkDepthPrior:
+    """:func:`parse_depth_prior` for specs that name a depth network (``exported:``, ``unik3d:``, ``depth_anything_v2:``)."""
+    name = spec.partition(":")[0]
+    if name not in DEPTH_PRIORS:
+        make_depth_prior(name)  # the unknown-name error (with the export route for Depth Anywhere / UniFuse)
+    if name not in NETWORK_PRIORS:
+        raise ValueError(f"{spec!r} is not a depth network; give one of "
+                         f"{', '.join(n + ':...' for n in NETWORK_PRIORS)} (e.g. exported:depth_net.pt2)")
+    return parse_depth_prior(spec, **kwargs)
 
 
 for _cls in (NoPrior, GroundTruthPrior, ConstantPrior, SimulatedPrior, FilePrior, ExportedDepthPrior, UniK3DAdapter,
-             DepthAnywhereAdapter, UniFuseAdapter):
+             DepthAnythingV2Adapter):
     register_depth_prior(_cls.name, _cls)
 
 
-MISSING_PRIOR_HELP = ("the model needs a depth prior for every input view and this dataset has none (its default "
-                      "gives zeros, which renders black); choose one: {option}=gt (ground truth, an oracle), "
-                      "{option}=constant:METRES, {option}=exported:NET.pt2 (any exported panorama depth network), "
-                      "{option}=unik3d:WEIGHTS_DIR, or {option}=none to really run without one")
-
-
 def require_depth_prior(dataset, option: str = "data.depth_prior") -> None:
-    """Raise ``ValueError`` (one line, what to do) when ``dataset``'s *default* prior is all zeros; call
-    it only when the user did not choose a prior (an explicit ``none`` is their decision)."""
-    from .base import NoPrior
-
-    if isinstance(getattr(dataset, "depth_prior", None), NoPrior):
+    """Raise ``ValueError`` (one line, what to do) when ``dataset`` has no depth prior chosen (its default
+    is :class:`MissingPrior`); an explicit ``none`` (:class:`NoPrior`) is the user's decision."""
+    if isinstance(getattr(dataset, "depth_prior", None), MissingPrior):
         raise ValueError(MISSING_PRIOR_HELP.format(option=option))

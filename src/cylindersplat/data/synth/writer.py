@@ -18,6 +18,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from ...utils.atomic import atomic_write_text
 from ..io import DEPTH_PNG_SCALE, write_depth_png, write_rgb
 from .sequence import SequenceConfig, generate_sequence, render_sequence, target_offset
 
@@ -64,7 +65,7 @@ def write_synthetic_dataset(
         "format": SYNTH_FORMAT, "seed": seed, "resolution": [height, width],
         "depth_scale": DEPTH_PNG_SCALE, "config": config_record(cfg), "scenes": ids,
     }
-    (out / "meta.json").write_text(json.dumps(settings, indent=1))
+    atomic_write_text(out / "meta.json", json.dumps(settings, indent=1))
     for index in tqdm(range(scenes), desc="synth scenes", unit="scene", disable=None if progress else True):  # None: no bar when output is not a terminal
         folder = out / ids[index]
         if (folder / "meta.json").is_file():
@@ -75,7 +76,7 @@ def write_synthetic_dataset(
         for k, name in enumerate(names):
             write_rgb(folder / name / "rgb.png", rgb[k])
             write_depth_png(folder / name / "depth.png", depth[k])
-        (folder / "poses.json").write_text(json.dumps({n: p.tolist() for n, p in zip(names, seq.poses)}, indent=1))
+        atomic_write_text(folder / "poses.json", json.dumps({n: p.tolist() for n, p in zip(names, seq.poses)}, indent=1))
         meta = {
             "scene": ids[index], "index": index, "seed": seed, "kind": seq.scene.kind,
             "spacing": seq.spacing, "frames": names, "resolution": [height, width],
@@ -83,5 +84,5 @@ def write_synthetic_dataset(
         }
         if cfg.target_offset[1] > 0:  # metres the middle frame stands off the first-last line
             meta["target_offset"] = round(target_offset(seq.poses), 4)
-        (folder / "meta.json").write_text(json.dumps(meta, indent=1))
+        atomic_write_text(folder / "meta.json", json.dumps(meta, indent=1))  # last, whole or not at all: marks the scene done
     return out

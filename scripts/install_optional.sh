@@ -1,0 +1,63 @@
+#!/usr/bin/env bash
+# Optional parts; none is needed by the core install or the core tests (their tests skip, saying why).
+#
+#   bash scripts/install_optional.sh view      # the browser viewer: viser (pip install -e ".[view]")
+#   bash scripts/install_optional.sh formats   # .spz / .compressed.ply / .sog: PlayCanvas splat-transform from
+#                                              #   npm into ~/.local (PREFIX=... to change; needs Node.js >= 20)
+#   bash scripts/install_optional.sh browser   # for scripts/viewer_screenshot.py: Debian's chromium (apt-get,
+#                                              #   as root) and the playwright Python package (no browser download)
+#   bash scripts/install_optional.sh all
+#
+# Measured on the 2-core dev machine: view ~5 s, formats ~10 s (215 MB of node_modules),
+# browser ~65 s (apt-get update + chromium) + ~6 s (playwright).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3}
+SPLAT_TRANSFORM_VERSION=${SPLAT_TRANSFORM_VERSION:-3.7.0}
+
+install_view() {
+    "$PY" -m pip install --disable-pip-version-check -q -e ".[view]"
+}
+
+install_formats() {
+    if ! command -v node >/dev/null || ! command -v npm >/dev/null; then
+        echo "formats: Node.js and npm are needed (Debian: apt-get install nodejs npm; or https://nodejs.org)" >&2
+        return 1
+    fi
+    local major
+    major=$(node -p 'process.versions.node.split(".")[0]')
+    if [ "$major" -lt 20 ]; then
+        echo "formats: Node.js >= 20 is needed, found $(node --version)" >&2
+        return 1
+    fi
+    local prefix=${PREFIX:-$HOME/.local}
+    npm install --global --prefix "$prefix" --no-audit --no-fund --loglevel=error \
+        "@playcanvas/splat-transform@$SPLAT_TRANSFORM_VERSION"
+    "$prefix/bin/splat-transform" --version
+    case ":$PATH:" in
+        *":$prefix/bin:"*) ;;
+        *) echo "note: $prefix/bin is not on PATH; cylindersplat still finds $prefix/bin/splat-transform when PREFIX is" \
+                "the default, otherwise set CYLINDERSPLAT_SPLAT_TRANSFORM=$prefix/bin/splat-transform" ;;
+    esac
+}
+
+install_browser() {
+    if ! command -v chromium >/dev/null; then
+        if [ "$(id -u)" -ne 0 ]; then
+            echo "browser: run as root, or install chromium yourself (apt-get install chromium)" >&2
+            return 1
+        fi
+        apt-get update -qq
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null
+    fi
+    chromium --version
+    "$PY" -m pip install --disable-pip-version-check -q -e ".[browser]"
+}
+
+case "${1:-}" in
+    view) install_view ;;
+    formats) install_formats ;;
+    browser) install_browser ;;
+    all) install_view; install_formats; install_browser ;;
+    *) echo "usage: bash scripts/install_optional.sh view|formats|browser|all" >&2; exit 2 ;;
+esac

@@ -1,0 +1,94 @@
+"""``cylindersplat data import-poses``: camera poses from 360° SfM/SLAM tools -> our ``poses.json``."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+FORMATS = ("opensfm", "nerfstudio", "tum", "kitti")
+
+
+def _run(args: argparse.Namespace) -> int:
+    from ..inference.inputs import IMAGE_SUFFIXES
+    from ..inference.pose_formats import (
+        PoseRecord,
+        match_timestamps_to_images,
+        read_kitti,
+        read_opensfm,
+        read_transforms_json,
+        read_tum,
+        write_poses_json,
+    )
+
+    source, out = args.source, args.out
+    if out.is_dir() or out.suffix.lower() != ".json":
+        raise ValueError(f"--out must be a .json file (e.g. my_scene/poses.json), got {out}")
+    if args.fps is not None and args.source_format != "tum":
+        raise ValueError("--fps matches TUM timestamps to frame numbers; it does not apply to --from "
+                         f"{args.source_format}")
+    if args.source_format == "opensfm":
+        records = read_opensfm(source, args.scale, args.reconstruction)
+    elif args.source_format == "nerfstudio":
+        records = read_transforms_json(source, args.scale)
+    elif args.source_format == "tum":
+        records = read_tum(source, args.scale)
+    else:
+        records = read_kitti(source, args.scale)
+    base = out.parent.resolve()
+    depth_scale = None
+    if args.source_format == "nerfstudio":  # its file names are relative to transforms.json: keep them findable
+        folder = source.parent.resolve()
+        records = [PoseRecord(os.path.relpath(folder / r.image, base), r.c2w,
+                              r.depth and os.path.relpath(folder / r.depth, base)) for r in records]
+        if any(r.depth is not None and r.depth.lower().endswith(".npy") for r in records):
+            raise ValueError(f"{source} has .npy depth files, which nerfstudio keeps in depth units (mm) but poses.json "
+                             "reads in metres; use the transforms.json directly as the poses file (render/export read it)")
+        depth_scale = 1000
+    if args.images is not None:
+        if not args.images.is_dir():
+            raise FileNotFoundError(f"--images: folder not found: {args.images}")
+        if args.source_format in ("tum", "kitti"):
+            images = sorted(p for p in args.images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
+                            and not p.stem.endswith("_depth"))
+            records = match_timestamps_to_images(records, [os.path.relpath(p.resolve(), base) for p in images],
+                                                 args.fps, source)
+        elif args.source_format == "opensfm":
+            records = [PoseRecord(os.path.relpath((args.images / r.image).resolve(), base), r.c2w) for r in records]
+        else:
+            raise ValueError("--images does not apply to --from nerfstudio (its frames name their images)")
+        missing = [r.image for r in records if not (base / r.image).is_file()]
+        if missing:
+            raise FileNotFoundError(f"{len(missing)} image(s) of the poses are not there, e.g. {base / missing[0]}")
+    elif args.source_format in ("tum", "kitti"):
+        records = [PoseRecord(None, r.c2w, None, r.timestamp) for r in records]
+    path = write_poses_json(out, records, depth_scale=depth_scale, source=f"{args.source_format}: {source}",
+                            scale=args.scale)
+    named = sum(r.image is not None for r in records)
+    print(f"wrote {len(records)} poses (OpenCV camera-to-world, {args.scale:g} m per source unit) to {path}"
+          + (f" with their {named} image names" if named else "; they pair with the folder's images in name order"))
+    return 0
+
+
+def register(sub) -> None:
+    """Add ``import-poses`` to the ``data`` subcommand's parsers."""
+    parser = sub.add_parser(
+        "import-poses", help="convert 360° camera poses from OpenSfM, nerfstudio, stella_vslam (TUM/KITTI) to poses.json",
+        description="Convert the poses of equirectangular panoramas from another tool into our poses.json "
+        "(OpenCV camera-to-world, metres): an OpenSfM/OpenDroneMap reconstruction.json (spherical cameras), a "
+        "nerfstudio transforms.json (EQUIRECTANGULAR), or a stella_vslam/OpenVSLAM keyframe trajectory (TUM or KITTI "
+        "format). SfM/SLAM results have an arbitrary scale: --scale gives metres per unit. See docs/inference.md.")
+    parser.add_argument("source", type=Path, help="reconstruction.json, transforms.json or a trajectory text file")
+    parser.add_argument("--from", dest="source_format", required=True, choices=FORMATS, help="the source's format")
+    parser.add_argument("--out", type=Path, required=True, help="poses.json to write (in the input folder)")
+    parser.add_argument("--scale", type=float, default=1.0,
+                        help="metres per source unit: multiplies every camera position (default 1)")
+    parser.add_argument("--images", type=Path,
+                        help="folder of the panoramas: OpenSfM shot names are looked up there; TUM/KITTI poses are "
+                        "matched to its images in name order, or by timestamp with --fps")
+    parser.add_argument("--fps", type=float,
+                        help="TUM: the pose at time t belongs to image number round(t * fps) of --images (frames "
+                        "numbered from 0, as stella_vslam times a video)")
+    parser.add_argument("--reconstruction", type=int, default=0,
+                        help="OpenSfM: which reconstruction of the file (default 0, the largest)")
+    parser.set_defaults(func=_run)

@@ -1,0 +1,124 @@
+"""``cylindersplat view``: Gaussians + input cameras in the browser (viser), as one HTML file, or as a PNG."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ._inference import add_input_arguments, reconstruct_from_args
+
+
+def _size(text: str) -> tuple[int, int]:
+    h, _, w = text.lower().partition("x")
+    try:
+        size = int(h), int(w)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size must be HxW, e.g. 480x640, got {text!r}") from None
+    if min(size) < 1:
+        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
+    return size
+
+
+def _image_uint8(image):
+    """(3, H, W) float in [0, 1] -> (H, W, 3) uint8."""
+    return (image.clamp(0, 1) * 255 + 0.5).byte().permute(1, 2, 0).cpu().numpy()
+
+
+def _cameras_from_poses(path: Path):
+    """Cameras of a poses file; panoramas named in its frames are shown when they lie beside it."""
+    import numpy as np
+    from PIL import Image
+
+    from ..inference import read_poses_file
+    from ..viewer import ViewCamera
+
+    cameras = []
+    for i, (name, c2w, _) in enumerate(read_poses_file(path)):
+        image = None
+        if name and (path.parent / name).is_file():
+            with Image.open(path.parent / name) as im:
+                image = np.asarray(im.convert("RGB"))
+        cameras.append(ViewCamera(c2w, name or f"camera {i}", image))
+    return cameras
+
+
+def check_sources(args: argparse.Namespace) -> None:
+    """A splat file, or --input with --checkpoint: one of the two."""
+    if args.splats is not None and (args.input is not None or args.checkpoint is not None):
+        raise ValueError("give either a splat file or --input/--checkpoint, not both")
+    if args.splats is None and (args.input is None or args.checkpoint is None):
+        raise ValueError("give a splat file (scene.ply, .spz, .compressed.ply, .sog) or --input and --checkpoint")
+
+
+def load_scene(args: argparse.Namespace):
+    """-> (gaussians on CPU, cameras) from a splat file (+ --poses-file) or --input/--checkpoint."""
+    from ..viewer import ViewCamera
+
+    if args.splats is not None:
+        from ..gaussians import load_gaussians
+
+        gaussians = load_gaussians(args.splats)
+        cameras = _cameras_from_poses(args.poses_file) if args.poses_file else []
+        print(f"loaded {len(gaussians):,} Gaussians from {args.splats}")
+        return gaussians, cameras
+    inputs, gaussians, _ = reconstruct_from_args(args)
+    cameras = [ViewCamera(c2w.cpu(), name, _image_uint8(image)) for c2w, name, image in zip(inputs.c2w, inputs.names, inputs.images)]
+    return gaussians.to("cpu"), cameras
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from ..geometry import look_at_c2w
+    from ..viewer import default_view, import_viser, render_picture, serve, write_html
+
+    check_sources(args)
+    if args.screenshot is None or args.html is not None:
+        import_viser()  # a missing viewer package fails before the (slow) reconstruction
+    if args.panorama and args.screenshot_size[1] != 2 * args.screenshot_size[0]:
+        raise ValueError(f"--panorama needs --screenshot-size HxW with W == 2H, got {args.screenshot_size}")
+    gaussians, cameras = load_scene(args)
+    if args.html is not None:
+        path = write_html(args.html, gaussians, cameras, args.frustum_scale)
+        print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB; open it in a browser, no server needed)")
+    if args.screenshot is not None:
+        if args.panorama:
+            pose = cameras[0].c2w if cameras else torch.eye(4)
+        else:
+            position, look_at = default_view(gaussians, cameras)
+            pose = look_at_c2w(torch.tensor(position), torch.tensor(look_at)).float()
+        picture = gaussians.to(args.device)
+        path = render_picture(args.screenshot, picture, pose, args.screenshot_size, args.fov, args.panorama)
+        print(f"wrote {path} ({'panorama' if args.panorama else 'pinhole view'}, "
+              f"{args.screenshot_size[0]}x{args.screenshot_size[1]})")
+    if args.html is None and args.screenshot is None:
+        serve(gaussians, cameras, args.host, args.port, args.frustum_scale, args.duration)
+    return 0
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "view", help="show Gaussians and the input cameras in the browser (viser), as one HTML file, or as a PNG",
+        description="Serve a splat file (3DGS .ply, .spz, .compressed.ply, .sog) or the Gaussians reconstructed from "
+        "--input panoramas with --checkpoint (as `cylindersplat export` builds them) in the browser, with one frustum "
+        "per input camera. --html writes one self-contained page instead (no server), --screenshot a PNG rendered "
+        "with cylindersplat's own renderer (no browser); with either, nothing is served. The browser parts need "
+        "`pip install 'cylindersplat[view]'`. Guide: docs/viewer.md.",
+    )
+    parser.add_argument("splats", nargs="?", type=Path, help="splat file: .ply (3DGS), .compressed.ply, .spz or .sog "
+                        "(the last three need splat-transform, see docs/viewer.md)")
+    add_input_arguments(parser, required=False)
+    # add_input_arguments' --poses-file also gives the cameras to show with a splat file.
+    parser.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1; 0.0.0.0 for every "
+                        "interface)")
+    parser.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    parser.add_argument("--duration", type=float, help="stop serving after this many seconds (default: until Ctrl+C)")
+    parser.add_argument("--frustum-scale", type=float, default=0.2, help="size of the camera frustums in metres (default 0.2)")
+    parser.add_argument("--html", type=Path, help="write the scene as one self-contained HTML file and do not serve")
+    parser.add_argument("--screenshot", type=Path, help="render a PNG with cylindersplat's renderer (no browser) and do "
+                        "not serve: a pinhole view from where the browser view starts, or --panorama")
+    parser.add_argument("--screenshot-size", type=_size, default=(480, 640), help="HxW of --screenshot (default 480x640)")
+    parser.add_argument("--fov", type=float, default=90.0, help="horizontal field of view of --screenshot in degrees (default 90)")
+    parser.add_argument("--panorama", action="store_true", help="--screenshot renders an equirect panorama from the first "
+                        "input camera (or the origin) instead; needs --screenshot-size H x 2H")
+    parser.set_defaults(func=run)

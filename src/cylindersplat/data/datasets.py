@@ -1,0 +1,142 @@
+"""One registry of dataset layouts and the choices around them, shared by ``train`` and ``eval``.
+
+:data:`DATASETS` maps a layout name (``data.format`` / ``eval --format``) to its loader.
+:func:`make_dataset` opens one with the three depth choices kept apart:
+
+* the model's **input prior** (``data.depth_prior``): ``default`` (the dataset's own: the
+  simulated prior for synthetic data, an error asking for a choice elsewhere), ``file:NAME``,
+  ``simulated``, ``gt``, ``constant:M``, ``none`` or a network spec (``unik3d:DIR``, ...);
+* a **reference depth of the targets** (``loss.depth_reference`` for training, ``--pcc-reference``
+  for evaluation): ``gt`` (the dataset's ground truth, ``Sample.target_depths``), ``prior`` (the
+  input prior computed for the target views), ``file:NAME`` or ``none``; ``prior`` and ``file:``
+  fill ``Sample.target_reference_depths``.
+
+Everything that can be checked before the first step is checked here (one line each): a dataset
+without a prior of its own and no choice, prior files that are missing (naming
+``cylindersplat data priors``), a ``gt`` reference on data without ground-truth depth.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+from .base import FrameRef, PanoramaDataset
+from .depth_prior import FilePrior, NoPrior, parse_depth_prior, require_depth_prior
+from .loc360 import Loc360Dataset
+from .pano_grf import PanoGRFDataset
+from .synthetic import SyntheticDataset
+
+__all__ = ["DATASETS", "REFERENCES", "make_dataset", "check_reference_spec", "attach_reference", "check_prior_files"]
+
+
+def _synthetic(root, *, views="two_view", split=None, **kwargs) -> PanoramaDataset:
+    return SyntheticDataset(root, views=views, **kwargs)  # one folder, no splits (scenes=[...] selects)
+
+
+def _pano_grf(root, *, views="two_view", split="test", **kwargs) -> PanoramaDataset:
+    return PanoGRFDataset(root, split=split, views=views, **kwargs)
+
+
+def _loc360(root, *, views="all_between", split="test", **kwargs) -> PanoramaDataset:
+    if views != "all_between":
+        raise ValueError(f"360Loc has its own protocol: use views all_between (data.views / eval --protocols), not {views!r}")
+    return Loc360Dataset(root, split=split, **kwargs)
+
+
+# layout name -> loader(root, *, views, split, resolution, depth_prior, **layout options)
+DATASETS: dict[str, Callable[..., PanoramaDataset]] = {"synthetic": _synthetic, "pano_grf": _pano_grf, "loc360": _loc360}
+
+REFERENCES = ("gt", "prior", "none", "file:NAME")
+
+
+def check_reference_spec(spec: str, option: str, allowed: tuple[str, ...] = ("gt", "prior", "none")) -> str:
+    """``spec`` if it is one of ``allowed`` or ``file:NAME``; else a one-line ``ValueError``."""
+    if spec in allowed or (spec.startswith("file:") and len(spec) > len("file:")):
+        return spec
+    raise ValueError(f"{option} must be one of {', '.join(allowed)} or file:NAME, got {spec!r}")
+
+
+def _frames_by_role(dataset: PanoramaDataset) -> tuple[list[FrameRef], list[FrameRef]]:
+    """The frames used as contexts and as targets over all examples (each once)."""
+    context: dict[Path, FrameRef] = {}
+    target: dict[Path, FrameRef] = {}
+    for index in range(len(dataset)):
+        ref = dataset.example(index)
+        for i in ref.views.context:
+            context.setdefault(Path(ref.frames[i].rgb), ref.frames[i])
+        for i in ref.views.target:
+            target.setdefault(Path(ref.frames[i].rgb), ref.frames[i])
+    return list(context.values()), list(target.values())
+
+
+def check_prior_files(dataset: PanoramaDataset, prior, frames: list[FrameRef], option: str) -> None:
+    """For a :class:`FilePrior`: every frame has its file, else ``FileNotFoundError`` naming ``data priors``."""
+    if not isinstance(prior, FilePrior) or not frames:
+        return
+    missing = [f for f in frames if prior.find(f.rgb, dataset.data_root) is None]
+    if missing:
+        raise FileNotFoundError(f"{option}={prior.spec}: {len(missing)} of {len(frames)} panoramas have no prior file; "
+                                + prior.missing_help(missing[0].rgb, dataset.data_root))
+
+
+def attach_reference(dataset: PanoramaDataset, reference: str, option: str, targets: list[FrameRef] | None = None) -> None:
+    """Make ``dataset`` deliver the ``reference`` depth of its targets (see the module docstring), or fail now."""
+    check_reference_spec(reference, option)
+    if reference == "none":
+        return
+    if targets is None:
+        targets = _frames_by_role(dataset)[1]
+    if reference == "gt":
+        lacking = [f for f in targets if f.depth is None]
+        if lacking:
+            raise ValueError(f"{option}=gt but {lacking[0].rgb} (and {len(lacking) - 1} more) has no ground-truth depth "
+                             f"({type(dataset).__name__}); choose {option}=prior (the input prior of the target views), "
+                             f"{option}=file:NAME (files from `cylindersplat data priors`) or {option}=none")
+        return
+    if reference == "prior":
+        prior = dataset.depth_prior
+        if isinstance(prior, NoPrior):
+            raise ValueError(f"{option}=prior but the input prior is none (zeros): choose another input prior, or "
+                             f"{option}=gt / file:NAME / none")
+    else:
+        prior = parse_depth_prior(reference)
+    check_prior_files(dataset, prior, targets, option)
+    dataset.target_reference = prior
+
+
+def make_dataset(
+    layout: str,
+    root: str | Path,
+    *,
+    views: str = "two_view",
+    split: str = "test",
+    resolution: tuple[int, int] | None = None,
+    depth_prior: str = "default",
+    reference: str = "none",
+    prior_option: str = "data.depth_prior",
+    reference_option: str = "loss.depth_reference",
+    **options,
+) -> PanoramaDataset:
+    """Open ``root`` as ``layout`` (a key of :data:`DATASETS`) with an input prior and a target reference.
+
+    ``options`` go to the loader (``scenes=[...]`` for synthetic data, ``dist=`` for PanoGRF, ...);
+    ``prior_option`` / ``reference_option`` name the settings in error messages.
+    """
+    if layout not in DATASETS:
+        raise ValueError(f"unknown dataset format {layout!r}; expected one of {', '.join(DATASETS)}")
+    if not root:
+        raise ValueError("no dataset folder given (data.root / --data), e.g. one from `cylindersplat data synth`")
+    check_reference_spec(reference, reference_option)
+    kwargs = dict(options)
+    if resolution is not None:
+        kwargs["resolution"] = tuple(resolution)
+    if depth_prior != "default":
+        kwargs["depth_prior"] = parse_depth_prior(depth_prior)  # a name or name:value, e.g. unik3d:/weights
+    dataset = DATASETS[layout](root, views=views, split=split, **kwargs)
+    require_depth_prior(dataset, prior_option)  # no silent zeros: the PanoGRF / 360Loc default asks for a choice
+    if isinstance(dataset.depth_prior, FilePrior) or reference != "none":
+        contexts, targets = _frames_by_role(dataset)
+        check_prior_files(dataset, dataset.depth_prior, contexts, prior_option)
+        attach_reference(dataset, reference, reference_option, targets)
+    return dataset

@@ -1,0 +1,214 @@
+"""Run a depth network once over a dataset and store its depth as prior files (``cylindersplat data priors``).
+
+For a dataset opened at ``ROOT`` and a prior named ``NAME`` the files go to
+``ROOT/priors/NAME/<panorama path relative to ROOT, suffix .png or .npy>`` (or to ``--out DIR``),
+next to ``prior.json``: the network spec, what identifies it (file SHA-256, package version), the
+resolution, the file format and the date. :class:`~.files.FilePrior` (``file:NAME`` / ``file:DIR``)
+reads exactly these files. A second run skips every frame whose file exists when ``prior.json``
+matches the network and settings, and refuses a tree made by another network unless ``overwrite``.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from ...utils.atomic import atomic_path, atomic_write_text
+from ..io import DEPTH_PNG_SCALE, read_rgb, write_depth_png
+from .files import SIDECAR, prior_tree, read_sidecar, tree_file
+from .registry import parse_network_prior
+
+__all__ = ["LAYOUTS", "detect_layout", "prior_frames", "write_priors", "PriorRun"]
+
+LAYOUTS = ("synthetic", "pano_grf", "loc360", "input")
+_PNG_MAX_METRES = 65535 / DEPTH_PNG_SCALE
+
+
+@dataclass
+class PriorRun:
+    tree: Path  # where the files are
+    frames: int  # panoramas of the dataset
+    written: int
+    skipped: int  # already there (same network and settings)
+    seconds: float
+
+
+def detect_layout(path: str | Path) -> str:
+    """``synthetic`` (``meta.json``), ``pano_grf`` (a ``png_render_*`` folder), ``input`` (``poses.json``)
+    or ``loc360`` (``<location>/mapping|query_360``)."""
+    path = Path(path)
+    if not path.is_dir():
+        raise FileNotFoundError(f"missing dataset folder: {path}")
+    if (path / "meta.json").is_file():
+        return "synthetic"
+    if path.name.startswith("png_render_"):
+        return "pano_grf"
+    if (path / "poses.json").is_file():
+        return "input"
+    if any((d / "mapping").is_dir() or (d / "query_360").is_dir() for d in path.iterdir() if d.is_dir()):
+        return "loc360"
+    raise ValueError(f"{path}: not a dataset folder cylindersplat knows (synthetic meta.json, a png_render_* folder, "
+                     "a 360Loc root or an input folder with poses.json); pass --layout")
+
+
+def prior_frames(data: str | Path, layout: str = "auto", split: str = "all") -> tuple[Path, list[tuple[Path, str]], str]:
+    """``(dataset root, [(panorama path, key)], layout)``: every panorama of a dataset, once."""
+    from ..loc360 import LOC360_SPLITS, Loc360Dataset
+    from ..pano_grf import PanoGRFDataset
+    from ..synthetic import SyntheticDataset
+    from .base import NoPrior
+
+    data = Path(data)
+    layout = detect_layout(data) if layout == "auto" else layout
+    if layout == "input":
+        from ...inference.inputs import list_panoramas
+
+        frames = [(p, f"input/{p.stem}") for p in list_panoramas(data)]
+        return data, frames, layout
+    if layout == "synthetic":
+        dataset = SyntheticDataset(data, depth_prior=NoPrior())
+    elif layout == "pano_grf":
+        dataset = PanoGRFDataset(data, depth_prior=NoPrior())
+    elif layout == "loc360":
+        if split == "all":
+            dataset = Loc360Dataset(data, locations=tuple(x for s in LOC360_SPLITS.values() for x in s))
+        else:
+            dataset = Loc360Dataset(data, split=split)
+    else:
+        raise ValueError(f"unknown layout {layout!r}; expected auto or one of {', '.join(LAYOUTS)}")
+    return Path(dataset.data_root), [(Path(f.rgb), key) for f, key in dataset.frames()], layout
+
+
+def _same_network(old: dict, new: dict) -> bool:
+    """Same identity (weights' checksum or hub id, package version, options) and same output settings."""
+    def identity(record):
+        net = dict(record.get("identity") or {})
+        if net.get("sha256"):
+            net.pop("weights", None)  # the same file moved elsewhere is the same network
+        return net, record.get("format"), record.get("resolution"), record.get("scale")
+
+    return identity(old) == identity(new)
+
+
+def write_priors(
+    data: str | Path,
+    net: str,
+    name: str | None = None,
+    out: str | Path | None = None,
+    layout: str = "auto",
+    split: str = "all",
+    file_format: str = "png",
+    resolution: tuple[int, int] | None = None,
+    batch_size: int = 4,
+    device: str = "cpu",
+    overwrite: bool = False,
+    progress: bool = True,
+    net_size: tuple[int, int] | None = None,
+) -> PriorRun:
+    """Run the network ``net`` (a spec: ``exported:NET.pt2``, ``unik3d:DIR``, ``depth_anything_v2:MODEL``)
+    over every panorama of ``data`` and store its radial depth (see the module docstring).
+
+    ``file_format``: ``png`` (16-bit millimetres, 0 = unknown; depth beyond 65.535 m is stored as 0)
+    or ``npy`` (float32 metres). ``resolution`` ``(H, W)``: the size the network sees and the files
+    have (default: each panorama's stored size). ``net_size`` ``(h, w)``: the size an ``exported:``
+    network runs at (input resized, output resized back), for networks exported with fixed shapes.
+    """
+    import time
+
+    from ... import __version__
+
+    if file_format not in ("png", "npy"):
+        raise ValueError(f"prior file format must be png or npy, got {file_format!r}")
+    if batch_size < 1:
+        raise ValueError(f"--batch-size must be >= 1, got {batch_size}")
+    if name is None and out is None:
+        raise ValueError("give the prior a --name (files go to DATA/priors/NAME) or an --out folder")
+    root, frames, layout = prior_frames(data, layout, split)
+    tree = Path(out) if out is not None else prior_tree(root, name)
+    name = name or tree.name
+    if not frames:
+        raise ValueError(f"{data}: no panoramas found")
+    suffix = f".{file_format}"
+    targets = [(rgb, key, tree_file(tree, rgb, root, suffix)) for rgb, key in frames]
+    if len({t[2] for t in targets}) != len(targets):
+        raise ValueError(f"{data}: two panoramas differ only in their suffix and would share a prior file")
+    options = {}
+    if net_size is not None:
+        if not net.startswith("exported:"):
+            raise ValueError("--net-size is for exported networks (UniK3D and Depth Anything V2 resize by themselves)")
+        options["input_size"] = tuple(net_size)
+    network = parse_network_prior(net, device=device, **options)
+    record = {
+        "name": name, "network": net, "identity": network.describe(), "format": file_format,
+        "scale": DEPTH_PNG_SCALE if file_format == "png" else 1.0,  # file units per metre
+        "resolution": list(resolution) if resolution is not None else None,
+        "depth": "radial distance along each pixel's ray (metres), 0 = unknown",
+        "layout": layout, "dataset": str(Path(root).resolve()), "frames": len(frames),
+        "cylindersplat": __version__, "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "complete": False,
+    }
+    existing = read_sidecar(tree)
+    has_files = tree.is_dir() and any(p.suffix in (".png", ".npy") and p.is_file() for p in tree.rglob("*"))
+    if not has_files:
+        existing = None  # a sidecar alone (a run that failed before its first file) holds nothing to keep
+    if existing is not None and not overwrite and not _same_network(existing, record):
+        size = existing.get("resolution")
+        raise ValueError(f"{tree} holds priors of another network or settings ({existing.get('network')}, "
+                         f"{existing.get('format')}, {'x'.join(map(str, size)) if size else 'stored size'}); pass "
+                         "--overwrite to replace them or choose another --name")
+    if existing is None and not overwrite and has_files:
+        raise ValueError(f"{tree} holds prior files without {SIDECAR} (not written by `cylindersplat data priors`); "
+                         "pass --overwrite to replace them or choose another --name")
+    resume = existing is not None and not overwrite
+    pending = [t for t in targets if not (resume and t[2].is_file())]
+    if resume:
+        record["created"] = existing.get("created", record["created"])
+    atomic_write_text(tree / SIDECAR, json.dumps(record, indent=1))
+
+    start = time.perf_counter()
+    clipped = 0
+    bar = tqdm(total=len(pending), desc=f"priors {name}", unit="pano", disable=None if progress else True)
+    batch: list[tuple[torch.Tensor, Path, Path]] = []
+
+    def flush():
+        nonlocal clipped
+        if not batch:
+            return
+        depths = network.predict_batch(torch.stack([image for image, _, _ in batch]))
+        for (image, rgb, path), depth in zip(batch, depths):
+            if tuple(depth.shape) != tuple(image.shape[-2:]):
+                raise ValueError(f"network {net} returned {tuple(depth.shape)} for {rgb}, expected {tuple(image.shape[-2:])}")
+            if not bool((depth > 0).any()):
+                raise ValueError(f"network {net} gave no positive depth for {rgb} (all zeros/negative): check its "
+                                 "output convention (depth, inverse_depth, log_depth) and scale")
+            if file_format == "png":
+                clipped += int((depth >= _PNG_MAX_METRES).sum())
+                write_depth_png(path, depth)
+            else:
+                with atomic_path(path) as tmp:
+                    np.save(tmp, depth.numpy().astype(np.float32))
+        bar.update(len(batch))
+        batch.clear()
+
+    for rgb, _, path in pending:
+        image = read_rgb(rgb, size=resolution)
+        if batch and batch[0][0].shape != image.shape:
+            flush()
+        batch.append((image, rgb, path))
+        if len(batch) >= batch_size:
+            flush()
+    flush()
+    bar.close()
+    if clipped:
+        warnings.warn(f"{clipped} pixels lie beyond {_PNG_MAX_METRES:.3f} m, the 16-bit PNG range, and were stored as 0 "
+                      "(unknown); use --format npy to keep them", stacklevel=2)
+    record.update(complete=True, finished=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    atomic_write_text(tree / SIDECAR, json.dumps(record, indent=1))
+    return PriorRun(tree, len(frames), len(pending), len(targets) - len(pending), time.perf_counter() - start)

@@ -1,0 +1,185 @@
+"""Every splat file format by its name: ``save_gaussians`` / ``load_gaussians``.
+
+* ``.ply`` (standard 3DGS PLY, all SH) and ``.splat`` (32 bytes per Gaussian) are written here
+  (:mod:`.ply`, :mod:`.splat`);
+* ``.spz`` (Niantic's compressed format), ``.compressed.ply`` (PlayCanvas / SuperSplat's chunked
+  quantised PLY) and ``.sog`` (PlayCanvas's WebP-texture bundle) go through PlayCanvas
+  **splat-transform**, a maintained converter from the npm registry (Node.js): we hand it our standard
+  PLY and it writes the format (its ``.spz`` writer is Niantic's reference encoder compiled to
+  WebAssembly). Reading those formats (and ``.ksplat``) converts them back to a standard PLY the same
+  way. No encoder for these formats is written here.
+
+splat-transform is found through ``$CYLINDERSPLAT_SPLAT_TRANSFORM`` (its executable, or a command such
+as ``npx @playcanvas/splat-transform``), then ``splat-transform`` on ``PATH``, then
+``~/.local/bin/splat-transform`` (where ``bash scripts/install_optional.sh formats`` puts it).
+Coordinates are written as they are (OpenCV world frame of the poses, no axis flip): splat-transform
+stores ``.spz`` with the coordinate system "unspecified" and converts nothing in either direction.
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import torch
+
+from ..utils.atomic import atomic_path
+from .container import Gaussians
+from .ply import load_ply, save_ply
+from .splat import save_splat
+
+__all__ = [
+    "SPLAT_TRANSFORM_ENV", "SPLAT_TRANSFORM_INSTALL", "SplatTransformError", "WRITE_FORMATS", "READ_FORMATS",
+    "splat_format", "find_splat_transform", "require_splat_transform", "save_gaussians", "load_gaussians",
+]
+
+SPLAT_TRANSFORM_ENV = "CYLINDERSPLAT_SPLAT_TRANSFORM"
+SPLAT_TRANSFORM_PACKAGE = "@playcanvas/splat-transform@3"
+SPLAT_TRANSFORM_INSTALL = (f"install PlayCanvas splat-transform (Node.js >= 20): `npm install -g {SPLAT_TRANSFORM_PACKAGE}` "
+                           f"or `bash scripts/install_optional.sh formats`, or set {SPLAT_TRANSFORM_ENV} to its executable")
+
+#: Output formats -> what they are. The last three need splat-transform.
+WRITE_FORMATS = {
+    ".ply": "standard 3DGS PLY, all SH coefficients",
+    ".splat": "antimatter15 .splat, 32 bytes per Gaussian, degree-0 colour",
+    ".compressed.ply": "PlayCanvas/SuperSplat compressed PLY (chunks of 256, 16 bytes per Gaussian + SH)",
+    ".spz": "Niantic SPZ (quantised, zstd/gzip)",
+    ".sog": "PlayCanvas SOG (WebP textures, k-means codebooks)",
+}
+#: Input formats (the PLY is read here, the others through splat-transform).
+READ_FORMATS = (".ply", ".compressed.ply", ".spz", ".sog", ".splat", ".ksplat")
+_SPLAT_TRANSFORM_FORMATS = (".compressed.ply", ".spz", ".sog", ".splat", ".ksplat")
+
+
+class SplatTransformError(ValueError):
+    """splat-transform ran and failed (its last message is in the text)."""
+
+
+def splat_format(path: str | Path, formats=tuple(WRITE_FORMATS)) -> str:
+    """The format of ``path`` by its name (``.compressed.ply`` before ``.ply``); ``ValueError`` if none fits."""
+    name = Path(path).name.lower()
+    for fmt in sorted(formats, key=len, reverse=True):
+        if name.endswith(fmt) and len(name) > len(fmt):
+            return fmt
+    raise ValueError(f"{path}: unknown splat format; use a name ending in {', '.join(formats)}")
+
+
+def find_splat_transform() -> list[str] | None:
+    """The command that runs splat-transform here, or ``None`` (see the module docstring)."""
+    env = os.environ.get(SPLAT_TRANSFORM_ENV, "").strip()
+    if env:
+        return shlex.split(env)
+    for candidate in (shutil.which("splat-transform"), Path.home() / ".local" / "bin" / "splat-transform"):
+        if candidate and os.access(candidate, os.X_OK) and Path(candidate).is_file():
+            return [str(candidate)]
+    return None
+
+
+def require_splat_transform(what: str) -> list[str]:
+    command = find_splat_transform()
+    if command is None:
+        raise FileNotFoundError(f"{what} needs splat-transform, which is not installed; {SPLAT_TRANSFORM_INSTALL}")
+    return command
+
+
+def _run(command: list[str], timeout: float = 3600) -> None:
+    try:
+        proc = subprocess.run(command, capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"cannot run {command[0]!r}; {SPLAT_TRANSFORM_INSTALL}") from None
+    except subprocess.TimeoutExpired:
+        raise SplatTransformError(f"splat-transform did not finish within {timeout:.0f} s: {shlex.join(command)}") from None
+    if proc.returncode != 0:
+        lines = [line.strip() for line in (proc.stderr + proc.stdout).splitlines() if line.strip()]
+        detail = next((line for line in reversed(lines) if "error" in line.lower()), lines[-1] if lines else "no output")
+        raise SplatTransformError(f"splat-transform failed (exit {proc.returncode}): {detail[:300]}")
+
+
+def save_gaussians(gaussians: Gaussians, path: str | Path, spz_version: int | None = None) -> Path:
+    """Write unbatched ``gaussians`` in the format named by ``path`` (:data:`WRITE_FORMATS`); atomic.
+
+    ``spz_version`` (3 or 4, default: splat-transform's, 4) picks the SPZ version; 3 is the older
+    gzip container, for readers that predate version 4.
+    """
+    path = Path(path)
+    fmt = splat_format(path)
+    if fmt == ".ply":
+        return save_ply(gaussians, path)
+    if fmt == ".splat":
+        return save_splat(gaussians, path)
+    command = require_splat_transform(f"writing {fmt}")
+    if gaussians.batch_shape:
+        raise ValueError(f"save_gaussians takes unbatched Gaussians, got batch shape {tuple(gaussians.batch_shape)}")
+    options = ["--quiet", "--overwrite"]
+    if spz_version is not None:
+        if spz_version not in (3, 4):
+            raise ValueError(f"spz_version must be 3 or 4, got {spz_version}")
+        options += ["--spz-version", str(spz_version)]
+    if fmt == ".sog":
+        # SOG's k-means runs on a WebGPU adapter by default and fails without one; the CPU path works everywhere.
+        options += ["--gpu", "cpu"]
+    with atomic_path(path) as tmp, tempfile.TemporaryDirectory(prefix=f".{path.name}.", dir=path.parent) as work:
+        # splat-transform picks the format by the output's name, so it writes `<work>/<name>`, which then
+        # takes the place of atomic_path's temporary file (same folder: plain renames throughout).
+        source, target = Path(work) / "in.ply", Path(work) / path.name
+        save_ply(gaussians, source)
+        _run([*command, *options, str(source), str(target)])
+        if not target.is_file():
+            raise SplatTransformError(f"splat-transform reported success but wrote no {target.name}")
+        os.replace(target, tmp)
+    return path
+
+
+def _looks_compressed_ply(path: Path) -> bool:
+    with open(path, "rb") as f:
+        header = f.read(4096)
+    return b"element chunk" in header and b"packed_position" in header
+
+
+def load_gaussians(path: str | Path, device=None, dtype=torch.float32) -> Gaussians:
+    """Read any of :data:`READ_FORMATS` (a compressed PLY is recognised by its header too)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"splat file not found: {path}")
+    fmt = splat_format(path, READ_FORMATS)
+    if fmt == ".ply" and not _looks_compressed_ply(path):
+        return load_ply(path, device=device, dtype=dtype)
+    command = require_splat_transform(f"reading {path.name}")
+    with tempfile.TemporaryDirectory(prefix="cylindersplat-") as work:
+        source = Path(work) / ("in" + (".compressed.ply" if fmt == ".ply" else fmt))
+        try:
+            os.symlink(path.resolve(), source)
+        except OSError:
+            shutil.copyfile(path, source)
+        target = Path(work) / "out.ply"
+        _run([*command, "--quiet", str(source), str(target)])
+        return load_ply(_saturated_to_finite(target), device=device, dtype=dtype)
+
+
+def _saturated_to_finite(path: Path) -> Path:
+    """Quantised formats store opacity 1 (and 0) exactly, which splat-transform writes as an infinite
+    logit (and a zero scale as ``-inf`` log); :func:`load_ply` refuses non-finite values, so these
+    become logits/logs of +-30 (opacity 1 - 1e-13, scale 1e-13 m). NaN stays NaN (and is refused)."""
+    import numpy as np
+    from plyfile import PlyData
+
+    ply = PlyData.read(str(path))
+    data = ply["vertex"].data
+    names = set(data.dtype.names or ())
+    changed = False
+    for name in ("opacity", "scale_0", "scale_1", "scale_2"):
+        if name in names:
+            column = data[name]
+            infinite = np.isinf(column) if name == "opacity" else np.isneginf(column)
+            if infinite.any():
+                column[infinite] = np.sign(column[infinite]) * 30.0
+                changed = True
+    if not changed:
+        return path
+    finite = path.with_name(path.stem + ".finite.ply")  # not over the memory-mapped original
+    ply.write(str(finite))
+    return finite

@@ -1,0 +1,210 @@
+"""Look at Gaussians and the input cameras: in the browser (viser), as one HTML file, or as a picture.
+
+* :func:`serve` starts a `viser <https://viser.studio>`_ server (``pip install 'cylindersplat[view]'``)
+  showing the splats (:meth:`viser.SceneApi.add_gaussian_splats`, sorted and drawn in the browser with
+  WebGL) and one frustum per input panorama, textured with the panorama;
+* :func:`write_html` writes the same scene as one self-contained HTML file (viser's embedded client
+  with the scene inside; opens from disk, no server, no network);
+* :func:`render_picture` renders a pinhole view or a panorama with our own renderer
+  (:mod:`cylindersplat.render`), for machines without a browser.
+
+The world frame is the poses' (OpenCV: +y down), so the viewer's up direction is -y. viser draws
+degree-0 colour (higher SH bands are dropped) and stores covariances as float16 (relative error
+~1e-3; variances below ~6e-8 m^2, i.e. scales under ~0.25 mm, lose precision).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .gaussians import Gaussians
+from .geometry.rotations import matrix_to_quaternion
+from .render.covariance import covariance_3d
+
+__all__ = ["VIEW_INSTALL", "ViewCamera", "ViewerScene", "SplatArrays", "splat_arrays", "import_viser", "build_scene",
+           "default_view", "serve", "write_html", "render_picture"]
+
+VIEW_INSTALL = "pip install 'cylindersplat[view]'"
+FRUSTUM_COLOR = (255, 140, 0)
+
+
+def import_viser():
+    """The ``viser`` module, or a ``ModuleNotFoundError`` that says how to install it."""
+    try:
+        import viser
+    except ModuleNotFoundError as exc:
+        raise ModuleNotFoundError(f"the viewer needs viser: {VIEW_INSTALL}", name="viser") from exc
+    return viser
+
+
+@dataclass
+class SplatArrays:
+    """What :meth:`viser.SceneApi.add_gaussian_splats` takes, as float32 numpy arrays."""
+
+    centers: np.ndarray       # (N, 3) world positions
+    covariances: np.ndarray   # (N, 3, 3) R diag(s^2) R^T
+    rgbs: np.ndarray          # (N, 3) degree-0 colour in [0, 1]
+    opacities: np.ndarray     # (N, 1) in [0, 1]
+
+
+def splat_arrays(gaussians: Gaussians) -> SplatArrays:
+    """Unbatched ``gaussians`` -> viser's arrays: colours from the SH DC term, covariances from scales and
+    (normalised) quaternions."""
+    if gaussians.batch_shape:
+        raise ValueError(f"the viewer takes unbatched Gaussians, got batch shape {tuple(gaussians.batch_shape)}")
+    g = gaussians.detach().to("cpu", torch.float32).validate()
+    as_np = lambda t: np.ascontiguousarray(t.numpy(), dtype=np.float32)  # noqa: E731
+    return SplatArrays(
+        centers=as_np(g.means),
+        covariances=as_np(covariance_3d(g.scales, g.rotations)),
+        rgbs=as_np(g.rgb.clamp(0.0, 1.0)),
+        opacities=as_np(g.opacities[:, None]),
+    )
+
+
+@dataclass
+class ViewCamera:
+    """One input camera: OpenCV camera-to-world pose, a name, and its panorama (``(H, W, 3)`` uint8) if known."""
+
+    c2w: Tensor
+    name: str = ""
+    image: np.ndarray | None = None
+
+
+@dataclass
+class ViewerScene:
+    """Handles of what :func:`build_scene` added."""
+
+    splats: object
+    frustums: list = field(default_factory=list)
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    look_at: tuple[float, float, float] = (0.0, 0.0, 1.0)
+
+
+def default_view(gaussians: Gaussians, cameras: list[ViewCamera]) -> tuple[np.ndarray, np.ndarray]:
+    """``(position, look_at)`` of the first view: behind and above the input cameras' centre, looking
+    along the first camera's forward axis; without cameras, outside the splats' middle 90 %, looking at
+    their median."""
+    up = np.array([0.0, -1.0, 0.0])  # OpenCV world: +y is down
+    if cameras:
+        centres = np.stack([c.c2w[:3, 3].double().numpy() for c in cameras])
+        centre = centres.mean(axis=0)
+        forward = cameras[0].c2w[:3, 2].double().numpy()
+        forward = forward / max(np.linalg.norm(forward), 1e-9)
+        return centre - 0.75 * forward + 0.25 * up, centre + 1.0 * forward
+    means = gaussians.means.detach().to("cpu", torch.float64).reshape(-1, 3).numpy()
+    if len(means) == 0:
+        return np.array([0.0, -1.0, -3.0]), np.zeros(3)
+    centre = np.median(means, axis=0)
+    lo, hi = np.percentile(means, [5, 95], axis=0)
+    size = float(max(np.linalg.norm(hi - lo), 1e-3))
+    return centre + size * np.array([0.0, -0.35, -0.9]), centre
+
+
+def _thumbnail(image: np.ndarray, height: int = 128) -> np.ndarray:
+    from PIL import Image
+
+    image = np.asarray(image)
+    if image.shape[0] <= height:
+        return np.ascontiguousarray(image[..., :3]).astype(np.uint8)
+    pil = Image.fromarray(np.ascontiguousarray(image[..., :3]).astype(np.uint8))
+    return np.asarray(pil.resize((round(image.shape[1] * height / image.shape[0]), height), Image.BILINEAR))
+
+
+def build_scene(server, gaussians: Gaussians, cameras: list[ViewCamera] = (), frustum_scale: float = 0.2) -> ViewerScene:
+    """Add the splats (``/gaussians``) and one frustum per camera (``/cameras/NNN``) to a viser server,
+    and point its initial camera at them (:func:`default_view`)."""
+    cameras = list(cameras)
+    arrays = splat_arrays(gaussians)
+    server.scene.set_up_direction("-y")
+    splats = server.scene.add_gaussian_splats(
+        "/gaussians", centers=arrays.centers, covariances=arrays.covariances, rgbs=arrays.rgbs, opacities=arrays.opacities)
+    frustums = []
+    for i, cam in enumerate(cameras):
+        c2w = cam.c2w.detach().to("cpu", torch.float64)
+        # A panorama sees everything; the frustum marks where it was taken and where its centre column looks (+z).
+        frustums.append(server.scene.add_camera_frustum(
+            f"/cameras/{i:03d}", fov=math.radians(60.0), aspect=2.0, scale=frustum_scale, color=FRUSTUM_COLOR,
+            image=None if cam.image is None else _thumbnail(cam.image),
+            wxyz=matrix_to_quaternion(c2w[:3, :3]).numpy(), position=c2w[:3, 3].numpy()))
+    position, look_at = default_view(gaussians, cameras)
+    server.initial_camera.position = tuple(float(v) for v in position)
+    server.initial_camera.look_at = tuple(float(v) for v in look_at)
+    server.initial_camera.up = (0.0, -1.0, 0.0)
+    return ViewerScene(splats, frustums, tuple(float(v) for v in position), tuple(float(v) for v in look_at))
+
+
+def _quiet_server(viser, host: str, port: int):
+    with contextlib.redirect_stdout(io.StringIO()):  # viser prints its address panel on start
+        return viser.ViserServer(host=host, port=port, verbose=False)
+
+
+def write_html(path: str | Path, gaussians: Gaussians, cameras: list[ViewCamera] = (), frustum_scale: float = 0.2) -> Path:
+    """One self-contained HTML file showing the scene (viser's client with the scene embedded); atomic."""
+    from .utils.atomic import atomic_path
+
+    viser = import_viser()
+    server = _quiet_server(viser, "127.0.0.1", 0)  # viser records the scene through a server; nothing is served
+    try:
+        build_scene(server, gaussians, cameras, frustum_scale)
+        html = server.scene.as_html()
+    finally:
+        with contextlib.redirect_stdout(io.StringIO()):
+            server.stop()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_text(html, encoding="utf-8")
+    return path
+
+
+def serve(gaussians: Gaussians, cameras: list[ViewCamera] = (), host: str = "127.0.0.1", port: int = 8080,
+          frustum_scale: float = 0.2, duration: float | None = None) -> None:
+    """Serve the scene at ``http://host:port`` until interrupted (Ctrl+C) or ``duration`` seconds pass."""
+    viser = import_viser()
+    server = _quiet_server(viser, host, port)
+    try:
+        scene = build_scene(server, gaussians, cameras, frustum_scale)
+        shown = "localhost" if host in ("0.0.0.0", "::") else host
+        print(f"viewer: http://{shown}:{server.get_port()}  ({len(gaussians):,} Gaussians, "
+              f"{len(scene.frustums)} cameras; Ctrl+C stops)", flush=True)
+        end = None if duration is None else time.monotonic() + duration
+        while end is None or time.monotonic() < end:
+            time.sleep(0.2 if end is None else max(min(0.2, end - time.monotonic()), 0.0))
+    finally:
+        with contextlib.redirect_stdout(io.StringIO()):
+            server.stop()
+
+
+def render_picture(path: str | Path, gaussians: Gaussians, c2w: Tensor, size: tuple[int, int] = (480, 640),
+                   fov_deg: float = 90.0, panorama: bool = False, background=(1.0, 1.0, 1.0)) -> Path:
+    """Render one view with our renderer and write it as a PNG (atomic): a pinhole camera with horizontal
+    field of view ``fov_deg``, or an equirect panorama (``panorama=True``, ``size`` must be ``(H, 2H)``)."""
+    from PIL import Image
+
+    from .render import Equirect, Pinhole, render
+    from .utils.atomic import atomic_path
+
+    h, w = size
+    if panorama:
+        camera = Equirect(h, w)
+    else:
+        if not 1.0 <= fov_deg < 179.0:
+            raise ValueError(f"field of view must be in [1, 179) degrees, got {fov_deg}")
+        f = 0.5 * w / math.tan(math.radians(fov_deg) / 2)
+        camera = Pinhole(torch.tensor([[f, 0.0, w / 2], [0.0, f, h / 2], [0.0, 0.0, 1.0]]), h, w)
+    g = gaussians.detach()
+    out = render(g, c2w.to(device=g.device, dtype=g.dtype), camera, background=background)
+    rgb = (out.rgb.clamp(0, 1) * 255 + 0.5).to(torch.uint8).permute(1, 2, 0).cpu().numpy()
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        Image.fromarray(rgb).save(tmp, format="PNG")
+    return path
