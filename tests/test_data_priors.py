@@ -127,14 +127,27 @@ _FAKE_UNIK3D = {
 }
 
 
-def test_unik3d_adapter_calls_the_documented_api(tmp_path, monkeypatch):
-    # A stand-in package with UniK3D's inference API (from_pretrained, Spherical camera, infer()["distance"]).
-    for rel, text in _FAKE_UNIK3D.items():
+def install_fakes(tmp_path, monkeypatch, request, files: dict[str, str]) -> None:
+    """Make the stand-in packages in ``files`` importable for one test, and forget them afterwards (so later
+    tests see the real environment, e.g. that the package is not installed)."""
+    for rel, text in files.items():
         (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / rel).write_text(text)
+    packages = {rel.split("/")[0] for rel in files}
     monkeypatch.syspath_prepend(str(tmp_path))
-    for name in [m for m in sys.modules if m == "unik3d" or m.startswith("unik3d.")]:
+    for name in [m for m in sys.modules if m.split(".")[0] in packages]:
         monkeypatch.delitem(sys.modules, name)
+
+    def forget():
+        for name in [m for m in sys.modules if m.split(".")[0] in packages]:
+            del sys.modules[name]
+
+    request.addfinalizer(forget)
+
+
+def test_unik3d_adapter_calls_the_documented_api(tmp_path, monkeypatch, request):
+    # A stand-in package with UniK3D's inference API (from_pretrained, Spherical camera, infer()["distance"]).
+    install_fakes(tmp_path, monkeypatch, request, _FAKE_UNIK3D)
     weights = tmp_path / "unik3d-vitl"
     weights.mkdir()
     prior = parse_depth_prior(f"unik3d:{weights}")

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 
 import pytest
 import torch
@@ -147,18 +146,11 @@ class AutoModelForDepthEstimation:
 '''
 
 
-def test_network_specs_work_from_configs(m3d, tmp_path, monkeypatch):
+def test_network_specs_work_from_configs(m3d, tmp_path, monkeypatch, request):
     # A stand-in `transformers` with the API the Depth Anything V2 adapter calls, and the fake UniK3D package.
-    from test_data_priors import _FAKE_UNIK3D
+    from test_data_priors import _FAKE_UNIK3D, install_fakes
 
-    (tmp_path / "transformers").mkdir()
-    (tmp_path / "transformers" / "__init__.py").write_text(_FAKE_TRANSFORMERS)
-    for rel, text in _FAKE_UNIK3D.items():
-        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
-        (tmp_path / rel).write_text(text)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    for name in [m for m in sys.modules if m.split(".")[0] in ("unik3d", "transformers")]:
-        monkeypatch.delitem(sys.modules, name)
+    install_fakes(tmp_path, monkeypatch, request, {**_FAKE_UNIK3D, "transformers/__init__.py": _FAKE_TRANSFORMERS})
     weights = tmp_path / "unik3d-vitl"
     weights.mkdir()
     cfg = load_config("paper", [f"data.root={m3d}", f"data.depth_prior=unik3d:{weights}", *SMALL])

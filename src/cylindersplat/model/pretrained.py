@@ -1,0 +1,53 @@
+"""Weights that ship with the package, and a ``from_pretrained`` that takes a name, a file or a folder.
+
+The shipped model (``tiny-synth``) is the ``tiny`` architecture trained on procedural scenes by
+``bash scripts/train_pretrained.sh`` (its log and held-out table: ``benchmarks/RESULTS.md``,
+"Shipped weights"). It is a starting point and a smoke-test model, not a model for real captures:
+train or fine-tune on your data for that.
+
+A checkpoint is one ``.safetensors`` file with its config in the metadata (``save_model``), or a
+folder holding ``model.safetensors`` — the same layout a model hub repository would have, so larger
+weights can be published the same way later.
+"""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+import torch
+
+from .checkpoint import load_model
+from .cylindersplat import CylinderSplat
+
+__all__ = ["PRETRAINED", "DEFAULT_PRETRAINED", "pretrained_path", "from_pretrained"]
+
+# name -> (file inside cylindersplat/weights, what it is)
+PRETRAINED: dict[str, tuple[str, str]] = {
+    "tiny-synth": ("tiny_synth.safetensors",
+                   "tiny model, 3-stage curriculum on procedural indoor/outdoor scenes at 64x128 (CPU-trained)"),
+}
+DEFAULT_PRETRAINED = "tiny-synth"
+
+
+def pretrained_path(name: str = DEFAULT_PRETRAINED) -> Path:
+    """The file of a shipped model; ``ValueError`` for an unknown name, ``FileNotFoundError`` when the
+    installation lacks it (e.g. a source tree without the weights)."""
+    if name not in PRETRAINED:
+        raise ValueError(f"unknown pretrained model {name!r}; shipped: {', '.join(sorted(PRETRAINED))}")
+    path = Path(str(resources.files("cylindersplat") / "weights" / PRETRAINED[name][0]))
+    if not path.is_file():
+        raise FileNotFoundError(f"the shipped weights {name!r} are missing from this installation ({path}); "
+                                "reinstall cylindersplat or give --checkpoint")
+    return path
+
+
+def from_pretrained(name_or_path: str | Path = DEFAULT_PRETRAINED, map_location: str | torch.device = "cpu") -> CylinderSplat:
+    """A shipped model by name (``"tiny-synth"``), a ``.safetensors`` file, or a folder holding
+    ``model.safetensors`` (a training run's output or a downloaded hub repository)."""
+    if isinstance(name_or_path, str) and name_or_path in PRETRAINED:
+        return load_model(pretrained_path(name_or_path), map_location=map_location)
+    path = Path(name_or_path)
+    if path.is_dir() and (path / "model.safetensors").is_file():
+        path = path / "model.safetensors"
+    return load_model(path, map_location=map_location)
