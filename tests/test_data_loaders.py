@@ -10,7 +10,7 @@ from PIL import Image
 from cylindersplat.data import Loc360Dataset, Sample, ViewSplit, collate_samples, select_views
 from cylindersplat.data.depth_prior import NoPrior
 from cylindersplat.data.io import read_depth_png, read_rgb, resize_depth, write_depth_png, write_rgb
-from cylindersplat.data.views import all_between, all_between_starts
+from cylindersplat.data.views import all_between, all_between_span, all_between_starts
 
 
 def write_loc360(root, location="atrium", seq="daytime_360_0", frames=6, size=(8, 16), folder="mapping"):
@@ -59,6 +59,63 @@ def test_loc360_errors(tmp_path):
         Loc360Dataset(tmp_path)
 
 
+# 360Loc with 2, 3, 4 context views and wider gaps: (views, gap, layout) -> (contexts, targets) of the three
+# examples of a 12-frame sequence with times_per_sequence=3, worked out by hand from the sampler
+# start_i = int((12 - span - 1) * i / 2), span = first to last context.
+LOC360_CASES = {
+    (2, 3, "spaced"): [((0, 3), range(0, 4)), ((4, 7), range(4, 8)), ((8, 11), range(8, 12))],  # span 3, starts 0 4 8
+    (3, 3, "spaced"): [((0, 3, 6), range(0, 7)), ((2, 5, 8), range(2, 9)), ((5, 8, 11), range(5, 12))],  # span 6: 0 2 5
+    (4, 3, "spaced"): [((0, 3, 6, 9), range(0, 10)), ((1, 4, 7, 10), range(1, 11)), ((2, 5, 8, 11), range(2, 12))],
+    (2, 6, "spaced"): [((0, 6), range(0, 7)), ((2, 8), range(2, 9)), ((5, 11), range(5, 12))],  # span 6: 0 2 5
+    (2, 10, "spaced"): [((0, 10), range(0, 11)), ((0, 10), range(0, 11)), ((1, 11), range(1, 12))],  # span 10: 0 0 1
+    (3, 5, "spaced"): [((0, 5, 10), range(0, 11)), ((0, 5, 10), range(0, 11)), ((1, 6, 11), range(1, 12))],
+    # the released three_sample / four_sample (span gap+1 / gap+2, targets strictly inside the outer contexts)
+    (3, 3, "released"): [((0, 3, 4), (1, 2, 3)), ((3, 6, 7), (4, 5, 6)), ((7, 10, 11), (8, 9, 10))],  # span 4: 0 3 7
+    (4, 3, "released"): [((0, 1, 4, 5), (1, 2, 3, 4)), ((3, 4, 7, 8), (4, 5, 6, 7)), ((6, 7, 10, 11), (7, 8, 9, 10))],
+    (3, 6, "released"): [((0, 6, 7), range(1, 7)), ((2, 8, 9), range(3, 9)), ((4, 10, 11), range(5, 11))],  # span 7
+    (2, 3, "released"): [((0, 3), range(0, 4)), ((4, 7), range(4, 8)), ((8, 11), range(8, 12))],  # = two_sample
+}
+
+
+@pytest.mark.parametrize("views,gap,layout", list(LOC360_CASES))
+def test_loc360_context_views_and_gaps(tmp_path, views, gap, layout):
+    from cylindersplat.data import make_dataset
+
+    write_loc360(tmp_path, frames=12)
+    ds = make_dataset("loc360", tmp_path, views="all_between", depth_prior="constant:2", times_per_sequence=3,
+                      context_views=views, gap=gap, context_layout=layout)
+    assert len(ds) == 3
+    for index, (context, target) in enumerate(LOC360_CASES[views, gap, layout]):
+        ref = ds.example(index)
+        assert ref.views.context == tuple(context) and ref.views.target == tuple(target)
+        assert ref.metadata == {"start": context[0], "gap": gap, "context_views": views, "context_layout": layout}
+    s = ds[2]  # the loaded sample: frames k stand at x = 0.47 k
+    context, target = LOC360_CASES[views, gap, layout][2]
+    assert s.metadata["context_indices"] == list(context) and s.metadata["target_indices"] == list(target)
+    assert s.context_images.shape[0] == views and s.target_images.shape[0] == len(target)
+    torch.testing.assert_close(s.context_poses[:, 0, 3], 0.47 * torch.tensor(context, dtype=torch.float32))
+    torch.testing.assert_close(s.target_poses[:, 0, 3], 0.47 * torch.tensor(list(target), dtype=torch.float32))
+    assert s.metadata["baseline"] == pytest.approx(0.47 * (context[-1] - context[0]), rel=1e-5)
+    assert all_between_span(gap, views, layout) == context[-1] - context[0]
+
+
+def test_loc360_views_errors(tmp_path):
+    from cylindersplat.data import make_dataset
+
+    write_loc360(tmp_path, frames=12)
+    with pytest.raises(ValueError, match="span 12 frames, but the longest sequence has 12"):
+        make_dataset("loc360", tmp_path, views="all_between", depth_prior="constant:2", context_views=4, gap=4)
+    assert len(Loc360Dataset(tmp_path, context_views=4, gap=4)) == 0  # the class itself stays usable (data priors)
+    with pytest.raises(ValueError, match="2, 3 and 4 context views only"):
+        Loc360Dataset(tmp_path, context_views=5, context_layout="released")
+    with pytest.raises(ValueError, match="context views >= 2"):
+        Loc360Dataset(tmp_path, context_views=1)
+    with pytest.raises(ValueError, match="gap between context frames"):
+        all_between(0, 0)
+    with pytest.raises(ValueError, match="unknown all_between layout"):
+        all_between(0, 3, 3, "nested")
+
+
 def test_view_protocols():
     assert select_views(3, "two_view") == ViewSplit((0, 2), (1,))
     assert select_views(9, "two_view") == ViewSplit((0, 8), (4,))  # Residential: 0, 8 -> 4
@@ -80,7 +137,7 @@ def test_sample_validation_and_collate():
     batch = collate_samples([make(), make()])
     assert batch.context_images.shape == (2, 2, 3, 4, 8) and batch.target_depths.shape == (2, 1, 4, 8)
     assert collate_samples([make(), make(False)]).target_depths is None
-    with pytest.raises(ValueError, match="context_depths"):
+    with pytest.raises(ValueError, match="context_priors"):
         Sample(torch.rand(2, 3, 4, 8), torch.rand(2, 4, 9), torch.eye(4).expand(2, 4, 4),
                torch.rand(1, 3, 4, 8), None, torch.eye(4)[None])
     assert make().to("cpu").num_context == 2

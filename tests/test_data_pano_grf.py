@@ -103,7 +103,7 @@ def test_tiny_loader_root_lookup_and_collate(tiny_root):
     s = ds[1]
     assert s.metadata["baseline"] == pytest.approx(2.0) and s.metadata["nominal_baseline"] == 2.0
     assert torch.allclose(s.target_depths, torch.full((1, 8, 16), 1.1))
-    assert torch.equal(s.context_depths, torch.zeros(2, 8, 16))  # none, asked for by name
+    assert torch.equal(s.context_priors, torch.zeros(2, 8, 16))  # none, asked for by name
     (folder / "priors" / "x").mkdir(parents=True)  # prior files of `data priors` are not a scene
     assert len(PanoGRFDataset(folder, depth_prior=NoPrior())) == 2
     batch = collate_samples([ds[0], ds[1]])

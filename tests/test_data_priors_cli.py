@@ -98,7 +98,7 @@ def test_priors_on_the_real_fixture(tmp_path, capsys):
     sample = ds[0]
     for k, frame in enumerate(("00", "02")):
         want = expected_depth(FIXTURE / "00000007" / frame / "rgb.png", (32, 64))
-        assert (sample.context_depths[k] - want).abs().max() <= 5e-4 + 1e-6
+        assert (sample.context_priors[k] - want).abs().max() <= 5e-4 + 1e-6
 
 
 def test_priors_on_synthetic_data_npy_batched_resume_overwrite(synth, tmp_path, capsys):
@@ -119,7 +119,7 @@ def test_priors_on_synthetic_data_npy_batched_resume_overwrite(synth, tmp_path, 
     ds = SyntheticDataset(synth, depth_prior=parse_depth_prior("file:mono"))
     sample = ds[1]
     rgb = synth / ds.scenes[1] / "00" / "rgb.png"
-    torch.testing.assert_close(sample.context_depths[0], expected_depth(rgb, None))
+    torch.testing.assert_close(sample.context_priors[0], expected_depth(rgb, None))
     # Resume: a half-finished tree is completed, the rest skipped.
     files[0].unlink()
     assert main(args) == 0
@@ -182,6 +182,6 @@ def test_all_zero_prior_files_are_refused(synth, tmp_path):
     for rgb in synth.glob("*/*/rgb.png"):
         write_depth_png(tree / rgb.relative_to(synth), torch.zeros(16, 32))
     ds = SyntheticDataset(synth, depth_prior=parse_depth_prior(f"file:{tree}"))
-    with pytest.raises(ValueError, match="has no positive pixel"):
+    with pytest.raises(ValueError, match="has no positive depth"):
         ds[0]
-    assert np.isfinite(SyntheticDataset(synth, depth_prior=NoPrior())[0].context_depths.numpy()).all()
+    assert np.isfinite(SyntheticDataset(synth, depth_prior=NoPrior())[0].context_priors.numpy()).all()

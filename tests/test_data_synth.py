@@ -104,9 +104,9 @@ def test_write_and_load_synthetic(tmp_path):
     assert torch.allclose(s.target_depths[0], depth[1], atol=5e-4)
     assert torch.allclose(s.context_poses, seq.poses[[0, 2]])
     assert s.metadata["baseline"] == pytest.approx(2 * seq.spacing, rel=1e-5)
-    prior = s.context_depths
+    prior = s.context_priors
     assert prior.shape == (2, 16, 32) and not torch.equal(prior, s.context_gt_depths)
-    assert torch.equal(prior, ds[0].context_depths)  # seeded
+    assert torch.equal(prior, ds[0].context_priors)  # seeded
     one = SyntheticDataset(out, views="one_view", depth_prior=NoPrior())[1]
     assert one.context_images.shape[0] == 1 and one.target_images.shape[0] == 2
     # Re-running skips complete scenes (resumable) and still lists them.

@@ -15,7 +15,7 @@ from cylindersplat.scenes import demo_room
 def test_demo_end_to_end_and_reuse(tmp_path, capsys):
     out = tmp_path / "demo"
     args = ["demo", "--out", str(out), "--scenes", "3", "--held-out", "1", "--resolution", "16x32",
-            "--steps", "3,2,2", "--frames", "3"]
+            "--steps", "3,2,2", "--frames", "3", "--train"]
     assert main(args) == 0
     for name in ("comparison.png", "novel_view_rgb.png", "novel_view_depth.png", "flythrough.gif",
                  "gaussians.ply", "results.md", "results.json", "input/poses.json", "train/model.safetensors"):
@@ -32,6 +32,16 @@ def test_demo_end_to_end_and_reuse(tmp_path, capsys):
     # A second run reuses the trained weights instead of training again.
     assert main(args) == 0
     assert "reusing" in capsys.readouterr().out
+
+
+def test_demo_uses_the_shipped_weights_by_default(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--scenes", "2", "--held-out", "1", "--resolution", "16x32", "--frames", "0"]) == 0
+    printed = capsys.readouterr().out
+    assert "using the shipped tiny-synth weights" in printed and "training the tiny model" not in printed
+    assert not (out / "train").exists()
+    means = next(iter(json.loads((out / "results.json").read_text())["means"].values()))
+    assert set(means) == {"CylinderSplat (tiny)", "its pixel branch alone", "Forward warp"}
 
 
 def test_demo_rejects_bad_options(tmp_path, capsys):

@@ -17,6 +17,53 @@ from cylindersplat.metrics import DepthRange, abs_rel, delta1, lrce, pcc, psnr, 
 from cylindersplat.model import save_model
 
 
+def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
+    """`eval --format loc360 --views 2,3 --gap 2`: one table per view count, the chosen frames scored (no GT depth)."""
+    from test_data_loaders import write_loc360
+
+    write_loc360(tmp_path / "loc", frames=9, size=(16, 32))
+    checkpoint = tmp_path / "model.safetensors"
+    save_model(tiny_model, checkpoint)
+    out = tmp_path / "eval"
+    assert main(["eval", "--format", "loc360", "--data", str(tmp_path / "loc"), "--protocols", "all_between",
+                 "--views", "2,3", "--gap", "2", "--depth-prior", "constant:2", "--checkpoint", str(checkpoint),
+                 "--max-examples", "2", "--pictures", "1", "--lpips", "off", "--device", "cpu", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "0.94 m between neighbouring contexts, 1.88 m first to last" in printed  # 3 views, frames 0.47 m apart
+    data = json.loads((out / "results.json").read_text())
+    assert data["settings"] == {
+        "all_between_2views_gap2": {"protocol": "all_between", "context_views": 2, "gap": 2, "context_layout": "spaced"},
+        "all_between_3views_gap2": {"protocol": "all_between", "context_views": 3, "gap": 2, "context_layout": "spaced"}}
+    # 9 frames, 100 starts: 2 views span 2 -> first starts 0, 0; 3 views span 4 -> 0, 0: targets 0..2 and 0..4
+    rows = data["views"]["all_between_3views_gap2"]
+    assert len(rows) == 2 * 5 * 2 and {r["view"] for r in rows} == set(range(5))  # examples x targets x methods
+    assert len(data["views"]["all_between_2views_gap2"]) == 2 * 3 * 2
+    means = data["means"]["loc — all_between, 3 views, gap 2 (2 examples)"]
+    assert set(means) == {"CylinderSplat", "Forward warp"} and means["Forward warp"]["abs_rel"] is None
+    assert 0 < means["Forward warp"]["ssim"] <= 1
+    assert len(list((out / "examples" / "all_between_3views_gap2").glob("*.png"))) == 1
+    # released layout, 4 views: contexts (s, s+1, s+3, s+4), targets s+1..s+3
+    assert main(["eval", "--format", "loc360", "--data", str(tmp_path / "loc"), "--views", "4", "--gap", "2",
+                 "--views-layout", "released", "--protocols", "all_between", "--depth-prior", "constant:2",
+                 "--max-examples", "1", "--pictures", "0", "--lpips", "off", "--out", str(tmp_path / "e4")]) == 0
+    data = json.loads((tmp_path / "e4" / "results.json").read_text())
+    assert [r["view"] for r in data["views"]["all_between_4views_gap2_released"]] == [0, 1, 2]
+    # errors: one line, exit 1
+    capsys.readouterr()
+    assert main(["eval", "--format", "loc360", "--data", str(tmp_path / "loc"), "--protocols", "all_between",
+                 "--views", "3", "--gap", "5", "--depth-prior", "constant:2", "--out", str(tmp_path / "e")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "span 10 frames, but the longest sequence has 9" in err[0]
+
+
+def test_eval_cli_views_need_loc360(tmp_path, capsys):
+    assert main(["eval", "--data", str(tmp_path), "--views", "3", "--out", str(tmp_path / "e")]) == 1
+    assert "--format loc360" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["eval", "--data", str(tmp_path), "--gap", "0"])
+    assert "integers >= 1" in capsys.readouterr().err
+
+
 @pytest.fixture(scope="module")
 def synth_root(synth_dataset):  # conftest.py; the same data as test_eval_occluded.py
     return synth_dataset(2, seed=3)

@@ -154,7 +154,7 @@ def test_evaluate_without_context_depth_or_occlusion(synth_root):
     method = Method("oracle", _oracle)
 
     def no_context_gt(s):
-        return Sample(s.context_images, s.context_depths, s.context_poses, s.target_images, s.target_depths,
+        return Sample(s.context_images, s.context_priors, s.context_poses, s.target_images, s.target_depths,
                       s.target_poses, s.metadata, context_gt_depths=None)
 
     with pytest.warns(UserWarning, match="context views have no ground-truth depth"):

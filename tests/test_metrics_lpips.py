@@ -1,12 +1,18 @@
 """LPIPS-VGG: weight loading and agreement with an independent re-computation of the formula."""
 
+import importlib
+import importlib.util
+
 import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
 from safetensors.torch import save_file
 
-from cylindersplat.metrics import LPIPS, LPIPS_WEIGHTS_ENV, load_lpips, lpips
+from cylindersplat.metrics import (LPIPS, LPIPS_WEIGHTS_ENV, load_lpips, lpips, lpips_package_weights,
+                                   lpips_weights_available, torchvision_vgg16_weights)
+
+LPIPS_MODULE = importlib.import_module("cylindersplat.metrics.lpips")  # the attribute `lpips` is the function
 
 
 @pytest.fixture(scope="module")
@@ -92,6 +98,9 @@ def test_lpips_accepts_lpips_package_key_names(weights_file, tmp_path):
 
 def test_lpips_missing_weights_errors(tmp_path, monkeypatch):
     monkeypatch.delenv(LPIPS_WEIGHTS_ENV, raising=False)
+    monkeypatch.setattr(LPIPS_MODULE, "lpips_package_weights", lambda: None)  # whatever is installed
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))  # an empty torchvision cache
+    assert not lpips_weights_available()
     with pytest.raises(FileNotFoundError, match=LPIPS_WEIGHTS_ENV):
         load_lpips()
     with pytest.raises(FileNotFoundError, match="not found"):
@@ -100,3 +109,99 @@ def test_lpips_missing_weights_errors(tmp_path, monkeypatch):
     save_file({"features.0.weight": torch.zeros(64, 3, 3, 3)}, str(partial))
     with pytest.raises(ValueError, match="missing"):
         load_lpips(partial)
+
+
+# ---- the lpips package's heads + torchvision's cached trunk ----------------------------------------------------
+
+
+@pytest.fixture()
+def split_weights(weights_file, tmp_path, monkeypatch):
+    """A fake installed ``lpips`` package (only ``weights/v0.1/vgg.pth``, heads of distinct values; importing it
+    fails, so it must only be located) and a fake torchvision cache holding the trunk as torchvision saves it."""
+    from safetensors.torch import load_file
+
+    state = load_file(str(weights_file))
+    trunk = {k: v for k, v in state.items() if k.startswith("features.")}
+    trunk["classifier.0.weight"] = torch.zeros(4, 3)  # the rest of torchvision's vgg16 file is ignored
+    g = torch.Generator().manual_seed(5)
+    heads = {f"lin{k}.model.1.weight": torch.rand(1, c, 1, 1, generator=g) + k for k, c in enumerate((64, 128, 256, 512, 512))}
+    package = tmp_path / "site" / "lpips"
+    (package / "weights" / "v0.1").mkdir(parents=True)
+    (package / "__init__.py").write_text("raise ImportError('the lpips package must be located, not imported')\n")
+    torch.save(heads, package / "weights" / "v0.1" / "vgg.pth")
+    monkeypatch.syspath_prepend(str(tmp_path / "site"))
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "torch"))
+    monkeypatch.delenv(LPIPS_WEIGHTS_ENV, raising=False)
+    cache = tmp_path / "torch" / "hub" / "checkpoints" / "vgg16-397923af.pth"
+    cache.parent.mkdir(parents=True)
+    torch.save(trunk, cache)
+    return trunk, heads, package / "weights" / "v0.1" / "vgg.pth", cache
+
+
+def _assert_loaded(net, trunk, heads):
+    for k, lin in enumerate(net.lins):
+        assert torch.equal(lin.weight, heads[f"lin{k}.model.1.weight"])
+    for index, conv in net.features.items():
+        assert torch.equal(conv.weight, trunk[f"features.{index}.weight"])
+        assert torch.equal(conv.bias, trunk[f"features.{index}.bias"])
+
+
+def test_lpips_from_package_heads_and_torchvision_cache(split_weights, tmp_path):
+    trunk, heads, package_file, cache = split_weights
+    assert lpips_package_weights() == package_file and torchvision_vgg16_weights() == cache
+    assert lpips_weights_available()
+    net = load_lpips()
+    _assert_loaded(net, trunk, heads)
+    assert net.sources == {"trunk": str(cache), "linear": str(package_file)}
+    # the same numbers as one merged file of those tensors
+    merged = tmp_path / "merged.pth"
+    torch.save({**trunk, **heads}, merged)
+    a, b = torch.rand(2, 1, 3, 16, 32)
+    assert torch.equal(net(a, b), load_lpips(merged)(a, b))
+
+
+def test_lpips_file_parts_completed_from_package_or_cache(split_weights, tmp_path):
+    trunk, heads, package_file, cache = split_weights
+    trunk_only = tmp_path / "vgg16_features.pth"
+    torch.save({k: v for k, v in trunk.items() if k.startswith("features.")}, trunk_only)
+    cache.unlink()  # the trunk must come from the file now
+    net = load_lpips(trunk_only)
+    _assert_loaded(net, trunk, heads)
+    assert net.sources == {"trunk": str(trunk_only), "linear": str(package_file)}
+    with pytest.raises(FileNotFoundError, match="VGG16 trunk"):  # heads only: the trunk is looked for in the cache
+        load_lpips(package_file)
+    torch.save(trunk, cache)
+    assert load_lpips(package_file).sources == {"trunk": str(cache), "linear": str(package_file)}
+
+
+def test_lpips_file_without_heads_and_no_package(weights_file, tmp_path, monkeypatch):
+    from safetensors.torch import load_file
+
+    monkeypatch.setattr(LPIPS_MODULE, "lpips_package_weights", lambda: None)
+    trunk_only = tmp_path / "vgg16_features.safetensors"
+    save_file({k: v for k, v in load_file(str(weights_file)).items() if k.startswith("features.")}, str(trunk_only))
+    with pytest.raises(FileNotFoundError, match=r"has no linear heads.*pip install lpips"):
+        load_lpips(trunk_only)
+    bad = tmp_path / "bad_heads.pth"  # heads of the wrong size are refused, not reshaped
+    torch.save({**load_file(str(trunk_only)), **{f"lin{k}.model.1.weight": torch.ones(1, 3, 1, 1) for k in range(5)}}, bad)
+    with pytest.raises(ValueError, match="lin0 has shape"):
+        load_lpips(bad)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("lpips") is None, reason="the lpips package is not installed")
+def test_real_lpips_package_heads():
+    heads = torch.load(lpips_package_weights(), map_location="cpu", weights_only=True)
+    assert {k: tuple(v.shape) for k, v in heads.items()} == {
+        f"lin{k}.model.1.weight": (1, c, 1, 1) for k, c in enumerate((64, 128, 256, 512, 512))}
+
+
+def test_training_loss_auto_uses_the_same_lookup(split_weights, tmp_path, monkeypatch):
+    from cylindersplat.training.losses import LossConfig, RenderLoss
+
+    trunk, heads, _, _ = split_weights
+    loss = RenderLoss(LossConfig(use_lpips="auto"))
+    assert loss.uses_lpips
+    _assert_loaded(loss.lpips_net, trunk, heads)
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "empty"))  # no trunk anywhere: auto drops the term
+    with pytest.warns(UserWarning, match="LPIPS loss term disabled"):
+        assert not RenderLoss(LossConfig(use_lpips="auto")).uses_lpips

@@ -184,3 +184,41 @@ def test_image_modes_are_read_or_refused_explicitly(tmp_path):
     Image.fromarray((ramp * 255).astype(np.uint8)).save(tmp_path / "depth8.png")
     with pytest.raises(ValueError, match="8-bit depth PNG"):
         read_depth_png(tmp_path / "depth8.png")
+
+
+def test_contact_sheet_eval_pictures_and_input_poses_are_atomic(tmp_path, monkeypatch, panorama_folder, synth_dataset):
+    """A failed write of a contact sheet, an evaluation picture or an input folder's poses.json keeps the earlier file."""
+    from pathlib import Path
+
+    from PIL import Image
+
+    from cylindersplat.data import make_dataset
+    from cylindersplat.data.preview import write_contact_sheet
+    from cylindersplat.evaluation import evaluate, forward_warp_method
+    from cylindersplat.inference import write_panorama_folder
+
+    def half_written(self, fp, *args, **kwargs):  # writes part of the file, then the disk is full
+        Path(fp if isinstance(fp, (str, Path)) else self).write_bytes(b"partial")
+        raise OSError(28, "No space left on device")
+
+    sheet = write_contact_sheet(synth_dataset(2, seed=0), tmp_path / "sheet" / "sheet.png", count=1, height=16)
+    examples = tmp_path / "examples"
+    dataset = make_dataset("folder", panorama_folder[0], targets=["pano_01.png"])
+    evaluate(dataset, [forward_warp_method()], example_dir=examples, num_pictures=1, progress=False)
+    (picture,) = examples.iterdir()
+    folder, images, depths, poses = panorama_folder
+    before = {path: path.read_bytes() for path in (sheet, picture, folder / "poses.json")}
+    with monkeypatch.context() as patch:
+        patch.setattr(Image.Image, "save", half_written)
+        with pytest.raises(OSError, match="No space"):
+            write_contact_sheet(synth_dataset(2, seed=0), sheet, count=1, height=16)
+        with pytest.raises(OSError, match="No space"):
+            evaluate(dataset, [forward_warp_method()], example_dir=examples, num_pictures=1, progress=False)
+    with monkeypatch.context() as patch:
+        patch.setattr(Path, "write_text", lambda self, text, *a, **k: half_written(None, self))
+        with pytest.raises(OSError, match="No space"):
+            write_panorama_folder(folder, images, poses.flip(0), depths)
+    for path, data in before.items():
+        assert path.read_bytes() == data, path
+    for parent in (sheet.parent, examples, folder):  # no temporary left behind
+        assert not [p.name for p in parent.iterdir() if ".tmp" in p.name]

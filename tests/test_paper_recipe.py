@@ -51,7 +51,7 @@ def test_paper_preset_feeds_unik3d_to_the_model_and_the_loss(m3d, tmp_path):
     trainer = Trainer(cfg)
     sample = trainer.dataset[0]
     for k, frame in enumerate(("00", "02")):  # the contexts' input prior: the UniK3D files (within 1 mm)
-        assert (sample.context_depths[k] - _want(m3d, frame)).abs().max() <= 5e-4 + 1e-6
+        assert (sample.context_priors[k] - _want(m3d, frame)).abs().max() <= 5e-4 + 1e-6
     # D_ref: the same network on the target view, not the ground truth.
     assert (sample.target_reference_depths[0] - _want(m3d, "01")).abs().max() <= 5e-4 + 1e-6
     assert (sample.target_reference_depths[0] - sample.target_depths[0]).abs().mean() > 0.1
@@ -62,7 +62,7 @@ def test_paper_preset_feeds_unik3d_to_the_model_and_the_loss(m3d, tmp_path):
     forward = trainer.loss_fn.forward
     trainer.loss_fn.forward = lambda *a, **k: (seen.update(reference=a[4].detach().clone()), forward(*a, **k))[1]
     terms = trainer.compute_loss(batch_to_device(collate_samples([sample]), trainer.device))
-    torch.testing.assert_close(seen["prior"][0], sample.context_depths)
+    torch.testing.assert_close(seen["prior"][0], sample.context_priors)
     torch.testing.assert_close(seen["reference"][0], sample.target_reference_depths)
     assert "depth_l1" in terms.parts
 
@@ -163,7 +163,7 @@ def test_network_specs_work_from_configs(m3d, tmp_path, monkeypatch, request):
         model.mkdir()
         (model / "kind").write_text(kind)
         cfg = load_config("paper", [f"data.root={m3d}", f"data.depth_prior=depth_anything_v2:{model}", *SMALL])
-        depth = build_dataset(cfg.data)[0].context_depths[0]
+        depth = build_dataset(cfg.data)[0].context_priors[0]
         image = read_rgb(m3d / "00000007" / "00" / "rgb.png", size=(32, 64))
         small = torch.nn.functional.interpolate(
             ((image * 255 + 0.5).to(torch.uint8).float() / 255)[None], size=(28, 56), mode="bilinear")

@@ -87,7 +87,7 @@ def _num_gaussians(trainer, batch) -> int:
 
     b = batch_to_device(batch, trainer.device)
     with torch.no_grad(), torch.autocast(trainer.device.type, dtype=torch.bfloat16, enabled=trainer.use_bf16):
-        out = trainer.model(b.context_images, b.context_depths, b.context_poses)
+        out = trainer.model(b.context_images, b.context_priors, b.context_poses)
     return int(out.gaussians.means.shape[-2])
 
 

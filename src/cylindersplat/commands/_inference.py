@@ -12,7 +12,8 @@ from ._arguments import device, model_resolution
 def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
     parser.add_argument("--input", required=required, type=Path,
                         help="folder of equirect panoramas + poses.json (OpenCV c2w; see docs/inference.md)")
-    parser.add_argument("--checkpoint", required=required, type=Path, help="model .safetensors (from cylindersplat train / demo)")
+    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train / demo), a run folder, or a shipped "
+                        "model name (default: the shipped tiny-synth weights, trained on procedural scenes)")
     parser.add_argument("--poses-file", type=Path, help="poses file (default INPUT/poses.json)")
     parser.add_argument("--resolution", type=model_resolution,
                         help="HxW the model runs at (default: the model's nominal input height x 2)")
@@ -29,9 +30,12 @@ def reconstruct_from_args(args: argparse.Namespace):
     """-> (inputs, gaussians, model) for the parsed options; prints what it did."""
     from ..data.depth_prior import parse_depth_prior
     from ..inference import load_panorama_folder, reconstruct_gaussians
-    from ..model import load_model
+    from ..model.pretrained import DEFAULT_PRETRAINED, from_pretrained
 
-    model = load_model(args.checkpoint, map_location=args.device)  # refuses folders, pickles, broken files by name
+    if args.checkpoint is None:
+        print(f"using the shipped {DEFAULT_PRETRAINED} weights (trained on procedural scenes; --checkpoint for your own)")
+    # refuses missing files, pickles, broken or diverged weights by name
+    model = from_pretrained(args.checkpoint or DEFAULT_PRETRAINED, map_location=args.device)
     size = args.resolution or (model.config.image_height, 2 * model.config.image_height)
     stride = model.config.backbone.token_stride
     if size[0] % stride:

@@ -1,8 +1,9 @@
 """``cylindersplat demo``: the main job, end to end on a default that needs no download.
 
 1. generate a small procedural panorama set (``OUT/data``);
-2. train the ``tiny`` model on all but the last ``--held-out`` scenes (curriculum stages 1-2-3), or
-   reuse ``OUT/train/model.safetensors`` / ``--checkpoint`` when present;
+2. take the shipped ``tiny-synth`` weights (trained on other procedural scenes: an instant first
+   result), or with ``--train`` train the ``tiny`` model on all but the last ``--held-out`` scenes
+   (curriculum stages 1-2-3; ``OUT/train/model.safetensors`` is reused once trained), or ``--checkpoint``;
 3. score it against ground truth and the forward-warp baseline on the held-out scenes
    (``OUT/results.md``/``.json``, comparison pictures in ``OUT/examples``);
 4. reconstruct the first held-out scene from its two outer panoramas, written as a user input folder
@@ -32,9 +33,9 @@ DEFAULT_STEPS = "400,100,100"
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "demo",
-        help="the main job: synthetic data -> train tiny model -> reconstruct a held-out scene, vs a baseline",
-        description="Generate procedural panoramas, train the tiny model for a few minutes on CPU (or reuse a "
-        "checkpoint), reconstruct a held-out scene from 2 panoramas and compare the novel view with ground truth "
+        help="the main job: synthetic data -> shipped (or --train: your own) tiny model -> reconstruct a held-out scene, vs a baseline",
+        description="Generate procedural panoramas, take the shipped tiny-synth weights (or, with --train, train the "
+        "tiny model for a few minutes on CPU; or --checkpoint), reconstruct a held-out scene from 2 panoramas and compare the novel view with ground truth "
         "and with forward-warping the nearest input panorama. Writes renders, depth colormaps, a PLY, a fly-through "
         "and a metrics table to --out. Needs no download.",
     )
@@ -46,8 +47,11 @@ def register(subparsers) -> None:
                    help=f"training steps of curriculum stages 1 (pixel), 2 (volume) and 3 (joint); 0 skips a stage "
                    f"(default {DEFAULT_STEPS})")
     p.add_argument("--lr", type=float, default=2e-3, help="peak learning rate of the short CPU schedule (default 2e-3)")
-    p.add_argument("--checkpoint", type=Path, help="use these weights instead of training")
-    p.add_argument("--retrain", action="store_true", help="train even if OUT/train/model.safetensors exists")
+    p.add_argument("--checkpoint", help="use these weights (a .safetensors file, a run folder or a shipped model name)")
+    p.add_argument("--train", action="store_true",
+                   help="train the tiny model on the demo's scenes (a few minutes on CPU) instead of using the shipped "
+                   "weights; a later --train run reuses OUT/train/model.safetensors")
+    p.add_argument("--retrain", action="store_true", help="train anew even if OUT/train/model.safetensors exists")
     p.add_argument("--frames", type=int, default=16, help="fly-through frames, 0 = none (default 16)")
     p.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
     p.add_argument("--room", action="store_true", help="only render the built-in Gaussian room (renderer smoke test)")
@@ -91,19 +95,30 @@ def generate_data(args) -> Path:
     return root
 
 
-def train_or_reuse(args, data: Path) -> Path:
+def train_or_reuse(args, data: Path) -> Path | str:
+    """The weights the demo scores: ``--checkpoint``, the shipped model, or its own training run."""
+    from ..model.pretrained import DEFAULT_PRETRAINED, PRETRAINED, pretrained_path
     from ..training import Trainer, load_config
 
     if args.checkpoint:
+        if args.checkpoint in PRETRAINED:
+            pretrained_path(args.checkpoint)
+            print(f"[2/4] using the shipped {args.checkpoint} weights")
+            return args.checkpoint
         from ..model.checkpoint import check_weights_file
 
         check_weights_file(args.checkpoint)  # a folder, a missing file or a pickle: one line, before any work
         print(f"[2/4] using weights {args.checkpoint}")
-        return args.checkpoint
+        return Path(args.checkpoint)
     run_dir = args.out / "train"
     weights = run_dir / "model.safetensors"
+    if not (args.train or args.retrain):
+        pretrained_path(DEFAULT_PRETRAINED)  # missing from a broken installation: one line, before any work
+        print(f"[2/4] using the shipped {DEFAULT_PRETRAINED} weights ({PRETRAINED[DEFAULT_PRETRAINED][1]}; "
+              "--train trains your own on these scenes in a few minutes)")
+        return DEFAULT_PRETRAINED
     if weights.is_file() and not args.retrain:
-        print(f"[2/4] reusing {weights} (from an earlier run; --retrain to train again)")
+        print(f"[2/4] reusing {weights} (from an earlier --train run; --retrain to train again)")
         return weights
     try:
         steps = [int(s) for s in args.steps.split(",")]
@@ -131,19 +146,19 @@ def train_or_reuse(args, data: Path) -> Path:
     return Path(summary["weights"])
 
 
-def score_held_out(args, data: Path, checkpoint: Path) -> str:
+def score_held_out(args, data: Path, checkpoint: Path | str) -> str:
     from ..data import SyntheticDataset
     from ..evaluation import evaluate, forward_warp_method, model_method, results_to_markdown
     from ..metrics import DepthRange
-    from ..model import load_model
+    from ..model.pretrained import from_pretrained
 
     _, held_out = _scene_ids(args)
     print(f"[3/4] scoring {len(held_out)} held-out scenes (2 panoramas in, the middle one predicted)")
     dataset = SyntheticDataset(data, views="two_view", scenes=held_out)
-    model = load_model(checkpoint, map_location=args.device)
+    model = from_pretrained(checkpoint, map_location=args.device)
     methods = [model_method(model, "CylinderSplat (tiny)", device=args.device)]
     if model.mode == "both":  # the same weights with the pixel branch alone: what the volume branch adds
-        pixel_only = load_model(checkpoint, map_location=args.device).set_mode("pixel")
+        pixel_only = from_pretrained(checkpoint, map_location=args.device).set_mode("pixel")
         methods.append(model_method(pixel_only, "its pixel branch alone", device=args.device))
     result = evaluate(dataset, methods + [forward_warp_method()],
                       example_dir=args.out / "examples", num_pictures=len(held_out), depth_range=DepthRange(0.05, 1000.0))
@@ -155,7 +170,7 @@ def score_held_out(args, data: Path, checkpoint: Path) -> str:
     return table
 
 
-def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
+def reconstruct_held_out(args, data: Path, checkpoint: Path | str) -> None:
     from PIL import Image
 
     from ..baselines import forward_warp
@@ -171,7 +186,8 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
         write_panorama_folder,
         write_view,
     )
-    from ..model import load_model
+    from ..model.pretrained import from_pretrained
+    from ..utils.atomic import atomic_path
 
     _, held_out = _scene_ids(args)
     sample = SyntheticDataset(data, views="two_view", scenes=held_out[:1])[0]
@@ -181,7 +197,7 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
     folder = write_panorama_folder(args.out / "input", sample.context_images, sample.context_poses, sample.context_depths,
                                    names=["left", "right"])
     inputs = load_panorama_folder(folder, args.resolution)
-    model = load_model(checkpoint, map_location=args.device)
+    model = from_pretrained(checkpoint, map_location=args.device)
     gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, min_opacity=0.005)
     h, w = args.resolution
     ours = render_views(gaussians, sample.target_poses, h, w)
@@ -194,7 +210,8 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
         "CylinderSplat": (ours.rgb[0], ours.depth[0], ours.alpha[0]),
         "Forward warp": (warp.rgb[0], warp.depth[0], warp.alpha[0]),
     })
-    Image.fromarray(sheet).resize((sheet.shape[1] * 2, sheet.shape[0] * 2), Image.NEAREST).save(args.out / "comparison.png")
+    with atomic_path(args.out / "comparison.png") as tmp:
+        Image.fromarray(sheet).resize((sheet.shape[1] * 2, sheet.shape[0] * 2), Image.NEAREST).save(tmp, format="PNG")
     ply = save_ply(gaussians.to("cpu"), args.out / "gaussians.ply")
     print(f"  {len(gaussians):,} Gaussians -> {ply}; comparison (rows: ground truth, CylinderSplat, forward warp; "
           f"RGB | depth) -> {args.out / 'comparison.png'}")

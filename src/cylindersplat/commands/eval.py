@@ -11,10 +11,71 @@ from ..utils.atomic import atomic_write_text
 from ._arguments import device, equirect_resolution
 
 
-def open_eval_dataset(args, protocol: str):
+def positive_int_list(text: str) -> list[int]:
+    """``"3"`` or ``"2,3,4"`` -> ``[3]`` / ``[2, 3, 4]`` (integers >= 1); an argparse type."""
+    try:
+        values = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer or a comma list of integers, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected integers >= 1, got {text!r}")
+    return values
+
+
+def eval_runs(args) -> list[tuple[str, str, dict]]:
+    """``(label, protocol, loader options)`` per table: one per protocol, and for 360Loc's all_between one per
+    ``--views`` x ``--gap`` (label ``all_between_3views_gap3``; plain ``all_between`` when neither is given)."""
+    chosen = args.views is not None or args.gap is not None or args.views_layout is not None
+    if chosen and args.format != "loc360":
+        raise ValueError(f"--views, --gap and --views-layout choose 360Loc's context frames (--format loc360, protocol "
+                         f"all_between); the {args.format} format has fixed protocols: use --protocols")
+    if getattr(args, "targets", None):  # a folder of panoramas with held-out frames: one table
+        if args.format != "folder":
+            raise ValueError(f"--targets holds out frames of a folder of panoramas (--format folder), not of {args.format} data")
+        return [("held_out", "held_out", {})]
+    runs = []
+    for protocol in args.protocols.split(","):
+        if protocol != "all_between" or args.format != "loc360":
+            runs.append((protocol, protocol, {}))
+            continue
+        layout = args.views_layout or "spaced"
+        for views in args.views or [2]:
+            for gap in args.gap or [3]:
+                label = protocol
+                if chosen:
+                    label += f"_{views}views_gap{gap}" + ("_released" if layout == "released" else "")
+                runs.append((label, protocol, {"context_views": views, "gap": gap, "context_layout": layout}))
+    return runs
+
+
+def context_spacing(dataset, count: int) -> str | None:
+    """One line on the context poses of the first ``count`` examples: mean distance between neighbouring
+    contexts and between the outermost ones (metres), or None for a dataset without example references."""
+    import torch
+
+    if not hasattr(dataset, "example"):
+        return None
+    neighbour, outer = [], []
+    for index in range(count):
+        ref = dataset.example(index)
+        centers = torch.stack([ref.frames[i].c2w[:3, 3].double() for i in sorted(ref.views.context)])
+        if len(centers) < 2:
+            return None
+        neighbour.append(float((centers[1:] - centers[:-1]).norm(dim=-1).mean()))
+        outer.append(float(torch.cdist(centers, centers).max()))
+    if not neighbour:
+        return None
+    return (f"context baseline: {sum(neighbour) / len(neighbour):.2f} m between neighbouring contexts, "
+            f"{sum(outer) / len(outer):.2f} m first to last (mean over {len(outer)} examples)")
+
+
+def open_eval_dataset(args, protocol: str, loader_options: dict | None = None):
     from ..data.datasets import make_dataset
 
     options = {"scenes": args.scenes.split(",")} if args.format == "synthetic" and args.scenes else {}
+    if args.format == "folder" and getattr(args, "targets", None):
+        options["targets"] = [name for name in args.targets.split(",") if name]
+    options.update(loader_options or {})
     # The PCC reference: gt is Sample.target_depths; file:NAME arrives as Sample.target_reference_depths.
     reference = "none" if args.pcc_reference == "gt" else args.pcc_reference
     return make_dataset(args.format, args.data, views=protocol, split=args.split, resolution=args.resolution,
@@ -42,18 +103,23 @@ def _apply_preset(args) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..evaluation import METRIC_COLUMNS, VIEW_COUNTS, evaluate, forward_warp_method, model_method, results_to_markdown
     from ..metrics import DepthRange, load_lpips
-    from ..model import load_model
 
     _apply_preset(args)
     # Every dataset first: a missing prior or reference fails before any model is loaded.
-    datasets = {protocol: open_eval_dataset(args, protocol) for protocol in args.protocols.split(",")}
+    runs = eval_runs(args)
+    datasets = {label: (protocol, options, open_eval_dataset(args, protocol, options)) for label, protocol, options in runs}
     methods = []
-    if args.checkpoint:
-        methods.append(model_method(load_model(args.checkpoint, map_location=args.device), "CylinderSplat", device=args.device))
+    if not args.no_model:
+        from ..model.pretrained import DEFAULT_PRETRAINED, from_pretrained
+
+        if args.checkpoint is None:
+            print(f"using the shipped {DEFAULT_PRETRAINED} weights (--checkpoint for your own, --no-model for the baseline only)")
+        model = from_pretrained(args.checkpoint or DEFAULT_PRETRAINED, map_location=args.device)
+        methods.append(model_method(model, "CylinderSplat", device=args.device))
     if not args.no_baseline:
         methods.append(forward_warp_method())
     if not methods:
-        raise ValueError("nothing to evaluate: give --checkpoint and/or drop --no-baseline")
+        raise ValueError("nothing to evaluate: drop --no-model or --no-baseline")
     lpips_net = None
     if args.lpips_weights or args.lpips == "on":
         lpips_net = load_lpips(args.lpips_weights)
@@ -61,26 +127,39 @@ def run(args: argparse.Namespace) -> int:
         try:
             lpips_net = load_lpips(None) if args.lpips == "auto" else None
         except FileNotFoundError:
-            print("LPIPS: no local weights (set $CYLINDERSPLAT_LPIPS_WEIGHTS or --lpips-weights); column shown as n/a")
+            print("LPIPS: no local weights (--lpips-weights, $CYLINDERSPLAT_LPIPS_WEIGHTS, or the lpips package with "
+                  "torchvision's cached VGG16 weights; docs/evaluation.md); column shown as n/a")
+    if lpips_net is not None and getattr(lpips_net, "sources", None):
+        print(f"LPIPS: VGG trunk from {lpips_net.sources['trunk']}, linear layers from {lpips_net.sources['linear']}")
     depth_range = DepthRange(*args.depth_range) if args.depth_range else (
         DepthRange() if args.format == "pano_grf" else DepthRange(0.05, 1000.0))
     args.out.mkdir(parents=True, exist_ok=True)
-    results, details = {}, {}
-    for protocol, dataset in datasets.items():
-        result = evaluate(dataset, methods, lpips_net, args.max_examples, args.out / "examples" / protocol,
+    results, details, settings = {}, {}, {}
+    for label, (protocol, options, dataset) in datasets.items():
+        result = evaluate(dataset, methods, lpips_net, args.max_examples, args.out / "examples" / label,
                           num_pictures=args.pictures, depth_range=depth_range,
                           pcc_reference="gt" if args.pcc_reference == "gt" else "reference")
-        key = f"{Path(args.data).name} — {protocol} ({result.num_examples} examples)"
+        title = protocol
+        if options:
+            title += f", {options['context_views']} views, gap {options['gap']}"
+            title += ", released layout" if options["context_layout"] == "released" else ""
+        key = f"{Path(args.data).name} — {title} ({result.num_examples} examples)"
         keys = [column[0] for column in METRIC_COLUMNS] + list(VIEW_COUNTS)
         results[key] = {name: {k: m.get(k) for k in keys} for name, m in result.means.items()}
-        details[protocol] = result.rows
+        details[label] = result.rows
+        settings[label] = {"protocol": protocol, **options}
+        if options:
+            spacing = context_spacing(dataset, result.num_examples)
+            if spacing:
+                result.notes.append(spacing)
         if args.pcc_reference != "gt":
             result.notes.append(f"PCC against {args.pcc_reference} (AbsRel, RMSE, δ1 against the ground truth, where there is one)")
         for note in result.notes:
-            print(f"{protocol}: {note}")
+            print(f"{label}: {note}")
     table = results_to_markdown(results, title="Evaluation")
     atomic_write_text(args.out / "results.md", table)
-    atomic_write_text(args.out / "results.json", json.dumps({"means": results, "views": details}, indent=1))
+    atomic_write_text(args.out / "results.json",
+                      json.dumps({"means": results, "views": details, "settings": settings}, indent=1))
     print(table)
     print(f"wrote {args.out}/results.md, results.json and examples/")
     return 0
@@ -91,23 +170,41 @@ def register(subparsers) -> None:
         "eval", help="evaluate a checkpoint (and the forward-warp baseline) on a dataset",
         description=(
             "Run the paper's protocols (two_view: first+last frame in, middle out; one_view: middle "
-            "in, outer out; n_view: all but the middle in; all_between: 360Loc) and write a table "
+            "in, outer out; n_view: all but the middle in; all_between: 360Loc, with --views and --gap) and "
+            "write a table "
             "(PCC, WS-PSNR, SSIM, LPIPS, AbsRel, RMSE, delta1, LRCE, time, then WS-PSNR, PSNR, L1 and AbsRel "
             "on the occluded pixels -- those no input view sees, found with the ground-truth depth of targets "
             "and inputs -- and their share) as Markdown and JSON plus comparison pictures (ground truth / "
             "methods; RGB | depth). See docs/evaluation.md."
         ),
     )
-    parser.add_argument("--data", required=True, help="dataset folder (synthetic output, png_render_* folder or 360Loc root)")
-    parser.add_argument("--format", choices=["synthetic", "pano_grf", "loc360"], help="dataset layout (default synthetic, or the --config preset's)")
+    parser.add_argument("--data", required=True, help="dataset folder (synthetic output, png_render_* folder, 360Loc root or a folder of posed panoramas)")
+    parser.add_argument("--format", choices=["synthetic", "pano_grf", "loc360", "folder"],
+                        help="dataset layout (default synthetic, or the --config preset's); folder: posed panoramas in the "
+                        "input format of docs/inference.md (one folder, or a folder of them), frames held out with "
+                        "--targets or by --protocols two_view/one_view/n_view in poses-file order")
     parser.add_argument("--config", help="training preset or YAML (e.g. paper) whose data.format, data.depth_prior and "
                         "eval.pcc_reference are the defaults of --format, --depth-prior and --pcc-reference")
-    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train); omit to score only the baseline")
+    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train), a run folder or a shipped model "
+                        "name (default: the shipped tiny-synth weights)")
+    parser.add_argument("--no-model", action="store_true", help="score only the forward-warp baseline")
     parser.add_argument("--protocols", default="two_view", help="comma list of two_view, one_view, n_view, all_between (default two_view)")
+    parser.add_argument("--views", type=positive_int_list, metavar="N[,N...]",
+                        help="360Loc (all_between): context views per example, e.g. 3 or 2,3,4 for the paper's "
+                        "multi-view table (default 2); one table each")
+    parser.add_argument("--gap", type=positive_int_list, metavar="G[,G...]",
+                        help="360Loc (all_between): frames between neighbouring contexts (default 3, ~1.4 m; frames "
+                        "are ~0.46 m apart, so wider baselines need larger gaps); one table each")
+    parser.add_argument("--views-layout", choices=["spaced", "released"],
+                        help="360Loc with 3 or 4 views: spaced (contexts every --gap frames, all frames from first to "
+                        "last scored; default) or released (the released code's three_sample/four_sample: the pair "
+                        "--gap apart plus adjacent frames); see docs/evaluation.md")
     parser.add_argument("--out", type=Path, default=Path("outputs/eval"), help="output folder (default outputs/eval)")
     parser.add_argument("--resolution", type=equirect_resolution, help="evaluate at HxW (default: stored size)")
     parser.add_argument("--split", default="test", help="split of pano_grf / loc360 data (default test)")
     parser.add_argument("--scenes", help="synthetic data: comma list of scene ids to use")
+    parser.add_argument("--targets", help="--format folder: comma list of frames (image names or stems) held out as "
+                        "targets, the other frames being the inputs (instead of --protocols)")
     parser.add_argument("--depth-prior", help="depth prior given to the methods: default (the dataset's; an error where it "
                         "has none), file:NAME (from `cylindersplat data priors`), gt, simulated, constant:METRES, "
                         "exported:NET.pt2, unik3d:WEIGHTS, depth_anything_v2:MODEL, or none (zeros, on request only)")

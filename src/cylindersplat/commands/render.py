@@ -86,8 +86,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("rendering a PLY needs camera poses: --views POSES (views, and a fly-through through them) "
                              "and/or --camera-path POSES (a fly-through along exactly those poses)")
     else:
-        if not args.input or not args.checkpoint:
-            raise ValueError("give --input and --checkpoint (or --ply to render an existing 3DGS scene)")
+        if not args.input:
+            raise ValueError("give --input (with --checkpoint, or the shipped weights) or --ply to render an existing 3DGS scene")
     if args.output_resolution:
         _camera(args, *args.output_resolution)  # a bad size fails now, not after the reconstruction
     turn = _yaw(args.yaw)

@@ -46,8 +46,9 @@ def check_sources(args: argparse.Namespace) -> None:
     """A splat file, or --input with --checkpoint: one of the two."""
     if args.splats is not None and (args.input is not None or args.checkpoint is not None):
         raise ValueError("give either a splat file or --input/--checkpoint, not both")
-    if args.splats is None and (args.input is None or args.checkpoint is None):
-        raise ValueError("give a splat file (scene.ply, .spz, .compressed.ply, .sog) or --input and --checkpoint")
+    if args.splats is None and args.input is None:
+        raise ValueError("give a splat file (scene.ply, .spz, .compressed.ply, .sog) or --input (with --checkpoint, or the "
+                         "shipped weights)")
 
 
 def load_scene(args: argparse.Namespace):

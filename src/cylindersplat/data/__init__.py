@@ -16,6 +16,7 @@ from .depth_prior import (
     make_depth_prior,
 )
 from .datasets import DATASETS, make_dataset
+from .folder import FolderDataset
 from .io import read_depth_png, read_rgb, resize_depth, write_depth_png, write_rgb
 from .loc360 import Loc360Dataset
 from .pano_grf import PanoGRFDataset, panogrf_c2w

@@ -16,8 +16,8 @@ from torch import Tensor
 from torch.utils.data import Dataset
 
 from ..geometry import validate_c2w
-from .depth_prior.base import DepthPrior, MissingPrior, NoPrior, PriorQuery
-from .io import read_depth_png, read_rgb
+from .depth_prior.base import DepthPrior, MissingPrior, PriorQuery
+from .io import read_depth_npy, read_depth_png, read_rgb
 from .sample import Sample
 from .views import ViewSplit
 
@@ -26,12 +26,17 @@ __all__ = ["FrameRef", "ExampleRef", "PanoramaDataset"]
 
 @dataclass
 class FrameRef:
-    """One stored panorama: its files and OpenCV ``c2w`` (4x4, float32)."""
+    """One stored panorama: its files and OpenCV ``c2w`` (4x4, float32).
+
+    ``depth``: its stored radial depth, a 16-bit PNG or a float ``.npy``; ``depth_scale``: the file's units
+    per metre (``None``: the format's own, millimetres for PNG, metres for ``.npy``).
+    """
 
     name: str
     rgb: Path
     c2w: Tensor
     depth: Path | None = None
+    depth_scale: float | None = None
 
 
 @dataclass
@@ -47,7 +52,7 @@ class ExampleRef:
 class PanoramaDataset(Dataset):
     """Base class. ``resolution`` (H, W) resizes on load (None = stored size); ``stored_size``
     (H, W), when a layout fixes it, is checked against every file; ``depth_prior`` fills
-    ``Sample.context_depths`` (default: :class:`MissingPrior`, an error asking for a choice; a
+    ``Sample.context_priors`` (default: :class:`MissingPrior`, an error asking for a choice; a
     context prior without a single positive pixel is an error unless the prior is ``none``).
 
     ``target_reference`` (a :class:`DepthPrior`, default ``None``) fills
@@ -95,9 +100,14 @@ class PanoramaDataset(Dataset):
         image = read_rgb(frame.rgb, size=self.resolution, expected=self.stored_size)
         depth = None
         if frame.depth is not None:
-            depth = read_depth_png(
-                frame.depth, size=tuple(image.shape[-2:]), expected=self.stored_size, resize_mode=self.depth_resize
-            )
+            size = tuple(image.shape[-2:])
+            if Path(frame.depth).suffix.lower() == ".npy":
+                depth = read_depth_npy(frame.depth, size=size, resize_mode=self.depth_resize)
+                if frame.depth_scale is not None:
+                    depth = depth / frame.depth_scale
+            else:
+                depth = read_depth_png(frame.depth, size=size, expected=self.stored_size, resize_mode=self.depth_resize,
+                                       **({} if frame.depth_scale is None else {"scale": frame.depth_scale}))
         return image, depth
 
     def __getitem__(self, index: int) -> Sample:
@@ -115,24 +125,29 @@ class PanoramaDataset(Dataset):
 
         def stack_depths(indices):
             depths = [loaded[i][1] for i in indices]
-            return None if any(d is None for d in depths) else torch.stack(depths)
+            return None if not depths or any(d is None for d in depths) else torch.stack(depths)
 
         ctx, tgt = ref.views.context, ref.views.target
+        h, w = next(iter(sizes))[-2:]
 
         def query(i):
             return PriorQuery(loaded[i][0], loaded[i][1], ref.frames[i].rgb,
-                              f"{self.dataset_name}/{ref.scene}/{ref.frames[i].name}", self.data_root)
+                              f"{self.dataset_name}/{ref.scene}/{ref.frames[i].name}", self.data_root,
+                              depth_path=ref.frames[i].depth)
 
-        priors = [self.depth_prior(query(i)).float() for i in ctx]
-        if not isinstance(self.depth_prior, NoPrior):  # zeros only when asked for by name
-            for i, prior in zip(ctx, priors):
-                if not bool((prior > 0).any()):
-                    raise ValueError(
-                        f"depth prior {self.depth_prior.spec!r} of {ref.frames[i].rgb} has no positive pixel (all "
-                        "zeros = unknown): the model would get no depth; check the prior's files or network, or "
-                        "choose the prior none explicitly")
+        priors = []
+        for i in ctx:
+            q = query(i)
+            prior = self.depth_prior(q).float()
+            if tuple(prior.shape) != (h, w):
+                raise ValueError(f"{self.depth_prior.source(q)} has shape {tuple(prior.shape)}, expected {(h, w)}")
+            if not self.depth_prior.allows_zeros and not bool((prior > 0).any()):  # zeros only when asked for by name
+                raise ValueError(
+                    f"{self.depth_prior.source(q)} has no positive depth (all zeros = unknown): the model would get no "
+                    "depth; check the files or the prior's network, or choose the prior none explicitly")
+            priors.append(prior)
         references = None
-        if self.target_reference is not None:
+        if self.target_reference is not None and tgt:
             references = torch.stack([self.target_reference(query(i)).float() for i in tgt])
         poses = torch.stack([f.c2w.float() for f in ref.frames])
         metadata = {
@@ -147,9 +162,9 @@ class PanoramaDataset(Dataset):
         }
         return Sample(
             context_images=torch.stack([loaded[i][0] for i in ctx]),
-            context_depths=torch.stack(priors),
+            context_priors=torch.stack(priors),
             context_poses=poses[list(ctx)],
-            target_images=torch.stack([loaded[i][0] for i in tgt]),
+            target_images=torch.stack([loaded[i][0] for i in tgt]) if tgt else torch.zeros(0, 3, h, w),
             target_depths=stack_depths(tgt),
             target_poses=poses[list(tgt)],
             metadata=metadata,

@@ -4,7 +4,8 @@
 :func:`make_dataset` opens one with the three depth choices kept apart:
 
 * the model's **input prior** (``data.depth_prior``): ``default`` (the dataset's own: the
-  simulated prior for synthetic data, an error asking for a choice elsewhere), ``file:NAME``,
+  simulated prior for synthetic data, the depth files of a folder of panoramas, an error asking
+  for a choice elsewhere), ``file:NAME``,
   ``simulated``, ``gt``, ``constant:M``, ``none`` or a network spec (``unik3d:DIR``, ...);
 * a **reference depth of the targets** (``loss.depth_reference`` for training, ``--pcc-reference``
   for evaluation): ``gt`` (the dataset's ground truth, ``Sample.target_depths``), ``prior`` (the
@@ -22,7 +23,8 @@ from pathlib import Path
 from typing import Callable
 
 from .base import FrameRef, PanoramaDataset
-from .depth_prior import FilePrior, NoPrior, parse_depth_prior, require_depth_prior
+from .depth_prior import FilePrior, MissingPrior, NoPrior, StoredDepthPrior, parse_depth_prior, require_depth_prior
+from .folder import FolderDataset
 from .loc360 import Loc360Dataset
 from .pano_grf import PanoGRFDataset
 from .synthetic import SyntheticDataset
@@ -39,13 +41,22 @@ def _pano_grf(root, *, views="two_view", split="test", **kwargs) -> PanoramaData
 
 
 def _loc360(root, *, views="all_between", split="test", **kwargs) -> PanoramaDataset:
+    # options: gap (frames between neighbouring contexts, default 3 = 1.4 m), context_views (2, 3, 4, ...),
+    # context_layout ("spaced" / "released"), times_per_sequence; see cylindersplat.data.views.all_between
     if views != "all_between":
         raise ValueError(f"360Loc has its own protocol: use views all_between (data.views / eval --protocols), not {views!r}")
-    return Loc360Dataset(root, split=split, **kwargs)
+    dataset = Loc360Dataset(root, split=split, **kwargs)
+    dataset.require_examples()
+    return dataset
+
+
+def _folder(root, *, views="all_inputs", split=None, **kwargs) -> PanoramaDataset:
+    return FolderDataset(root, views=views, **kwargs)  # a folder of posed panoramas, or a folder of them (no splits)
 
 
 # layout name -> loader(root, *, views, split, resolution, depth_prior, **layout options)
-DATASETS: dict[str, Callable[..., PanoramaDataset]] = {"synthetic": _synthetic, "pano_grf": _pano_grf, "loc360": _loc360}
+DATASETS: dict[str, Callable[..., PanoramaDataset]] = {"synthetic": _synthetic, "pano_grf": _pano_grf, "loc360": _loc360,
+                                                       "folder": _folder}
 
 REFERENCES = ("gt", "prior", "none", "file:NAME")
 
@@ -71,7 +82,10 @@ def _frames_by_role(dataset: PanoramaDataset) -> tuple[list[FrameRef], list[Fram
 
 
 def check_prior_files(dataset: PanoramaDataset, prior, frames: list[FrameRef], option: str) -> None:
-    """For a :class:`FilePrior`: every frame has its file, else ``FileNotFoundError`` naming ``data priors``."""
+    """For a :class:`FilePrior`: every frame has its file, else ``FileNotFoundError`` naming ``data priors``
+    (behind a :class:`StoredDepthPrior`: every frame without a depth file of its own)."""
+    if isinstance(prior, StoredDepthPrior):
+        prior, frames = prior.fallback, [f for f in frames if f.depth is None]
     if not isinstance(prior, FilePrior) or not frames:
         return
     missing = [f for f in frames if prior.find(f.rgb, dataset.data_root) is None]
@@ -99,6 +113,11 @@ def attach_reference(dataset: PanoramaDataset, reference: str, option: str, targ
         if isinstance(prior, NoPrior):
             raise ValueError(f"{option}=prior but the input prior is none (zeros): choose another input prior, or "
                              f"{option}=gt / file:NAME / none")
+        if isinstance(prior, StoredDepthPrior) and isinstance(prior.fallback, MissingPrior):
+            lacking = [f for f in targets if f.depth is None]
+            if lacking:
+                raise ValueError(f"{option}=prior but {lacking[0].rgb} has no depth file and no input prior is chosen; "
+                                 f"choose one, or {option}=file:NAME / none")
     else:
         prior = parse_depth_prior(reference)
     check_prior_files(dataset, prior, targets, option)
@@ -135,7 +154,9 @@ def make_dataset(
         kwargs["depth_prior"] = parse_depth_prior(depth_prior)  # a name or name:value, e.g. unik3d:/weights
     dataset = DATASETS[layout](root, views=views, split=split, **kwargs)
     require_depth_prior(dataset, prior_option)  # no silent zeros: the PanoGRF / 360Loc default asks for a choice
-    if isinstance(dataset.depth_prior, FilePrior) or reference != "none":
+    if isinstance(dataset, FolderDataset):
+        dataset.check_depth(prior_option)  # frames without a depth file need a chosen prior
+    if isinstance(dataset.depth_prior, (FilePrior, StoredDepthPrior)) or reference != "none":
         contexts, targets = _frames_by_role(dataset)
         check_prior_files(dataset, dataset.depth_prior, contexts, prior_option)
         attach_reference(dataset, reference, reference_option, targets)

@@ -11,6 +11,12 @@ PanSplat uses the poses as stored (no axis change), trains on ``concourse``, ``h
 360Loc gaps min 2 / max 5) takes two contexts ``gap = (2 + 5) // 2 = 3`` frames apart (~1.4 m) at
 ``times_per_sequence = 100`` evenly spaced starts, and renders every frame between them, the
 contexts included (:func:`cylindersplat.data.views.all_between`). There is no ground-truth depth.
+
+More context views (the paper's Table 5: 3 and 4 views) and wider gaps (its wide-baseline table:
+3.0 m and 4.5 m; frames are ~0.46 m apart): ``context_views`` and ``gap`` (``context_layout`` says where
+the extra contexts go, see :func:`~cylindersplat.data.views.all_between`). The starts follow the
+same sampler with the span from the first to the last context in place of the gap:
+``int((n - span - 1) * i / (times - 1))``; sequences of ``n <= span`` frames give no example.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ import numpy as np
 import torch
 
 from .base import ExampleRef, FrameRef, PanoramaDataset
-from .views import all_between, all_between_starts
+from .views import all_between, all_between_span, all_between_starts
 
 __all__ = ["Loc360Dataset", "LOC360_SPLITS", "read_camera_pose_json"]
 
@@ -62,6 +68,8 @@ class Loc360Dataset(PanoramaDataset):
         split: str = "test",
         locations: tuple[str, ...] | None = None,
         gap: int = 3,
+        context_views: int = 2,
+        context_layout: str = "spaced",
         times_per_sequence: int = 100,
         resolution: tuple[int, int] | None = None,
         depth_prior=None,
@@ -74,7 +82,8 @@ class Loc360Dataset(PanoramaDataset):
         if locations is None:
             raise ValueError(f"unknown 360Loc split {split!r}; use one of {sorted(LOC360_SPLITS)} or pass locations")
         self.root = self.data_root = root
-        self.gap = gap
+        span = all_between_span(gap, context_views, context_layout)  # also checks the three choices
+        self.gap, self.context_views, self.context_layout = gap, context_views, context_layout
         self.sequences: list[tuple[str, Path, list[tuple[str, torch.Tensor]]]] = []
         self.index: list[tuple[int, int]] = []
         for location in locations:
@@ -85,12 +94,21 @@ class Loc360Dataset(PanoramaDataset):
                     poses = read_camera_pose_json(seq / "camera_pose.json")
                     seq_id = len(self.sequences)
                     self.sequences.append((f"{location}-{seq.name}", seq, poses))
-                    self.index += [(seq_id, s) for s in all_between_starts(len(poses), gap, times_per_sequence)]
+                    self.index += [(seq_id, s) for s in all_between_starts(len(poses), span, times_per_sequence)]
         if not self.sequences:
             raise ValueError(f"{root}: no 360Loc sequences (<location>/{{mapping,query_360}}/*360*/) for {locations}")
 
     def __len__(self) -> int:
         return len(self.index)
+
+    def require_examples(self) -> None:
+        """A one-line ``ValueError`` when no sequence is long enough for the chosen views and gap."""
+        if not self.index:
+            span = all_between_span(self.gap, self.context_views, self.context_layout)
+            longest = max(len(poses) for _, _, poses in self.sequences)
+            raise ValueError(f"{self.root}: {self.context_views} context views {self.gap} frames apart "
+                             f"({self.context_layout} layout) span {span} frames, but the longest sequence has "
+                             f"{longest}: choose a smaller gap or fewer views")
 
     def frames(self) -> list[tuple[FrameRef, str]]:
         """Every frame of every sequence (also those no example of this protocol uses)."""
@@ -101,4 +119,6 @@ class Loc360Dataset(PanoramaDataset):
         seq_id, start = self.index[index]
         scene, seq, poses = self.sequences[seq_id]
         frames = [FrameRef(name, seq / "image" / name, c2w) for name, c2w in poses]
-        return ExampleRef(scene, frames, all_between(start, self.gap), {"start": start, "gap": self.gap})
+        views = all_between(start, self.gap, self.context_views, self.context_layout)
+        return ExampleRef(scene, frames, views, {"start": start, "gap": self.gap, "context_views": self.context_views,
+                                                 "context_layout": self.context_layout})

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 from PIL import Image
 
+from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
 from .base import PanoramaDataset, _baseline
 from .depth_prior.base import NoPrior
@@ -53,8 +54,8 @@ def example_occlusion(dataset: PanoramaDataset, index: int) -> ExampleOcclusion:
         return ExampleOcclusion(ref.scene, baseline, None)
     expected = getattr(dataset, "stored_size", None)
     depth = {i: read_depth_png(ref.frames[i].depth, expected=expected) for i in ctx + tgt}
-    context_depths = torch.stack([depth[i] for i in ctx])
-    shares = [occluded_fraction(occluded_mask(depth[t], poses[t], context_depths, poses[ctx])) for t in tgt]
+    context_gt = torch.stack([depth[i] for i in ctx])  # ground truth (what the context cameras saw), not the prior
+    shares = [occluded_fraction(occluded_mask(depth[t], poses[t], context_gt, poses[ctx])) for t in tgt]
     return ExampleOcclusion(ref.scene, baseline, shares)
 
 
@@ -105,6 +106,6 @@ def contact_sheet(dataset: PanoramaDataset, count: int = 4, gap: int = 4) -> np.
 def write_contact_sheet(data: str | Path, out: str | Path, count: int = 4, height: int = 128) -> Path:
     sheet = contact_sheet(open_dataset(data, resolution=(height, 2 * height)), count)
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(sheet).save(out)
+    with atomic_path(out) as tmp:  # a failed write keeps an earlier sheet; the temporary keeps the suffix (format)
+        Image.fromarray(sheet).save(tmp)
     return out

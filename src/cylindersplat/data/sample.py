@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -19,9 +20,10 @@ class Sample:
     Images are float in ``[0, 1]``; depths are radial distances in metres (0 = invalid); poses are
     OpenCV camera-to-world 4x4 (world +y gravity-down where the data is gravity-aligned).
 
-    * ``context_images`` ``(V, 3, H, W)``, ``context_depths`` ``(V, H, W)``: the depth *prior* fed
+    * ``context_images`` ``(V, 3, H, W)``, ``context_priors`` ``(V, H, W)``: the depth *prior* fed
       to the model (see :mod:`cylindersplat.data.depth_prior`; all zeros only for the prior ``none``),
-      ``context_poses`` ``(V, 4, 4)``.
+      ``context_poses`` ``(V, 4, 4)``. (``context_depths``, its old name, still reads it, with a
+      ``DeprecationWarning``.)
     * ``target_images`` ``(T, 3, H, W)``, ``target_depths`` ``(T, H, W)`` ground truth or ``None``,
       ``target_poses`` ``(T, 4, 4)``.
     * ``context_gt_depths``: ground-truth depth of the context views when the dataset has it.
@@ -33,7 +35,7 @@ class Sample:
     """
 
     context_images: Float[Tensor, "V 3 H W"]
-    context_depths: Float[Tensor, "V H W"]
+    context_priors: Float[Tensor, "V H W"]
     context_poses: Float[Tensor, "V 4 4"]
     target_images: Float[Tensor, "T 3 H W"]
     target_depths: Float[Tensor, "T H W"] | None
@@ -46,7 +48,7 @@ class Sample:
         v, _, h, w = self.context_images.shape
         t = self.target_images.shape[0]
         checks = {
-            "context_depths": (self.context_depths, (v, h, w)),
+            "context_priors": (self.context_priors, (v, h, w)),
             "context_poses": (self.context_poses, (v, 4, 4)),
             "target_images": (self.target_images, (t, 3, h, w)),
             "target_depths": (self.target_depths, (t, h, w)),
@@ -59,6 +61,14 @@ class Sample:
         for name, (value, shape) in checks.items():
             if value is not None and tuple(value.shape) != shape:
                 raise ValueError(f"Sample.{name} must have shape {shape}, got {tuple(value.shape)}")
+
+    @property
+    def context_depths(self) -> Tensor:
+        """Deprecated name of :attr:`context_priors` (the depth prior, not ground truth; read-only)."""
+        warnings.warn("Sample.context_depths is deprecated: it is the depth prior fed to the model, now named "
+                      "Sample.context_priors (ground-truth depth of the contexts is Sample.context_gt_depths)",
+                      DeprecationWarning, stacklevel=2)
+        return self.context_priors
 
     @property
     def num_context(self) -> int:

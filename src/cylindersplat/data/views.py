@@ -7,14 +7,16 @@ Protocols (paper Sec. 4 and its peers), for a sequence of ``n`` frames on a line
 * ``"one_view"``: the middle frame in, the first and last frames out;
 * ``"n_view"``: every frame but the middle one in, the middle one out;
 * ``"all_between"``: two contexts ``gap`` frames apart starting at ``start``, every frame between
-  them *including the contexts* out (PanSplat's 360Loc test protocol, ``gap = 3``).
+  them *including the contexts* out (PanSplat's 360Loc test protocol, ``gap = 3``). With more
+  context views (the paper's Table 5: 3 and 4 views on 360Loc) see :func:`all_between`'s layouts.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["ViewSplit", "PROTOCOLS", "select_views", "all_between", "all_between_starts"]
+__all__ = ["ViewSplit", "PROTOCOLS", "ALL_BETWEEN_LAYOUTS", "select_views", "all_between", "all_between_span",
+           "all_between_starts"]
 
 PROTOCOLS = ("two_view", "one_view", "n_view")
 
@@ -48,13 +50,64 @@ def select_views(num_frames: int, protocol: str | ViewSplit = "two_view") -> Vie
     raise ValueError(f"unknown view protocol {protocol!r}; choose from {PROTOCOLS} or pass a ViewSplit")
 
 
+ALL_BETWEEN_LAYOUTS = ("spaced", "released")
+
+
 def all_between_starts(num_frames: int, gap: int, times: int) -> list[int]:
-    """Left-context indices of PanSplat's 360Loc test sampler: ``times`` evenly spaced starts."""
+    """Left-context indices of PanSplat's 360Loc test sampler: ``times`` evenly spaced starts.
+
+    ``gap`` is the span between the outermost contexts (:func:`all_between_span`); a sequence of
+    ``num_frames <= gap`` frames gives none.
+    """
     if num_frames <= gap:
         return []
     return [int((num_frames - gap - 1) * i / max(times - 1, 1)) for i in range(times)]
 
 
-def all_between(start: int, gap: int) -> ViewSplit:
-    """Contexts ``start`` and ``start + gap``; targets every frame from ``start`` to ``start + gap``."""
-    return ViewSplit((start, start + gap), tuple(range(start, start + gap + 1)))
+def _check_all_between(gap: int, views: int, layout: str) -> None:
+    if layout not in ALL_BETWEEN_LAYOUTS:
+        raise ValueError(f"unknown all_between layout {layout!r}; choose from {', '.join(ALL_BETWEEN_LAYOUTS)}")
+    if isinstance(gap, bool) or not isinstance(gap, int) or gap < 1:
+        raise ValueError(f"the gap between context frames must be an integer >= 1, got {gap!r}")
+    if isinstance(views, bool) or not isinstance(views, int) or views < 2:
+        raise ValueError(f"all_between needs an integer number of context views >= 2, got {views!r}")
+    if layout == "released" and views > 4:
+        raise ValueError(f"the released layout exists for 2, 3 and 4 context views only, not {views}; use layout spaced")
+
+
+def all_between_span(gap: int, views: int = 2, layout: str = "spaced") -> int:
+    """Frames from the first to the last context of :func:`all_between` (what a sequence must exceed)."""
+    _check_all_between(gap, views, layout)
+    if layout == "spaced":
+        return (views - 1) * gap
+    return gap + {2: 0, 3: 1, 4: 2}[views]
+
+
+def all_between(start: int, gap: int, views: int = 2, layout: str = "spaced") -> ViewSplit:
+    """360Loc's context/target frames for ``views`` contexts, the first at ``start``.
+
+    ``views=2`` (both layouts): contexts ``start`` and ``start + gap``, every frame from one to the
+    other a target, the contexts included (PanSplat's protocol and the paper's two-view 360Loc rows;
+    ``gap=3`` is the 1.4 m baseline). More views, as ``layout``:
+
+    * ``"spaced"`` (default): contexts every ``gap`` frames, ``start + k * gap`` for ``k < views``,
+      every frame from the first to the last context a target, contexts included -- the two-view rule
+      repeated, so every pair of neighbouring contexts keeps the two-view baseline (the generic
+      ``sample(gap, step)`` of the released CylinderSplat 360Loc loaders,
+      ``data/loc360_dataloader_double_all.py`` and ``_double_random.py``, ``step`` = our ``gap``);
+    * ``"released"``: exactly ``three_sample`` / ``four_sample`` of the released
+      ``data/loc360_dataloader_double_all.py`` (repository wangqww/CylinderSplat) when ``gap=3``: the
+      two-view pair ``gap`` apart plus contexts on the adjacent frames -- 3 views ``(s, s+gap, s+gap+1)``,
+      4 views ``(s, s+1, s+gap+1, s+gap+2)`` -- and as targets every frame strictly between the
+      outermost contexts (3 views: ``s+1 .. s+gap``; 4 views: ``s+1 .. s+gap+1``).
+
+    The paper (Table 5) names only the view counts; it does not say which layout its rows used.
+    """
+    span = all_between_span(gap, views, layout)
+    if views == 2 or layout == "spaced":
+        return ViewSplit(tuple(start + k * gap for k in range(views)), tuple(range(start, start + span + 1)))
+    if views == 3:
+        context = (start, start + gap, start + gap + 1)
+    else:
+        context = (start, start + 1, start + gap + 1, start + gap + 2)
+    return ViewSplit(context, tuple(range(start + 1, start + span)))

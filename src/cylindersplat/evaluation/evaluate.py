@@ -10,10 +10,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
 from tqdm.auto import tqdm
 
-from ..data.io import to_uint8
+from ..data.io import to_uint8, write_rgb
 from ..data.occlusion import occluded_fraction, occluded_mask
 from ..inference.pipeline import depth_limits, normalized_depth
 from ..metrics import DepthRange, abs_rel, delta1, lrce, pcc, psnr, rmse, ssim, ws_psnr
@@ -202,8 +201,7 @@ def evaluate(
                 depth = sample.target_depths[view] if sample.target_depths is not None else None
                 sheet = comparison_image(sample.target_images[view], depth,
                                          {k: (o.rgb[view], o.depth[view], o.alpha[view]) for k, o in renders.items()})
-                Path(example_dir).mkdir(parents=True, exist_ok=True)
-                Image.fromarray(sheet).save(Path(example_dir) / f"example_{index:04d}_view{view}.png")
+                write_rgb(Path(example_dir) / f"example_{index:04d}_view{view}.png", sheet)  # atomic, makes the folder
                 pictures += 1
     means: dict[str, dict[str, float | None]] = {}
     for method in methods:

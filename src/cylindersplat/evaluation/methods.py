@@ -28,7 +28,7 @@ class Method:
 
 def reconstruct(model, sample: Sample, device: torch.device | str = "cpu"):
     """Gaussians (world frame, unbatched) of a sample's context views."""
-    return reconstruct_gaussians(model, sample.context_images, sample.context_depths, sample.context_poses, device)
+    return reconstruct_gaussians(model, sample.context_images, sample.context_priors, sample.context_poses, device)
 
 
 def model_method(model, name: str = "CylinderSplat", device: torch.device | str = "cpu", background=(0.0, 0.0, 0.0)) -> Method:
@@ -47,7 +47,7 @@ def forward_warp_method(name: str = "Forward warp", background=(0.0, 0.0, 0.0)) 
 
     def run(sample: Sample) -> RenderOutput:
         h, w = sample.target_images.shape[-2:]
-        return forward_warp(sample.context_images, sample.context_depths, sample.context_poses, sample.target_poses,
+        return forward_warp(sample.context_images, sample.context_priors, sample.context_poses, sample.target_poses,
                             h, w, background=background)
 
     return Method(name, run)

@@ -73,6 +73,10 @@ def default_variants() -> list[Variant]:
         Variant("full_paper_recipe", "full, the paper's recipe: volume-only stage 2, concatenated Gaussians",
                 ("model.fusion.strategy=concat", "train.stage2_render=volume")),
         Variant("pixel_only", "pixel branch only", kind="pixel"),
+        # Edge fading leaves holes a pixel-only model cannot fill; without it the pixel branch is the stronger
+        # baseline on occluded pixels, so the study scores both.
+        Variant("pixel_only_no_edge_fading", "pixel branch only, without edge-aware opacity",
+                ("model.pixel.edge_sigma=0",), kind="pixel"),
         Variant("volume_only_cylindrical", "volume branch only, cylindrical triplanes", VOLUME_ONLY, kind="volume"),
         Variant("volume_only_spherical", "volume branch only, spherical triplanes",
                 VOLUME_ONLY + ("model.volume.coordinates=spherical",), kind="volume"),
@@ -90,6 +94,8 @@ def default_variants() -> list[Variant]:
                 ("model.volume.init=isolated",)),
         Variant("depth_fusion_own_view", "full, depth-guided fusion against each Gaussian's own view only",
                 ("model.fusion.strategy=depth_prune", "model.fusion.side=front")),
+        Variant("no_edge_fading", "full, without edge-aware pixel opacity (model.pixel.edge_sigma=0)",
+                ("model.pixel.edge_sigma=0",)),
     ]
 
 

@@ -39,7 +39,7 @@ CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 
 @dataclass
 class DataConfig:
-    format: Literal["synthetic", "pano_grf", "loc360"] = "synthetic"
+    format: Literal["synthetic", "pano_grf", "loc360", "folder"] = "synthetic"
     root: str | None = None  # dataset folder (see docs/data.md)
     resolution: tuple[int, int] | None = None  # (H, W) resize on load; None = stored size
     split: str = "train"  # pano_grf / loc360 split

@@ -12,7 +12,6 @@ where the reference is valid (> 0). The LPIPS term needs VGG/LPIPS weights on di
 
 from __future__ import annotations
 
-import os
 import warnings
 from dataclasses import dataclass
 from typing import Literal
@@ -80,12 +79,13 @@ class RenderLoss(nn.Module):
             return None
         if cfg.use_lpips not in ("auto", "on"):
             raise ValueError(f"loss.use_lpips must be 'auto', 'on' or 'off', got {cfg.use_lpips!r}")
-        from ..metrics import LPIPS_WEIGHTS_ENV, load_lpips
+        from ..metrics import LPIPS_WEIGHTS_ENV, load_lpips, lpips_weights_available
 
-        available = cfg.lpips_weights is not None or os.environ.get(LPIPS_WEIGHTS_ENV)
+        available = lpips_weights_available(cfg.lpips_weights)  # a file, or the lpips package + torchvision's cache
         if not available and cfg.use_lpips == "auto":
             warnings.warn(
-                f"LPIPS loss term disabled: no weights (set loss.lpips_weights=... or ${LPIPS_WEIGHTS_ENV}); "
+                f"LPIPS loss term disabled: no weights (set loss.lpips_weights=... or ${LPIPS_WEIGHTS_ENV}, or install "
+                "the lpips package with torchvision's VGG16 weights cached; docs/evaluation.md); "
                 "training with L1 + depth only",
                 stacklevel=3,
             )

@@ -174,7 +174,7 @@ class Trainer:
             torch.autocast("cuda", dtype=torch.bfloat16) if self.use_bf16 else contextlib.nullcontext()
         )
         with autocast:
-            out = self.train_model(batch.context_images, batch.context_depths, batch.context_poses)
+            out = self.train_model(batch.context_images, batch.context_priors, batch.context_poses)
         gaussians = out.gaussians.to(torch.float32)
         self._watch_gaussian_grads(gaussians)
         height, width = batch.target_images.shape[-2:]

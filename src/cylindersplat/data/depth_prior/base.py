@@ -9,7 +9,8 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-__all__ = ["PriorQuery", "DepthPrior", "NoPrior", "MissingPrior", "GroundTruthPrior", "ConstantPrior", "MISSING_PRIOR_HELP"]
+__all__ = ["PriorQuery", "DepthPrior", "NoPrior", "MissingPrior", "GroundTruthPrior", "ConstantPrior", "StoredDepthPrior",
+           "MISSING_PRIOR_HELP"]
 
 
 @dataclass
@@ -19,7 +20,8 @@ class PriorQuery:
     ``image`` ``(3, H, W)`` at the loader's output resolution; ``gt_depth`` ``(H, W)`` or ``None``;
     ``rgb_path`` the stored panorama (file priors look next to it); ``key`` a stable id
     ``"{dataset}/{scene}/{frame}"`` (seeds the simulated prior); ``dataset_root`` the folder the
-    dataset was opened at (file priors find ``<dataset_root>/priors/<name>/...`` relative to it).
+    dataset was opened at (file priors find ``<dataset_root>/priors/<name>/...`` relative to it);
+    ``depth_path`` the file ``gt_depth`` was read from, if any.
     """
 
     image: Float[Tensor, "3 H W"]
@@ -27,6 +29,7 @@ class PriorQuery:
     rgb_path: Path | None
     key: str
     dataset_root: Path | None = None
+    depth_path: Path | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -37,11 +40,16 @@ class DepthPrior:
     """A source of per-view radial depth priors ``(H, W)`` in metres (0 = unknown)."""
 
     name = "base"
+    allows_zeros = False  # an all-zero prior is an error (no silent zeros), except for the prior `none`
 
     @property
     def spec(self) -> str:
         """The spec that asks for this prior (``parse_depth_prior``), for messages and records."""
         return getattr(self, "_spec", self.name)
+
+    def source(self, query: PriorQuery) -> str:
+        """Where this prior's depth of one view comes from, for messages."""
+        return f"depth prior {self.spec!r} of {query.rgb_path if query.rgb_path is not None else query.key}"
 
     def __call__(self, query: PriorQuery) -> Float[Tensor, "H W"]:
         raise NotImplementedError
@@ -51,6 +59,7 @@ class NoPrior(DepthPrior):
     """All-zero prior (no depth information): only ever used when asked for by name (``none``)."""
 
     name = "none"
+    allows_zeros = True
 
     def __call__(self, query: PriorQuery) -> Tensor:
         return torch.zeros(query.size)
@@ -98,3 +107,38 @@ class ConstantPrior(DepthPrior):
 
     def __call__(self, query: PriorQuery) -> Tensor:
         return torch.full(query.size, self.depth)
+
+
+class StoredDepthPrior(DepthPrior):
+    """A view's own stored depth where it has one (``PriorQuery.gt_depth``: e.g. the ``<stem>_depth.png``
+    of an input folder, docs/inference.md), else ``fallback`` (default :class:`MissingPrior`: an error).
+
+    This is how a folder of posed panoramas gives its depth files to the model as priors while frames
+    without one get a chosen prior (``--depth-prior``). Zeros are allowed where ``fallback`` allows them
+    (the prior ``none``).
+    """
+
+    name = "stored"
+
+    def __init__(self, fallback: DepthPrior | None = None) -> None:
+        self.fallback = fallback if fallback is not None else MissingPrior()
+
+    @property
+    def spec(self) -> str:
+        if isinstance(self.fallback, MissingPrior):
+            return "depth files"
+        return f"depth files, else {self.fallback.spec}"
+
+    @property
+    def allows_zeros(self) -> bool:
+        return self.fallback.allows_zeros
+
+    def source(self, query: PriorQuery) -> str:
+        if query.gt_depth is not None:
+            return f"depth file {query.depth_path if query.depth_path is not None else query.key}"
+        return self.fallback.source(query)
+
+    def __call__(self, query: PriorQuery) -> Tensor:
+        if query.gt_depth is not None:
+            return query.gt_depth.clone()
+        return self.fallback(query)

@@ -41,8 +41,10 @@ class PriorRun:
 
 
 def detect_layout(path: str | Path) -> str:
-    """``synthetic`` (``meta.json``), ``pano_grf`` (a ``png_render_*`` folder), ``input`` (``poses.json``)
-    or ``loc360`` (``<location>/mapping|query_360``)."""
+    """``synthetic`` (``meta.json``), ``pano_grf`` (a ``png_render_*`` folder), ``input`` (an input folder with
+    ``poses.json`` or ``transforms.json``, or a folder of them) or ``loc360`` (``<location>/mapping|query_360``)."""
+    from ..folder import is_input_folder
+
     path = Path(path)
     if not path.is_dir():
         raise FileNotFoundError(f"missing dataset folder: {path}")
@@ -50,10 +52,12 @@ def detect_layout(path: str | Path) -> str:
         return "synthetic"
     if path.name.startswith("png_render_"):
         return "pano_grf"
-    if (path / "poses.json").is_file():
+    if is_input_folder(path):
         return "input"
     if any((d / "mapping").is_dir() or (d / "query_360").is_dir() for d in path.iterdir() if d.is_dir()):
         return "loc360"
+    if any(is_input_folder(d) for d in path.iterdir() if d.is_dir()):
+        return "input"
     raise ValueError(f"{path}: not a dataset folder cylindersplat knows (synthetic meta.json, a png_render_* folder, "
                      "a 360Loc root or an input folder with poses.json); pass --layout")
 
@@ -68,11 +72,10 @@ def prior_frames(data: str | Path, layout: str = "auto", split: str = "all") -> 
     data = Path(data)
     layout = detect_layout(data) if layout == "auto" else layout
     if layout == "input":
-        from ...inference.inputs import list_panoramas
+        from ..folder import FolderDataset
 
-        frames = [(p, f"input/{p.stem}") for p in list_panoramas(data)]
-        return data, frames, layout
-    if layout == "synthetic":
+        dataset = FolderDataset(data, depth_prior=NoPrior())
+    elif layout == "synthetic":
         dataset = SyntheticDataset(data, depth_prior=NoPrior())
     elif layout == "pano_grf":
         dataset = PanoGRFDataset(data, depth_prior=NoPrior())
