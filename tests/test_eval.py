@@ -44,7 +44,7 @@ def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
     assert len(list((out / "examples" / "all_between_3views_gap2").glob("*.png"))) == 1
     # released layout, 4 views: contexts (s, s+1, s+3, s+4), targets s+1..s+3
     assert main(["eval", "--format", "loc360", "--data", str(tmp_path / "loc"), "--views", "4", "--gap", "2",
-                 "--views-layout", "released", "--protocols", "all_between", "--depth-prior", "constant:2",
+                 "--views-layout", "released", "--protocols", "all_between", "--depth-prior", "constant:2", "--no-model",
                  "--max-examples", "1", "--pictures", "0", "--lpips", "off", "--out", str(tmp_path / "e4")]) == 0
     data = json.loads((tmp_path / "e4" / "results.json").read_text())
     assert [r["view"] for r in data["views"]["all_between_4views_gap2_released"]] == [0, 1, 2]
@@ -177,7 +177,7 @@ def test_eval_cli_errors(synth_root, tmp_path, capsys):
     assert main(["eval", "--data", str(synth_root), "--checkpoint", str(tmp_path / "nope.safetensors"),
                  "--out", str(tmp_path / "e")]) == 1
     assert "nope.safetensors" in capsys.readouterr().err
-    assert main(["eval", "--data", str(synth_root), "--no-baseline", "--out", str(tmp_path / "e")]) == 1
+    assert main(["eval", "--data", str(synth_root), "--no-baseline", "--no-model", "--out", str(tmp_path / "e")]) == 1
     assert "nothing to evaluate" in capsys.readouterr().err
     assert main(["eval", "--data", str(tmp_path / "missing"), "--out", str(tmp_path / "e")]) == 1
     assert "missing" in capsys.readouterr().err

@@ -63,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
         return render_room(args)
     if args.held_out < 1 or args.scenes - args.held_out < 1:
         raise ValueError(f"need at least one training and one held-out scene (--scenes {args.scenes}, --held-out {args.held_out})")
+    args.steps = _parse_steps(args.steps)  # a bad --steps fails before any work, --train or not
     start = time.perf_counter()
     args.out.mkdir(parents=True, exist_ok=True)
     data = generate_data(args)
@@ -73,6 +74,16 @@ def run(args: argparse.Namespace) -> int:
     print(f"demo finished in {time.perf_counter() - start:.0f} s; everything is in {args.out}/ "
           "(comparison.png, novel_view_*.png, flythrough.gif, gaussians.ply, results.md)")
     return 0
+
+
+def _parse_steps(text: str) -> list[int]:
+    try:
+        steps = [int(s) for s in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--steps must be three integers like {DEFAULT_STEPS}, got {text!r}") from None
+    if len(steps) != 3 or min(steps) < 0:
+        raise ValueError(f"--steps must be three non-negative integers (stages 1, 2, 3), got {text!r}")
+    return steps
 
 
 def _scene_ids(args) -> tuple[list[str], list[str]]:
@@ -120,12 +131,7 @@ def train_or_reuse(args, data: Path) -> Path | str:
     if weights.is_file() and not args.retrain:
         print(f"[2/4] reusing {weights} (from an earlier --train run; --retrain to train again)")
         return weights
-    try:
-        steps = [int(s) for s in args.steps.split(",")]
-    except ValueError:
-        raise ValueError(f"--steps must be three integers like {DEFAULT_STEPS}, got {args.steps!r}") from None
-    if len(steps) != 3 or min(steps) < 0:
-        raise ValueError(f"--steps must be three non-negative integers (stages 1, 2, 3), got {args.steps!r}")
+    steps = args.steps
     stages = [s for s, n in zip((1, 2, 3), steps) if n > 0]
     if not stages:
         raise ValueError("--steps 0,0,0 trains nothing; give --checkpoint instead")
@@ -194,14 +200,14 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path | str) -> None:
     print(f"[4/4] reconstructing held-out scene {held_out[0]} from 2 panoramas "
           f"({sample.metadata.get('baseline', float('nan')):.2f} m apart)")
     # The two inputs are written as a user input folder and read back: the same path as `cylindersplat render`.
-    folder = write_panorama_folder(args.out / "input", sample.context_images, sample.context_poses, sample.context_depths,
+    folder = write_panorama_folder(args.out / "input", sample.context_images, sample.context_poses, sample.context_priors,
                                    names=["left", "right"])
     inputs = load_panorama_folder(folder, args.resolution)
     model = from_pretrained(checkpoint, map_location=args.device)
     gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, min_opacity=0.005)
     h, w = args.resolution
     ours = render_views(gaussians, sample.target_poses, h, w)
-    warp = forward_warp(sample.context_images, sample.context_depths, sample.context_poses, sample.target_poses, h, w,
+    warp = forward_warp(sample.context_images, sample.context_priors, sample.context_poses, sample.target_poses, h, w,
                         background=(0.0, 0.0, 0.0))
     near, far = depth_limits(sample.target_depths)
     write_view(args.out / "novel_view_rgb.png", args.out / "novel_view_depth.png", ours.rgb[0], ours.depth[0], ours.alpha[0],
