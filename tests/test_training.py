@@ -229,3 +229,21 @@ def test_occluded_pixels_can_weigh_more(tmp_path, monkeypatch):
     assert seen[0] is not None and set(seen[0].unique().tolist()) <= {1.0, 5.0} and (seen[0] == 5).any()
     with pytest.raises(ValueError, match="occluded_weight"):
         load_config("tiny", ["loss.occluded_weight=-1"])
+
+
+def test_code_changes_and_command_line_overrides_are_one_mechanism(tmp_path):
+    """``changes`` (typed values from code, as the demo and the ablation pass them) give the same config
+    as the equivalent ``key=value`` overrides, and are checked the same way."""
+    from cylindersplat.training import load_config
+
+    strings = load_config("tiny", [f"data.root={tmp_path}", "data.resolution=[32,64]", "train.lr=3e-4",
+                                   "data.options={scenes: [a, b]}", "train.stages=[1,3]", "model.pixel.edge_sigma=0"])
+    typed = load_config("tiny", changes={"data.root": tmp_path, "data.resolution": [32, 64], "train.lr": 3e-4,
+                                         "data.options": {"scenes": ["a", "b"]}, "train.stages": [1, 3],
+                                         "model.pixel.edge_sigma": 0})
+    assert typed == strings
+    assert load_config("tiny", ["train.lr=1e-3"], changes={"train.lr": 5e-4}).train.lr == 5e-4  # code wins
+    with pytest.raises(ValueError, match="train.seed must be an integer"):
+        load_config("tiny", changes={"train.seed": "abc"})
+    with pytest.raises(ValueError, match="unknown config key"):
+        load_config("tiny", changes={"train.nope": 1})

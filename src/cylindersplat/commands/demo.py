@@ -136,12 +136,12 @@ def train_or_reuse(args, data: Path) -> Path | str:
     if not stages:
         raise ValueError("--steps 0,0,0 trains nothing; give --checkpoint instead")
     train_ids, _ = _scene_ids(args)
-    config = load_config("tiny", [
-        f"data.root={data}", f"output_dir={run_dir}", f"data.resolution=[{args.resolution[0]},{args.resolution[1]}]",
-        f"data.options={{scenes: {json.dumps(train_ids)}}}", f"train.stages={stages}",
-        f"train.steps_per_stage={[n for n in steps if n > 0]}", f"train.lr={args.lr}", "train.warmup_steps=10",
-        f"train.device={args.device}", "train.checkpoint_every=100", "train.image_every=50",
-    ])
+    config = load_config("tiny", changes={
+        "data.root": data, "output_dir": run_dir, "data.resolution": list(args.resolution),
+        "data.options": {"scenes": train_ids}, "train.stages": stages, "train.steps_per_stage": [n for n in steps if n > 0],
+        "train.lr": args.lr, "train.warmup_steps": 10, "train.device": str(args.device), "train.checkpoint_every": 100,
+        "train.image_every": 50,
+    })
     print(f"[2/4] training the tiny model on {len(train_ids)} scenes: stages {stages}, steps {steps} "
           f"(a few minutes on CPU; logs and image grids in {run_dir})")
     if (run_dir / "checkpoints").is_dir() and not args.retrain:

@@ -144,14 +144,14 @@ def _train(variant: Variant, seed: int, schedule: Schedule, data_root: Path, tra
         info = json.loads(meta.read_text())
         return weights, info["train_s"], info["skipped_steps"]
     stages, steps = variant.stages(schedule)
-    overrides = list(variant.overrides) + [
-        f"data.root={data_root}", f"output_dir={run_dir}", f"data.resolution=[{resolution[0]},{resolution[1]}]",
-        f"data.options={{scenes: {json.dumps(train_ids)}}}", f"train.stages={list(stages)}",
-        f"train.steps_per_stage={list(steps)}", f"train.lr={schedule.lr}", "train.warmup_steps=10",
-        f"train.seed={seed}", f"train.device={device}", "train.progress=false", "train.image_every=0",
-        "train.tensorboard=false", f"train.checkpoint_every={schedule.total + 1}", "train.log_every=25",
-    ]
-    config = load_config("tiny", overrides)
+    # the variant's own switches are command-line overrides; the study's settings are typed changes
+    config = load_config("tiny", variant.overrides, changes={
+        "data.root": data_root, "output_dir": run_dir, "data.resolution": list(resolution),
+        "data.options": {"scenes": list(train_ids)}, "train.stages": list(stages), "train.steps_per_stage": list(steps),
+        "train.lr": schedule.lr, "train.warmup_steps": 10, "train.seed": seed, "train.device": str(device),
+        "train.progress": False, "train.image_every": 0, "train.tensorboard": False,
+        "train.checkpoint_every": schedule.total + 1, "train.log_every": 25,
+    })
     start = time.perf_counter()
     resume = run_dir if (run_dir / "checkpoints").is_dir() else None  # a killed study continues its run
     summary = Trainer(config, resume=resume).fit()

@@ -246,10 +246,28 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     return cfg
 
 
-def load_config(preset: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> ExperimentConfig:
-    """Preset name (``cylindersplat/configs/<name>.yaml``), YAML path or None (defaults), then overrides."""
+def nest_changes(changes: dict[str, Any]) -> dict[str, Any]:
+    """``{"train.lr": 3e-4, "data.root": path}`` -> nested dict (values as given: Paths become strings)."""
+    nested: dict[str, Any] = {}
+    for key, value in changes.items():
+        target = nested
+        *path, last = key.split(".")
+        for part in path:
+            target = target.setdefault(part, {})
+            if not isinstance(target, dict):
+                raise ValueError(f"change {key!r} conflicts with another change of {part!r}")
+        target[last] = str(value) if isinstance(value, Path) else value
+    return nested
+
+
+def load_config(preset: str | Path | None = None, overrides: list[str] | tuple[str, ...] = (),
+                changes: dict[str, Any] | None = None) -> ExperimentConfig:
+    """Preset name (``cylindersplat/configs/<name>.yaml``), YAML path or None (defaults), then the
+    command line's ``key=value`` ``overrides``, then ``changes`` from code (``{"train.lr": 3e-4}``, Python
+    values). All three merge into one nested dict that is type-checked and validated the same way."""
     data = _read_preset(preset) if preset is not None else {}
-    return _from_dict(_merge(data, parse_overrides(overrides)))
+    data = _merge(data, parse_overrides(overrides))
+    return _from_dict(_merge(data, nest_changes(changes or {})))
 
 
 def config_as_dict(cfg: ExperimentConfig) -> dict[str, Any]:
