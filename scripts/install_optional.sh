@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Optional parts; none is needed by the core install or the core tests (their tests skip, saying why).
 #
+#   bash scripts/install_optional.sh video     # MP4 fly-throughs: imageio-ffmpeg (pip install -e ".[video]")
 #   bash scripts/install_optional.sh view      # the browser viewer: viser (pip install -e ".[view]")
 #   bash scripts/install_optional.sh formats   # .spz / .compressed.ply / .sog: PlayCanvas splat-transform from
 #                                              #   npm into ~/.local (PREFIX=... to change; needs Node.js >= 20)
@@ -14,6 +15,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 SPLAT_TRANSFORM_VERSION=${SPLAT_TRANSFORM_VERSION:-3.7.0}
+
+install_video() {
+    "$PY" -m pip install --disable-pip-version-check -q -e ".[video]"
+}
 
 install_view() {
     "$PY" -m pip install --disable-pip-version-check -q -e ".[view]"
@@ -55,9 +60,10 @@ install_browser() {
 }
 
 case "${1:-}" in
+    video) install_video ;;
     view) install_view ;;
     formats) install_formats ;;
     browser) install_browser ;;
-    all) install_view; install_formats; install_browser ;;
-    *) echo "usage: bash scripts/install_optional.sh view|formats|browser|all" >&2; exit 2 ;;
+    all) install_video; install_view; install_formats; install_browser ;;
+    *) echo "usage: bash scripts/install_optional.sh video|view|formats|browser|all" >&2; exit 2 ;;
 esac

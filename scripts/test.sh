@@ -7,7 +7,7 @@ bash scripts/install.sh test
 # The optional tools (viewer, browser, splat formats), so that their tests run instead of skipping; a tool
 # that cannot be installed here only makes its tests skip (CYLINDERSPLAT_SKIP_OPTIONAL=1 skips the installs).
 if [ -z "${CYLINDERSPLAT_SKIP_OPTIONAL:-}" ]; then
-    for part in view formats browser; do
+    for part in video view formats browser; do
         timeout 300 bash scripts/install_optional.sh "$part" >/dev/null 2>&1 \
             || echo "optional part '$part' not installed: its tests will skip" >&2
     done
