@@ -106,28 +106,22 @@ def generate_data(args) -> Path:
     return root
 
 
-def train_or_reuse(args, data: Path) -> Path | str:
-    """The weights the demo scores: ``--checkpoint``, the shipped model, or its own training run."""
-    from ..model.pretrained import DEFAULT_PRETRAINED, PRETRAINED, pretrained_path
+def train_or_reuse(args, data: Path) -> Path:
+    """The weights file the demo scores: ``--checkpoint``, the shipped model, or its own training run."""
+    from ..model.pretrained import DEFAULT_PRETRAINED, PRETRAINED, resolve_weights
     from ..training import Trainer, load_config
 
     if args.checkpoint:
-        if args.checkpoint in PRETRAINED:
-            pretrained_path(args.checkpoint)
-            print(f"[2/4] using the shipped {args.checkpoint} weights")
-            return args.checkpoint
-        from ..model.checkpoint import check_weights_file
-
-        check_weights_file(args.checkpoint)  # a folder, a missing file or a pickle: one line, before any work
-        print(f"[2/4] using weights {args.checkpoint}")
-        return Path(args.checkpoint)
+        weights = resolve_weights(args.checkpoint)  # missing, a pickle, ...: one line, before any work
+        print(f"[2/4] using the weights {weights}")
+        return weights
     run_dir = args.out / "train"
     weights = run_dir / "model.safetensors"
     if not (args.train or args.retrain):
-        pretrained_path(DEFAULT_PRETRAINED)  # missing from a broken installation: one line, before any work
+        shipped = resolve_weights(DEFAULT_PRETRAINED)  # missing from a broken installation: one line, before any work
         print(f"[2/4] using the shipped {DEFAULT_PRETRAINED} weights ({PRETRAINED[DEFAULT_PRETRAINED][1]}; "
               "--train trains your own on these scenes in a few minutes)")
-        return DEFAULT_PRETRAINED
+        return shipped
     if weights.is_file() and not args.retrain:
         print(f"[2/4] reusing {weights} (from an earlier --train run; --retrain to train again)")
         return weights
@@ -152,19 +146,19 @@ def train_or_reuse(args, data: Path) -> Path | str:
     return Path(summary["weights"])
 
 
-def score_held_out(args, data: Path, checkpoint: Path | str) -> str:
+def score_held_out(args, data: Path, checkpoint: Path) -> str:
     from ..data import SyntheticDataset
     from ..evaluation import evaluate, forward_warp_method, model_method, results_to_markdown
     from ..metrics import DepthRange
-    from ..model.pretrained import from_pretrained
+    from ..model import load_model
 
     _, held_out = _scene_ids(args)
     print(f"[3/4] scoring {len(held_out)} held-out scenes (2 panoramas in, the middle one predicted)")
     dataset = SyntheticDataset(data, views="two_view", scenes=held_out)
-    model = from_pretrained(checkpoint, map_location=args.device)
+    model = load_model(checkpoint, map_location=args.device)
     methods = [model_method(model, "CylinderSplat (tiny)", device=args.device)]
     if model.mode == "both":  # the same weights with the pixel branch alone: what the volume branch adds
-        pixel_only = from_pretrained(checkpoint, map_location=args.device).set_mode("pixel")
+        pixel_only = load_model(checkpoint, map_location=args.device).set_mode("pixel")
         methods.append(model_method(pixel_only, "its pixel branch alone", device=args.device))
     result = evaluate(dataset, methods + [forward_warp_method()],
                       example_dir=args.out / "examples", num_pictures=len(held_out), depth_range=DepthRange(0.05, 1000.0))
@@ -176,7 +170,7 @@ def score_held_out(args, data: Path, checkpoint: Path | str) -> str:
     return table
 
 
-def reconstruct_held_out(args, data: Path, checkpoint: Path | str) -> None:
+def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
     from PIL import Image
 
     from ..baselines import forward_warp
@@ -192,7 +186,7 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path | str) -> None:
         write_panorama_folder,
         write_view,
     )
-    from ..model.pretrained import from_pretrained
+    from ..model import load_model
     from ..utils.atomic import atomic_path
 
     _, held_out = _scene_ids(args)
@@ -203,7 +197,7 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path | str) -> None:
     folder = write_panorama_folder(args.out / "input", sample.context_images, sample.context_poses, sample.context_priors,
                                    names=["left", "right"])
     inputs = load_panorama_folder(folder, args.resolution)
-    model = from_pretrained(checkpoint, map_location=args.device)
+    model = load_model(checkpoint, map_location=args.device)
     gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, min_opacity=0.005)
     h, w = args.resolution
     ours = render_views(gaussians, sample.target_poses, h, w)

@@ -5,23 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ._arguments import image_resolution
 from ._inference import add_input_arguments, reconstruct_from_args
-
-
-def _size(text: str) -> tuple[int, int]:
-    h, _, w = text.lower().partition("x")
-    try:
-        size = int(h), int(w)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"size must be HxW, e.g. 480x640, got {text!r}") from None
-    if min(size) < 1:
-        raise argparse.ArgumentTypeError(f"size must be positive, got {text!r}")
-    return size
-
-
-def _image_uint8(image):
-    """(3, H, W) float in [0, 1] -> (H, W, 3) uint8."""
-    return (image.clamp(0, 1) * 255 + 0.5).byte().permute(1, 2, 0).cpu().numpy()
 
 
 def _cameras_from_poses(path: Path):
@@ -62,8 +47,10 @@ def load_scene(args: argparse.Namespace):
         cameras = _cameras_from_poses(args.poses_file) if args.poses_file else []
         print(f"loaded {len(gaussians):,} Gaussians from {args.splats}")
         return gaussians, cameras
+    from ..data.io import to_uint8
+
     inputs, gaussians, _ = reconstruct_from_args(args)
-    cameras = [ViewCamera(c2w.cpu(), name, _image_uint8(image)) for c2w, name, image in zip(inputs.c2w, inputs.names, inputs.images)]
+    cameras = [ViewCamera(c2w.cpu(), name, to_uint8(image)) for c2w, name, image in zip(inputs.c2w, inputs.names, inputs.images)]
     return gaussians.to("cpu"), cameras
 
 
@@ -118,7 +105,7 @@ def register(subparsers) -> None:
     parser.add_argument("--html", type=Path, help="write the scene as one self-contained HTML file and do not serve")
     parser.add_argument("--screenshot", type=Path, help="render a PNG with cylindersplat's renderer (no browser) and do "
                         "not serve: a pinhole view from where the browser view starts, or --panorama")
-    parser.add_argument("--screenshot-size", type=_size, default=(480, 640), help="HxW of --screenshot (default 480x640)")
+    parser.add_argument("--screenshot-size", type=image_resolution, default=(480, 640), help="HxW of --screenshot (default 480x640)")
     parser.add_argument("--fov", type=float, default=90.0, help="horizontal field of view of --screenshot in degrees (default 90)")
     parser.add_argument("--panorama", action="store_true", help="--screenshot renders an equirect panorama from the first "
                         "input camera (or the origin) instead; needs --screenshot-size H x 2H")

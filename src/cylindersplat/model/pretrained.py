@@ -17,10 +17,10 @@ from pathlib import Path
 
 import torch
 
-from .checkpoint import load_model
+from .checkpoint import check_weights_file, load_model
 from .cylindersplat import CylinderSplat
 
-__all__ = ["PRETRAINED", "DEFAULT_PRETRAINED", "pretrained_path", "from_pretrained"]
+__all__ = ["PRETRAINED", "DEFAULT_PRETRAINED", "pretrained_path", "resolve_weights", "from_pretrained"]
 
 # name -> (file inside cylindersplat/weights, what it is)
 PRETRAINED: dict[str, tuple[str, str]] = {
@@ -42,12 +42,19 @@ def pretrained_path(name: str = DEFAULT_PRETRAINED) -> Path:
     return path
 
 
-def from_pretrained(name_or_path: str | Path = DEFAULT_PRETRAINED, map_location: str | torch.device = "cpu") -> CylinderSplat:
-    """A shipped model by name (``"tiny-synth"``), a ``.safetensors`` file, or a folder holding
-    ``model.safetensors`` (a training run's output or a downloaded hub repository)."""
+def resolve_weights(name_or_path: str | Path = DEFAULT_PRETRAINED) -> Path:
+    """The weights file of a shipped model's name (``"tiny-synth"``), a ``.safetensors`` file, or a folder
+    holding ``model.safetensors`` (a training run's output or a downloaded hub repository); checked
+    (missing, folder, pickle: a one-line error) without loading it."""
     if isinstance(name_or_path, str) and name_or_path in PRETRAINED:
-        return load_model(pretrained_path(name_or_path), map_location=map_location)
+        return pretrained_path(name_or_path)
     path = Path(name_or_path)
     if path.is_dir() and (path / "model.safetensors").is_file():
         path = path / "model.safetensors"
-    return load_model(path, map_location=map_location)
+    check_weights_file(path)
+    return path
+
+
+def from_pretrained(name_or_path: str | Path = DEFAULT_PRETRAINED, map_location: str | torch.device = "cpu") -> CylinderSplat:
+    """The model of :func:`resolve_weights`' file."""
+    return load_model(resolve_weights(name_or_path), map_location=map_location)
