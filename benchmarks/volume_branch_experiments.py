@@ -1,25 +1,38 @@
 """The volume-branch experiments of benchmarks/RESULTS.md ("Volume branch"), one seed each.
 
-    python benchmarks/volume_branch_experiments.py OUT_DIR      (about 35 min on the 2-core CPU machine)
+    python benchmarks/volume_branch_experiments.py OUT_DIR [--suite recipes|coverage]
+
+``recipes`` (session 5, about 35 min on the 2-core CPU machine): fusion strategies and curricula.
+``coverage`` (session 7, about 50 min): triplane bounds, the windowed colour retrieval, the auxiliary
+volume loss, targets farther off the contexts' line, test-time fusion settings on a volume-only
+checkpoint, and what each branch covers and paints on the occluded pixels.
 
 Every variant trains the tiny model for 600 steps (300 / 150 / 150 over the stages it runs) on 20
 procedural scenes of the occlusion profile at 64x128 and is scored on the same 8 held-out scenes,
-all pixels and pixels no input view sees; then each checkpoint's branches are scored alone
-(stage-2 and final weights) to see what each contributes.
+all pixels and pixels no input view sees.
 """
 
-import sys
+import argparse
+import copy
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+import torch
+
 from cylindersplat.data import SyntheticDataset
-from cylindersplat.data.synth import write_synthetic_dataset
+from cylindersplat.data.occlusion import occluded_mask
+from cylindersplat.data.synth import profile_config, write_synthetic_dataset
 from cylindersplat.evaluation import evaluate, model_method
-from cylindersplat.experiments.ablation import Schedule, Variant, run_study, study_sequence_config
+from cylindersplat.evaluation.methods import reconstruct, render_views
+from cylindersplat.experiments.ablation import Schedule, Variant, default_variants, run_study, study_sequence_config
 from cylindersplat.metrics import DepthRange
+from cylindersplat.metrics.image import ws_weights
 from cylindersplat.model import load_model
 
 PAPER = ("model.fusion.strategy=concat", "train.stage2_render=volume")  # the paper's recipe on the tiny model
-VARIANTS = [
+VOLUME_ONLY = PAPER
+RECIPES = [
     Variant("pixel_only", "pixel branch only", PAPER, kind="pixel"),
     Variant("paper_recipe", "concat fusion, volume-only stage 2", PAPER),
     Variant("own_view_fusion", "depth_prune side=front", ("model.fusion.strategy=depth_prune", "model.fusion.side=front",
@@ -31,31 +44,155 @@ VARIANTS = [
                                                           "train.stage2_render=volume")),
     Variant("recipe_occluded_weight_4", "the recipe + loss.occluded_weight=4", ("loss.occluded_weight=4",)),
 ]
+ROOM_BOUNDS = ("model.volume.radius=5", "model.volume.height=4")  # triplanes sized to the rooms (10 m: the paper's)
+COVERAGE = [
+    Variant("full", "the tiny preset", ()),
+    Variant("full_room_bounds", "triplanes of radius 5 m, height 4 m", ROOM_BOUNDS),
+    Variant("volume_only_room_bounds", "volume only, radius 5 m, height 4 m", VOLUME_ONLY + ROOM_BOUNDS, kind="volume"),
+    Variant("volume_only_spherical_room_bounds", "volume only, spherical, radius 5 m",
+            VOLUME_ONLY + ("model.volume.coordinates=spherical", "model.volume.radius=5"), kind="volume"),
+    Variant("retrieval_window_2", "colour of the nearest observed surface points in 5x5 pixels",
+            ("model.volume.retrieval_window=2",)),
+    Variant("volume_weight_1", "the volume branch's own render in the loss", ("loss.volume_weight=1",)),
+    Variant("volume_weight_1_volume_stage2", "the same, stage 2 renders the volume branch alone",
+            ("loss.volume_weight=1", "train.stage2_render=volume")),
+]
+# test-time settings tried on the volume-only checkpoint: (label, mode, fusion changes)
+HIDDEN = {"strategy": "depth_prune", "side": "hidden"}
+TEST_TIME = [
+    ("volume alone", "volume", {}),
+    ("pixel alone", "pixel", {}),
+    ("both, concat", "both", {}),
+    ("both, hidden sigma 0.03", "both", dict(HIDDEN, sigma=0.03)),
+    ("both, hidden sigma 0.1", "both", dict(HIDDEN, sigma=0.1)),
+    ("both, hidden sigma 0.3", "both", dict(HIDDEN, sigma=0.3)),
+    ("both, own view (front) sigma 0.1", "both", {"strategy": "depth_prune", "side": "front", "sigma": 0.1}),
+]
+
+
+def scores(model, dataset) -> str:
+    m = evaluate(dataset, [model_method(model, "m")], depth_range=DepthRange(0.05, 1000), progress=False).means["m"]
+    return f"{m['ws_psnr']:.2f} / {m.get('ws_psnr_occluded') or float('nan'):.2f}"
 
 
 def branches(weights: Path, dataset) -> str:
-    parts = []
-    for mode in ("pixel", "volume", "both"):
-        model = load_model(weights).set_mode(mode)
-        m = evaluate(dataset, [model_method(model, mode)], depth_range=DepthRange(0.05, 1000), progress=False).means[mode]
-        parts.append(f"{mode} {m['ws_psnr']:.2f} / {m.get('ws_psnr_occluded') or float('nan'):.2f}")
-    return "; ".join(parts)
+    return "; ".join(f"{mode} {scores(load_model(weights).set_mode(mode), dataset)}" for mode in ("pixel", "volume", "both"))
 
 
-def main(out: str) -> None:
-    out = Path(out)
-    data = out / "data"
-    if not (data / "meta.json").is_file():
-        write_synthetic_dataset(data, 28, (64, 128), study_sequence_config(), seed=0)
-    run_study(data, out / "study", VARIANTS, seeds=(0,), schedule=Schedule(300, 150, 150), held_out=8)
-    held_out = SyntheticDataset(data, views="two_view", scenes=SyntheticDataset(data).scenes[-8:])
-    for v in VARIANTS[1:]:
+def test_time_fusion(weights: Path, dataset) -> list[str]:
+    rows = []
+    for label, mode, fusion in TEST_TIME:
+        model = copy.deepcopy(load_model(weights)).set_mode(mode)
+        model.config.fusion = replace(model.config.fusion, **fusion)
+        rows.append(f"| {label} | {scores(model, dataset)} |")
+    return rows
+
+
+@torch.no_grad()
+def branch_coverage(weights: Path, dataset) -> dict[str, float]:
+    """On occluded pixels, per branch alone and fused: WS-PSNR, mean alpha, and the WS-PSNR of the colour
+    it paints (rgb / alpha) where its alpha exceeds 0.3 - coverage and colour told apart."""
+    model = load_model(weights)
+    acc: dict[str, list[float]] = {}
+    for sample in dataset:
+        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths, sample.context_poses)
+        if not mask.any():
+            continue
+        h, w = sample.target_images.shape[-2:]
+        weight = ws_weights(h)[:, None].expand(h, w) * mask
+        truth = sample.target_images[0].double()
+        for mode in ("pixel", "volume", "both"):
+            out = render_views(reconstruct(model.set_mode(mode), sample), sample.target_poses, h, w, (0, 0, 0))
+            rgb, alpha = out.rgb[0].double(), out.alpha[0].double()
+            painted = weight * (alpha > 0.3)
+            for key, image, wt in ((f"{mode} WS-PSNR", rgb, weight), (f"{mode} colour WS-PSNR", rgb / alpha.clamp_min(1e-3), painted)):
+                if wt.sum() > 0:
+                    mse = float((((image.clamp(0, 1) - truth) ** 2).mean(0) * wt).sum() / wt.sum())
+                    acc.setdefault(key, []).append(-10 * np.log10(mse))
+            acc.setdefault(f"{mode} alpha", []).append(float((alpha * weight).sum() / weight.sum()))
+    return {k: float(np.mean(v)) for k, v in acc.items()}
+
+
+def nearest_visible_fill(dataset) -> float:
+    """WS-PSNR on occluded pixels of the *true* target with every occluded pixel replaced by its nearest
+    visible one: what copying the surroundings (a 2D inpainting with perfect neighbours) would score."""
+    from scipy import ndimage
+
+    values = []
+    for sample in dataset:
+        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths, sample.context_poses)
+        if not mask.any():
+            continue
+        truth = sample.target_images[0].double()
+        rows, cols = ndimage.distance_transform_edt(mask.numpy(), return_distances=False, return_indices=True)
+        weight = ws_weights(truth.shape[1])[:, None] * mask
+        mse = float((((truth[:, rows, cols] - truth) ** 2).mean(0) * weight).sum() / weight.sum())
+        values.append(-10 * np.log10(mse))
+    return float(np.mean(values))
+
+
+@torch.no_grad()
+def latitude_bands(weights: Path, dataset) -> dict[str, float]:
+    """WS-PSNR (all pixels) per latitude band: |lat| < 30, 30-60 and > 60 degrees."""
+    model, acc = load_model(weights), {"|lat| < 30": [], "30-60": [], "> 60": []}
+    for sample in dataset:
+        h, w = sample.target_images.shape[-2:]
+        out = render_views(reconstruct(model, sample), sample.target_poses, h, w, (0, 0, 0))
+        error = ((out.rgb[0].clamp(0, 1) - sample.target_images[0]) ** 2).mean(0).double()
+        lat, weight = ((torch.arange(h) + 0.5) / h * 180 - 90).abs(), ws_weights(h)
+        for (name, values), rows in zip(acc.items(), (lat < 30, (lat >= 30) & (lat < 60), lat >= 60)):
+            values.append(-10 * np.log10(float((error[rows] * weight[rows, None]).sum() / (weight[rows].sum() * w))))
+    return {k: float(np.mean(v)) for k, v in acc.items()}
+
+
+def held_out(data: Path) -> SyntheticDataset:
+    return SyntheticDataset(data, views="two_view", scenes=SyntheticDataset(data).scenes[-8:])
+
+
+def dataset(root: Path, cfg) -> Path:
+    if not (root / "meta.json").is_file():
+        write_synthetic_dataset(root, 28, (64, 128), cfg, seed=0)
+    return root
+
+
+def recipes(out: Path) -> None:
+    data = dataset(out / "data", study_sequence_config())
+    run_study(data, out / "study", RECIPES, seeds=(0,), schedule=Schedule(300, 150, 150), held_out=8)
+    test = held_out(data)
+    for v in RECIPES[1:]:
         run = out / "study" / "runs" / v.name / "seed0"
         for name in ("model_stage2.safetensors", "model.safetensors"):
             if (run / name).is_file():
-                print(f"{v.name} {name}: WS-PSNR all / occluded: {branches(run / name, held_out)}", flush=True)
+                print(f"{v.name} {name}: WS-PSNR all / occluded: {branches(run / name, test)}", flush=True)
     print((out / "study" / "ablation.md").read_text())
 
 
+def coverage(out: Path) -> None:
+    data = dataset(out / "data", study_sequence_config())
+    run_study(data, out / "study", COVERAGE, seeds=(0,), schedule=Schedule(300, 150, 150), held_out=8)
+    print((out / "study" / "ablation.md").read_text())
+    # targets 1-2 m off the contexts' line: twice the occluded share, wider hidden regions
+    known = {v.name: v for v in default_variants()}
+    far = dataset(out / "data_far_targets", profile_config("occlusion", target_offset=(1.0, 2.0)))
+    run_study(far, out / "far_targets", [known["full"], known["pixel_only_no_edge_fading"]], seeds=(0,), held_out=8)
+    print((out / "far_targets" / "ablation.md").read_text())
+    test = held_out(data)
+    print(f"nearest visible pixel fill, occluded WS-PSNR: {nearest_visible_fill(test):.2f} (far targets: "
+          f"{nearest_visible_fill(held_out(far)):.2f})")
+    runs = out / "study" / "runs"
+    print("| volume-only checkpoint, at test time | WS-PSNR all / occluded |\n|---|---|")
+    print("\n".join(test_time_fusion(runs / "volume_only_room_bounds" / "seed0" / "model.safetensors", test)))
+    for name in ("volume_only_room_bounds", "volume_only_spherical_room_bounds"):
+        bands = latitude_bands(runs / name / "seed0" / "model.safetensors", test)
+        print(name, "WS-PSNR by latitude:", ", ".join(f"{k} {v:.2f}" for k, v in bands.items()), flush=True)
+    for name in ("full", "volume_weight_1_volume_stage2", "volume_only_room_bounds"):
+        cover = branch_coverage(runs / name / "seed0" / "model.safetensors", test)
+        print(name, ", ".join(f"{k} {v:.2f}" for k, v in cover.items()), flush=True)
+
+
 if __name__ == "__main__":
-    main(sys.argv[1])
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("out", type=Path)
+    parser.add_argument("--suite", choices=("recipes", "coverage"), default="recipes")
+    args = parser.parse_args()
+    {"recipes": recipes, "coverage": coverage}[args.suite](args.out)

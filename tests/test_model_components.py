@@ -5,12 +5,12 @@ import math
 import pytest
 import torch
 
-from cylindersplat.geometry import CylindricalCoords, SphericalCoords, make_c2w
+from cylindersplat.geometry import CylindricalCoords, SphericalCoords, make_c2w, project_equirect
 from cylindersplat.model.backbone import ResNetBackbone
 from cylindersplat.model.config import get_config
 from cylindersplat.model.fusion import depth_confidence
 from cylindersplat.model.gaussian_heads import local_to_cartesian_scales
-from cylindersplat.model.rgb_retrieval import retrieve_colors
+from cylindersplat.model.rgb_retrieval import retrieve_colors, retrieve_colors_window
 from cylindersplat.geometry.rotations import matrix_to_quaternion, quaternion_multiply, quaternion_to_matrix
 from cylindersplat.model.sampling import bilinear_sample
 from cylindersplat.model.triplane import sample_plane, sample_triplane, scatter_points_to_triplanes
@@ -150,6 +150,54 @@ def test_rgb_retrieval_prefers_the_unoccluded_view(occluded_view):
     visible = 1 - occluded_view
     assert weights[0, visible, 0] > 0.9
     torch.testing.assert_close(color[0, 0], expected_w @ colors)
+
+
+def test_windowed_retrieval_matches_a_loop_over_views_and_pixels():
+    """retrieval_window > 0: softmax over views x taps of -|p - d_o ray| / T, by explicit loops in float64."""
+    from cylindersplat.geometry import uv_to_ray, world_to_camera
+    from cylindersplat.model.sampling import sample_panorama
+
+    torch.manual_seed(3)
+    h, w, window, temperature = 8, 16, 1, 0.7
+    c2w = make_c2w(translation=torch.tensor([[0.0, 0.0, 0.0], [0.8, -0.1, 0.3]])).unsqueeze(0)
+    images, prior = torch.rand(1, 2, 3, h, w), torch.rand(1, 2, h, w) * 3 + 0.5
+    points = torch.randn(1, 4, 3) * 2
+    colors, weights = retrieve_colors_window(points, images, prior, c2w, window, temperature)
+    logits, samples = [], []
+    for v in range(2):
+        p = world_to_camera(points[0].double(), c2w[0, v].double())
+        uv, _ = project_equirect(p, h, w)
+        for dv in range(-window, window + 1):  # row-major taps, as meshgrid(indexing="xy") lays them out
+            for du in range(-window, window + 1):
+                u, vv = uv[:, 0] + du, (uv[:, 1] + dv).clamp(0.5, h - 0.5)
+                tap = torch.stack((u, vv), -1)[None]
+                c = sample_panorama(images[0, v : v + 1].double(), tap)[0]
+                d = sample_panorama(prior[0, v : v + 1, None].double(), tap)[0, :, 0]
+                surface = d[:, None] * uv_to_ray(u, vv, h, w)
+                logits.append(-(p - surface).norm(dim=-1) / temperature)
+                samples.append(c)
+    expected_w = torch.softmax(torch.stack(logits), dim=0)  # (V*K, N)
+    torch.testing.assert_close(weights[0].flatten(0, 1).double(), expected_w, atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(colors[0].double(), (expected_w[..., None] * torch.stack(samples)).sum(0), atol=1e-5, rtol=1e-4)
+
+
+def test_windowed_retrieval_reads_the_hidden_surface_beside_the_occluder():
+    """A point on a wall hidden behind a narrow occluder: Eq. 6 returns the occluder's colour, the
+    windowed retrieval the wall's, read from the pixels beside the occluder."""
+    h, w = 32, 64
+    c2w = make_c2w(translation=torch.zeros(1, 3)).unsqueeze(0)  # one view at the origin
+    images = torch.zeros(1, 1, 3, h, w)
+    images[..., 0, :, :] = 1.0  # wall: red, at 4 m
+    prior = torch.full((1, 1, h, w), 4.0)
+    point = torch.tensor([[[0.0, 0.0, 4.0]]])  # on the wall straight ahead (+z)
+    u = float(project_equirect(point[0, 0], h, w)[0][0])  # 32.0: the border of columns 31 and 32
+    pole = slice(int(u) - 1, int(u) + 1)  # a two-pixel-wide blue pole at 1 m in front of the point
+    images[0, 0, :, :, pole] = torch.tensor([0.0, 0.0, 1.0])[:, None, None]
+    prior[0, 0, :, pole] = 1.0
+    plain, _ = retrieve_colors(point, images, prior, c2w)
+    windowed, _ = retrieve_colors_window(point, images, prior, c2w, window=2)
+    assert plain[0, 0, 2] > 0.4  # mostly the pole's blue
+    assert windowed[0, 0, 0] > 0.75 and windowed[0, 0, 2] < 0.25  # mostly the wall's red (T = 1 m is soft)
 
 
 # -- triplane initialisation: shared vs isolated ---------------------------------------------------

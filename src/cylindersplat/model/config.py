@@ -124,6 +124,7 @@ class VolumeBranchConfig:
     max_scale_cells: float = 1.0  # S_local <= this many cells along each axis
     min_scale_cells: float = 0.02
     visibility_temperature: float = 1.0  # w = softmax(-s / T); T = 1 m is the paper's Eq. 6
+    retrieval_window: int = 0  # 0: Eq. 6; r > 0: nearest observed surface point among (2r+1)^2 pixels per view
     color: Literal["retrieval", "decoded"] = "retrieval"  # Eq. 6 RGB retrieval, or decoded from the triplane
     placement: Literal["per_camera", "central"] = "per_camera"  # one triplane per camera, or one at the centre
     image_query: Literal["coarse", "full"] = "coarse"  # Eq. 2 queries at image_grid (coarse) or at grid (full)
@@ -174,6 +175,8 @@ class ModelConfig:
             (self.fusion.strategy in ("concat", "depth_prune"), f"unknown fusion.strategy {self.fusion.strategy!r}"),
             (self.fusion.side in ("both", "front", "hidden"), f"fusion.side must be both, front or hidden, got {self.fusion.side!r}"),
             (0 < vol.min_scale_cells < vol.max_scale_cells, "need 0 < volume.min_scale_cells < volume.max_scale_cells"),
+            (isinstance(vol.retrieval_window, int) and 0 <= vol.retrieval_window <= 8,
+             f"volume.retrieval_window must be an integer 0..8 (pixels), got {vol.retrieval_window!r}"),
         ]
         for ok, message in checks:
             if not ok:

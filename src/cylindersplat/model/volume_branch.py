@@ -114,7 +114,7 @@ class VolumeBranch(nn.Module):
         self.head = VolumeGaussianHead(vc.channels, vc.decoder_hidden, vc.color_hidden, vc.max_scale_cells, vc.min_scale_cells)
         # only the colour module the configuration uses exists (default: state dict unchanged)
         if vc.color == "retrieval":
-            self.rgb = RGBRetrieval(vc.color_hidden, vc.color_hidden, vc.visibility_temperature)
+            self.rgb = RGBRetrieval(vc.color_hidden, vc.color_hidden, vc.visibility_temperature, vc.retrieval_window)
         elif vc.color == "decoded":
             self.color_decoder = DecodedColor(vc.color_hidden, vc.color_hidden)
         else:

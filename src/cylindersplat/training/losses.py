@@ -36,6 +36,11 @@ class LossConfig:
     # Extra weight of the RGB L1 on target pixels no context view sees (1 + w there): completion is
     # supervised where only it can be right; 0 = off. Needs ground-truth depths of targets and contexts.
     occluded_weight: float = 0.0
+    # Weight of the same loss on the volume branch's own render (its Gaussians before fusion) whenever
+    # the model outputs fused Gaussians (stage 3, and stage 2 with train.stage2_render=fused). Keeps the
+    # volume branch a whole-scene reconstruction, so the Gaussians fusion leaves in hidden space carry
+    # its colours rather than a hole-filler's; 0 = off (the paper's loss).
+    volume_weight: float = 0.0
     # D_ref of the depth term: gt (dataset ground truth), prior (the input prior of the target views,
     # the paper's UniK3D), file:NAME (precomputed files) or none. Unavailable -> error at start-up.
     depth_reference: str = "gt"

@@ -185,8 +185,25 @@ class Trainer:
             )
             self._last_render = (render, batch)
             reference = reference_depths(batch, self.config.loss.depth_reference) if self.config.loss.depth_l1 > 0 else None
-            return self.loss_fn(render.rgb, render.depth, render.alpha, batch.target_images, reference,
-                                pixel_weight=self._occluded_weights(batch))
+            pixel_weight = self._occluded_weights(batch)
+            terms = self.loss_fn(render.rgb, render.depth, render.alpha, batch.target_images, reference,
+                                 pixel_weight=pixel_weight)
+            volume_weight = self.config.loss.volume_weight
+            if volume_weight > 0 and out.pixel_gaussians is not None and out.volume_gaussians is not None:
+                terms = self._add_volume_term(terms, out.volume_gaussians, batch, reference, pixel_weight, volume_weight)
+            return terms
+
+    def _add_volume_term(self, terms: LossTerms, volume, batch: Sample, reference, pixel_weight, weight: float) -> LossTerms:
+        """``terms`` plus ``weight`` x the loss of the volume Gaussians rendered alone (``loss.volume_weight``)."""
+        height, width = batch.target_images.shape[-2:]
+        render = render_equirect(
+            volume.to(torch.float32), batch.target_poses.float(), height, width,
+            background=tuple(self.config.train.background), backend=self.config.train.render_backend,
+        )
+        own = self.loss_fn(render.rgb, render.depth, render.alpha, batch.target_images, reference, pixel_weight=pixel_weight)
+        parts = dict(terms.parts, volume_total=own.parts["total"])
+        parts["total"] = terms.parts["total"] + weight * own.parts["total"]
+        return LossTerms(terms.total + weight * own.total, parts)
 
     def _occluded_weights(self, batch: Sample) -> Tensor | None:
         """``1 + loss.occluded_weight`` on target pixels no context view sees (from reference depths), else 1."""
