@@ -85,8 +85,16 @@ def _percent(share: float) -> str:
 def _info(args) -> int:
     from ..data.preview import example_occlusion, occlusion_summary, open_dataset
 
-    ds = open_dataset(args.data, views=args.views)
-    print(f"{type(ds).__name__}: {len(ds)} examples, stored size {ds.stored_size} (HxW), views {args.views}")
+    targets = [name for name in args.targets.split(",") if name] if args.targets else None
+    ds = open_dataset(args.data, views=args.views, targets=targets)
+    size, which = ds.stored_size, ""
+    if size is None and len(ds):  # a folder of panoramas fixes no size: show its first panorama's
+        from PIL import Image
+
+        with Image.open(ds.example(0).frames[0].rgb) as image:
+            size, which = (image.height, image.width), ", first panorama"
+    views = f"held_out ({', '.join(targets)})" if targets else args.views
+    print(f"{type(ds).__name__}: {len(ds)} examples, stored size {size} (HxW{which}), views {views}")
     for index in range(min(args.count, len(ds))):
         ref = ds.example(index)
         centres = [f.c2w[:3, 3].tolist() for f in ref.frames]
@@ -165,9 +173,12 @@ def register(subparsers) -> None:
 
     preview = sub.add_parser(
         "preview", help="contact sheet PNG: RGB and colourised depth of a few examples",
-        description="Write a contact sheet of the first examples of a synthetic or png_render_* dataset.",
+        description="Write a contact sheet of the first examples of a synthetic dataset, a png_render_* folder or a "
+        "folder of posed panoramas (poses.json or transforms.json, docs/inference.md; every frame in poses-file order, "
+        "depth tiles black where a frame has no depth file).",
     )
-    preview.add_argument("--data", required=True, help="dataset folder (synthetic output or png_render_* folder)")
+    preview.add_argument("--data", required=True,
+                         help="dataset folder (synthetic output, png_render_* folder, or a folder of posed panoramas or of such folders)")
     preview.add_argument("--out", required=True, help="output PNG path")
     preview.add_argument("--count", type=int, default=4, help="number of examples (rows, default 4)")
     preview.add_argument("--height", type=int, default=128, help="tile height in pixels (width = 2x, default 128)")
@@ -177,10 +188,15 @@ def register(subparsers) -> None:
         "info", help="summarise a dataset folder: examples, poses, baselines, occluded share of the targets",
         description="Print examples, views and poses, each example's context baseline and the share of each "
         "target's pixels that no context view sees (from ground-truth depth at the stored resolution), and "
-        "their average over the dataset.")
-    info.add_argument("--data", required=True, help="dataset folder")
+        "their average over the dataset. Reads synthetic datasets, png_render_* folders and folders of posed "
+        "panoramas (poses.json or transforms.json, docs/inference.md; frames without a depth file: n/a).")
+    info.add_argument("--data", required=True,
+                      help="dataset folder (synthetic output, png_render_* folder, or a folder of posed panoramas or of such folders)")
     info.add_argument("--count", type=int, default=5, help="examples to list (default 5)")
-    info.add_argument("--views", default="two_view", choices=PROTOCOL_NAMES, help="view protocol (default two_view)")
+    info.add_argument("--views", default="two_view", choices=PROTOCOL_NAMES,
+                      help="view protocol (default two_view; a folder of panoramas: over its frames in poses-file order)")
+    info.add_argument("--targets", help="folder of panoramas: comma list of frames (image names or stems) held out as "
+                      "targets, the other frames being the inputs (instead of --views), as in eval --targets")
     info.add_argument("--occlusion", type=int, default=64, metavar="N",
                       help="average the occluded share over N evenly spaced examples (default 64; 0: skip it)")
     info.set_defaults(func=_info)

@@ -319,7 +319,11 @@ class FolderDataset(PanoramaDataset):
         if self.views == "all_inputs":
             return ViewSplit(tuple(range(n)), ())
         if self.views != "held_out":
-            return select_views(n, self.views)
+            try:
+                return select_views(n, self.views)
+            except ValueError as exc:  # e.g. two_view on two panoramas: say which folder, and the way out
+                raise ValueError(f"{where}: {exc}; {n} frames here: hold out frames by name instead (targets, "
+                                 "eval/data info --targets)") from None
         names = [f.name for f in frames]
         short = [Path(f.rgb).name for f in frames]
         stems = [Path(f.rgb).stem for f in frames]

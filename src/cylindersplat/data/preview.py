@@ -12,9 +12,10 @@ from PIL import Image
 
 from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
-from .base import PanoramaDataset, _baseline
+from .base import FrameRef, PanoramaDataset, _baseline
 from .depth_prior.base import NoPrior
-from .io import read_depth_png, to_uint8
+from .folder import FolderDataset
+from .io import read_depth_npy, read_depth_png, to_uint8
 from .occlusion import occluded_fraction, occluded_mask
 from .pano_grf import PanoGRFDataset
 from .synthetic import SyntheticDataset
@@ -23,14 +24,32 @@ __all__ = ["open_dataset", "contact_sheet", "write_contact_sheet", "ExampleOcclu
            "occlusion_summary"]
 
 
-def open_dataset(path: str | Path, resolution: tuple[int, int] | None = None, views="n_view") -> PanoramaDataset:
-    """A synthetic folder (has ``meta.json``) or a ``png_render_*`` PanoGRF folder (default: n-view order)."""
+def open_dataset(path: str | Path, resolution: tuple[int, int] | None = None, views: str | None = None,
+                 targets: list[str] | None = None) -> PanoramaDataset:
+    """A synthetic folder (has ``meta.json``), a ``png_render_*`` PanoGRF folder or a folder of posed panoramas
+    (``poses.json`` or ``transforms.json``, or a folder of such folders). ``views`` defaults to ``n_view`` (every
+    frame of a 3-frame sequence), for a folder of panoramas to ``all_inputs`` (every frame, in poses-file order,
+    whatever their number); ``targets`` (folders only) holds those frames out, as ``eval --targets`` does."""
+    from .depth_prior.precompute import detect_layout  # the rule `data priors` uses: both commands agree
+
     path = Path(path)
-    if (path / "meta.json").is_file():
+    try:
+        layout = detect_layout(path)
+    except ValueError:  # none it knows (a missing folder keeps its FileNotFoundError)
+        layout = None
+    if targets and layout != "input":
+        raise ValueError(f"{path}: targets hold out frames of a folder of posed panoramas (poses.json), "
+                         "not of a synthetic or png_render_* dataset; choose views (--views) there")
+    if layout == "input":  # depth files only as ground truth: pictures and occlusion need no prior
+        return FolderDataset(path, views=views or "all_inputs", targets=targets, resolution=resolution,
+                             depth_prior=NoPrior(), depth_files="reference")
+    views = views or "n_view"
+    if layout == "synthetic":
         return SyntheticDataset(path, views=views, resolution=resolution, depth_prior=NoPrior())
-    if path.name.startswith("png_render_"):
+    if layout == "pano_grf":
         return PanoGRFDataset(path, views=views, resolution=resolution, depth_prior=NoPrior())  # pictures need no prior
-    raise ValueError(f"{path}: neither a synthetic dataset (meta.json) nor a png_render_* folder")
+    raise ValueError(f"{path}: not a dataset: neither a synthetic dataset (meta.json), a png_render_* PanoGRF folder "
+                     "nor a folder of posed panoramas (poses.json or transforms.json, or subfolders with one)")
 
 
 @dataclass
@@ -53,10 +72,22 @@ def example_occlusion(dataset: PanoramaDataset, index: int) -> ExampleOcclusion:
     if any(ref.frames[i].depth is None or not Path(ref.frames[i].depth).is_file() for i in ctx + tgt):
         return ExampleOcclusion(ref.scene, baseline, None)
     expected = getattr(dataset, "stored_size", None)
-    depth = {i: read_depth_png(ref.frames[i].depth, expected=expected) for i in ctx + tgt}
+    depth = {i: _stored_depth(ref.frames[i], expected) for i in ctx + tgt}
+    sizes = {tuple(d.shape) for d in depth.values()}
+    if len(sizes) > 1:  # folders fix no size
+        files = ", ".join(str(ref.frames[i].depth) for i in ctx + tgt)
+        raise ValueError(f"depth maps of one example differ in size {sorted(sizes)}: {files}")
     context_gt = torch.stack([depth[i] for i in ctx])  # ground truth (what the context cameras saw), not the prior
     shares = [occluded_fraction(occluded_mask(depth[t], poses[t], context_gt, poses[ctx])) for t in tgt]
     return ExampleOcclusion(ref.scene, baseline, shares)
+
+
+def _stored_depth(frame: FrameRef, expected: tuple[int, int] | None) -> torch.Tensor:
+    """A frame's depth file in metres at its stored size (folders: ``.npy`` files, their own ``depth_scale``)."""
+    if Path(frame.depth).suffix.lower() == ".npy":
+        depth = read_depth_npy(frame.depth)
+        return depth if frame.depth_scale is None else depth / frame.depth_scale
+    return read_depth_png(frame.depth, expected=expected, **({} if frame.depth_scale is None else {"scale": frame.depth_scale}))
 
 
 def occlusion_summary(dataset: PanoramaDataset, count: int = 64) -> dict | None:
@@ -85,8 +116,7 @@ def contact_sheet(dataset: PanoramaDataset, count: int = 4, gap: int = 4) -> np.
     for index in range(min(count, len(dataset))):
         s = dataset[index]
         images = list(s.context_images) + list(s.target_images)
-        depths = list(s.context_gt_depths) if s.context_gt_depths is not None else [None] * s.num_context
-        depths += list(s.target_depths) if s.target_depths is not None else [None] * s.num_target
+        depths = _frame_depths(dataset, index, s)
         tiles = []
         for image, depth in zip(images, depths):
             tiles.append(to_uint8(image))
@@ -101,6 +131,20 @@ def contact_sheet(dataset: PanoramaDataset, count: int = 4, gap: int = 4) -> np.
         for c, tile in enumerate(tiles):
             sheet[r * (h + gap) : r * (h + gap) + h, c * (w + gap) : c * (w + gap) + w] = tile
     return sheet
+
+
+def _frame_depths(dataset: PanoramaDataset, index: int, sample) -> list[torch.Tensor | None]:
+    """Each frame's depth (contexts, then targets), ``None`` where it has no depth file. A :class:`Sample`
+    holds a group's depths only when every frame of it has one; a folder may give only some frames one."""
+    depths: list[torch.Tensor | None] = []
+    for group, indices in ((sample.context_gt_depths, sample.metadata["context_indices"]),
+                           (sample.target_depths, sample.metadata["target_indices"])):
+        if group is not None:
+            depths += list(group)
+            continue
+        frames = dataset.example(index).frames
+        depths += [dataset._load_frame(frames[i])[1] if frames[i].depth is not None else None for i in indices]
+    return depths
 
 
 def write_contact_sheet(data: str | Path, out: str | Path, count: int = 4, height: int = 128) -> Path:
