@@ -6,15 +6,25 @@ import pytest
 
 from cylindersplat.cli import main
 from cylindersplat.data.synth import SequenceConfig, write_synthetic_dataset
-from cylindersplat.experiments.ablation import Schedule, Variant, default_variants, run_study, study_table
+from cylindersplat.experiments.ablation import Schedule, Variant, all_variants, default_variants, run_study, study_table
 
 
 def test_every_variant_gets_the_same_number_of_steps():
     schedule = Schedule(30, 20, 10)
-    for variant in default_variants():
+    for variant in all_variants():
         stages, steps = variant.stages(schedule)
         assert sum(steps) == schedule.total, variant.name
         assert stages == {"full": (1, 2, 3), "pixel": (1,), "volume": (1, 2)}[variant.kind]
+
+
+def test_the_default_study_has_the_issue_rows_and_every_named_variant_is_a_valid_config():
+    from cylindersplat.experiments.ablation import _check_variants
+
+    names = [v.name for v in default_variants()]
+    assert {"full", "pixel_only", "volume_only_cylindrical", "volume_only_spherical", "volume_only_cartesian",
+            "wo_rgb_retrieval", "central_triplane", "cartesian_scale", "full_res_query", "isolated_init",
+            "full_paper_recipe"} <= set(names)
+    _check_variants(all_variants())  # raises on an unknown key or an invalid value
 
 
 @pytest.mark.slow

@@ -23,7 +23,7 @@ from pathlib import Path
 from ..utils.atomic import atomic_write_text
 
 
-__all__ = ["Schedule", "Variant", "default_variants", "VARIANT_NAMES", "run_study", "study_table", "study_sequence_config"]
+__all__ = ["Schedule", "Variant", "default_variants", "extra_variants", "all_variants", "VARIANT_NAMES", "run_study", "study_table", "study_sequence_config"]
 
 
 @dataclass(frozen=True)
@@ -92,14 +92,29 @@ def default_variants() -> list[Variant]:
                 ("model.volume.image_query=full",)),
         Variant("isolated_init", "full, isolated triplane init (own view's points only)",
                 ("model.volume.init=isolated",)),
-        Variant("depth_fusion_own_view", "full, depth-guided fusion against each Gaussian's own view only",
-                ("model.fusion.strategy=depth_prune", "model.fusion.side=front")),
         Variant("no_edge_fading", "full, without edge-aware pixel opacity (model.pixel.edge_sigma=0)",
                 ("model.pixel.edge_sigma=0",)),
     ]
 
 
-VARIANT_NAMES = tuple(v.name for v in default_variants())
+def extra_variants() -> list[Variant]:
+    """Named variants outside the default study (it must fit 75 minutes on a 2-core CPU); run them with
+    ``cylindersplat ablate --variants NAME ...``."""
+    return [
+        Variant("depth_fusion_own_view", "full, depth-guided fusion against each Gaussian's own view only",
+                ("model.fusion.strategy=depth_prune", "model.fusion.side=front")),
+        Variant("retrieval_window_2", "full, volume colours from the nearest observed surface points in 5x5 pixels",
+                ("model.volume.retrieval_window=2",)),
+        Variant("volume_weight_1", "full, the volume branch's own render in the loss (loss.volume_weight=1)",
+                ("loss.volume_weight=1",)),
+    ]
+
+
+def all_variants() -> list[Variant]:
+    return default_variants() + extra_variants()
+
+
+VARIANT_NAMES = tuple(v.name for v in all_variants())
 
 
 def study_sequence_config():
