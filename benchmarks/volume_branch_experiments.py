@@ -13,7 +13,6 @@ all pixels and pixels no input view sees.
 """
 
 import argparse
-import copy
 from dataclasses import replace
 from pathlib import Path
 
@@ -25,13 +24,13 @@ from cylindersplat.data.occlusion import occluded_mask
 from cylindersplat.data.synth import profile_config, write_synthetic_dataset
 from cylindersplat.evaluation import evaluate, model_method
 from cylindersplat.evaluation.methods import reconstruct, render_views
-from cylindersplat.experiments.ablation import Schedule, Variant, default_variants, run_study, study_sequence_config
+from cylindersplat.experiments.ablation import (VOLUME_ONLY, Schedule, Variant, default_variants, run_study,
+                                                study_sequence_config)
 from cylindersplat.metrics import DepthRange
 from cylindersplat.metrics.image import ws_weights
 from cylindersplat.model import load_model
 
-PAPER = ("model.fusion.strategy=concat", "train.stage2_render=volume")  # the paper's recipe on the tiny model
-VOLUME_ONLY = PAPER
+PAPER = VOLUME_ONLY  # the paper's recipe on the tiny model: concatenated Gaussians, volume-only stage 2
 RECIPES = [
     Variant("pixel_only", "pixel branch only", PAPER, kind="pixel"),
     Variant("paper_recipe", "concat fusion, volume-only stage 2", PAPER),
@@ -82,7 +81,7 @@ def branches(weights: Path, dataset) -> str:
 def test_time_fusion(weights: Path, dataset) -> list[str]:
     rows = []
     for label, mode, fusion in TEST_TIME:
-        model = copy.deepcopy(load_model(weights)).set_mode(mode)
+        model = load_model(weights).set_mode(mode)
         model.config.fusion = replace(model.config.fusion, **fusion)
         rows.append(f"| {label} | {scores(model, dataset)} |")
     return rows
@@ -149,14 +148,14 @@ def held_out(data: Path) -> SyntheticDataset:
     return SyntheticDataset(data, views="two_view", scenes=SyntheticDataset(data).scenes[-8:])
 
 
-def dataset(root: Path, cfg) -> Path:
+def ensure_dataset(root: Path, cfg) -> Path:
     if not (root / "meta.json").is_file():
         write_synthetic_dataset(root, 28, (64, 128), cfg, seed=0)
     return root
 
 
 def recipes(out: Path) -> None:
-    data = dataset(out / "data", study_sequence_config())
+    data = ensure_dataset(out / "data", study_sequence_config())
     run_study(data, out / "study", RECIPES, seeds=(0,), schedule=Schedule(300, 150, 150), held_out=8)
     test = held_out(data)
     for v in RECIPES[1:]:
@@ -168,12 +167,12 @@ def recipes(out: Path) -> None:
 
 
 def coverage(out: Path) -> None:
-    data = dataset(out / "data", study_sequence_config())
+    data = ensure_dataset(out / "data", study_sequence_config())
     run_study(data, out / "study", COVERAGE, seeds=(0,), schedule=Schedule(300, 150, 150), held_out=8)
     print((out / "study" / "ablation.md").read_text())
     # targets 1-2 m off the contexts' line: twice the occluded share, wider hidden regions
     known = {v.name: v for v in default_variants()}
-    far = dataset(out / "data_far_targets", profile_config("occlusion", target_offset=(1.0, 2.0)))
+    far = ensure_dataset(out / "data_far_targets", profile_config("occlusion", target_offset=(1.0, 2.0)))
     run_study(far, out / "far_targets", [known["full"], known["pixel_only_no_edge_fading"]], seeds=(0,), held_out=8)
     print((out / "far_targets" / "ablation.md").read_text())
     test = held_out(data)

@@ -24,7 +24,7 @@ def _steps(text: str) -> tuple[int, int, int]:
 def register(subparsers) -> None:
     from ..experiments.ablation import VARIANT_NAMES, extra_variants
 
-    EXTRA = [v.name for v in extra_variants()]
+    extras = [v.name for v in extra_variants()]
 
     p = subparsers.add_parser(
         "ablate", help="ablation study: train model variants with several seeds and tabulate them",
@@ -36,8 +36,8 @@ def register(subparsers) -> None:
     p.add_argument("--data", type=Path, help="synthetic dataset (default: generate OUT/data with the occlusion profile)")
     p.add_argument("--out", type=Path, default=Path("outputs/ablation"), help="output folder (default outputs/ablation)")
     p.add_argument("--variants", nargs="+", default=None, metavar="NAME",
-                   help=f"variants to run (default: the default study, {', '.join(n for n in VARIANT_NAMES if n not in EXTRA)}; "
-                   f"also available: {', '.join(EXTRA)})")
+                   help=f"variants to run (default: the default study, {', '.join(n for n in VARIANT_NAMES if n not in extras)}; "
+                   f"also available: {', '.join(extras)})")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="training seeds (default 0 1)")
     p.add_argument("--steps", type=_steps, default=(300, 150, 150),
                    help="optimizer steps of stages 1,2,3 of the full model; other variants get the same total (default 300,150,150)")

@@ -23,7 +23,8 @@ from pathlib import Path
 from ..utils.atomic import atomic_write_text
 
 
-__all__ = ["Schedule", "Variant", "default_variants", "extra_variants", "all_variants", "VARIANT_NAMES", "run_study", "study_table", "study_sequence_config"]
+__all__ = ["Schedule", "Variant", "default_variants", "extra_variants", "all_variants", "VARIANT_NAMES", "run_study",
+           "study_table", "study_sequence_config"]
 
 
 @dataclass(frozen=True)

@@ -177,33 +177,29 @@ class Trainer:
             out = self.train_model(batch.context_images, batch.context_priors, batch.context_poses)
         gaussians = out.gaussians.to(torch.float32)
         self._watch_gaussian_grads(gaussians)
-        height, width = batch.target_images.shape[-2:]
         with torch.autocast(self.device.type, enabled=False):
-            render = render_equirect(
-                gaussians, batch.target_poses.float(), height, width,
-                background=tuple(self.config.train.background), backend=self.config.train.render_backend,
-            )
+            render = self._render(gaussians, batch)
             self._last_render = (render, batch)
             reference = reference_depths(batch, self.config.loss.depth_reference) if self.config.loss.depth_l1 > 0 else None
             pixel_weight = self._occluded_weights(batch)
-            terms = self.loss_fn(render.rgb, render.depth, render.alpha, batch.target_images, reference,
-                                 pixel_weight=pixel_weight)
-            volume_weight = self.config.loss.volume_weight
-            if volume_weight > 0 and out.pixel_gaussians is not None and out.volume_gaussians is not None:
-                terms = self._add_volume_term(terms, out.volume_gaussians, batch, reference, pixel_weight, volume_weight)
+
+            def loss_of(r):
+                return self.loss_fn(r.rgb, r.depth, r.alpha, batch.target_images, reference, pixel_weight=pixel_weight)
+
+            terms = loss_of(render)
+            weight = self.config.loss.volume_weight
+            if weight > 0 and out.pixel_gaussians is not None and out.volume_gaussians is not None:
+                # loss.volume_weight: the volume Gaussians rendered alone, before fusion, count too
+                own = loss_of(self._render(out.volume_gaussians.to(torch.float32), batch))
+                parts = dict(terms.parts, volume_total=own.parts["total"], total=terms.parts["total"] + weight * own.parts["total"])
+                terms = LossTerms(terms.total + weight * own.total, parts)
             return terms
 
-    def _add_volume_term(self, terms: LossTerms, volume, batch: Sample, reference, pixel_weight, weight: float) -> LossTerms:
-        """``terms`` plus ``weight`` x the loss of the volume Gaussians rendered alone (``loss.volume_weight``)."""
+    def _render(self, gaussians, batch: Sample):
+        """fp32 render of the batch's target views."""
         height, width = batch.target_images.shape[-2:]
-        render = render_equirect(
-            volume.to(torch.float32), batch.target_poses.float(), height, width,
-            background=tuple(self.config.train.background), backend=self.config.train.render_backend,
-        )
-        own = self.loss_fn(render.rgb, render.depth, render.alpha, batch.target_images, reference, pixel_weight=pixel_weight)
-        parts = dict(terms.parts, volume_total=own.parts["total"])
-        parts["total"] = terms.parts["total"] + weight * own.parts["total"]
-        return LossTerms(terms.total + weight * own.total, parts)
+        return render_equirect(gaussians, batch.target_poses.float(), height, width,
+                               background=tuple(self.config.train.background), backend=self.config.train.render_backend)
 
     def _occluded_weights(self, batch: Sample) -> Tensor | None:
         """``1 + loss.occluded_weight`` on target pixels no context view sees (from reference depths), else 1."""
