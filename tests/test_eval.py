@@ -57,6 +57,7 @@ def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
 
 
 def test_eval_cli_views_need_loc360(tmp_path, capsys):
+    (tmp_path / "meta.json").write_text("{}")  # read as a synthetic dataset
     assert main(["eval", "--data", str(tmp_path), "--views", "3", "--out", str(tmp_path / "e")]) == 1
     assert "--format loc360" in capsys.readouterr().err
     with pytest.raises(SystemExit):

@@ -230,3 +230,20 @@ def test_eval_cli_on_the_real_triplet(pano_grf_fixture, tmp_path, capsys):
     assert 0 < two_view["occluded_share"] < one_view["occluded_share"] < 0.1
     assert one_view["occluded_views"] == 2
     assert one_view["ws_psnr_occluded"] < one_view["ws_psnr"]
+
+
+def test_eval_cli_detects_the_layout(pano_grf_fixture, tmp_path, capsys):
+    """Without --format, eval reads a png_render_* folder as PanoGRF data (the data commands' rule), not as synthetic."""
+    out = tmp_path / "eval"
+    assert main(["eval", "--data", str(pano_grf_fixture), "--resolution", "64x128", "--out", str(out), "--no-model",
+                 "--depth-prior", "gt", "--pictures", "0", "--lpips", "off"]) == 0
+    assert "data layout: pano_grf (detected" in capsys.readouterr().out
+    means = json.loads((out / "results.json").read_text())["means"]
+    assert next(iter(means.values()))["Forward warp"]["views"] == 1  # the triplet's middle frame
+
+
+def test_eval_cli_names_format_when_the_layout_is_unknown(tmp_path, capsys):
+    (tmp_path / "pictures").mkdir()
+    assert main(["eval", "--data", str(tmp_path / "pictures"), "--out", str(tmp_path / "eval"), "--no-model"]) != 0
+    err = capsys.readouterr().err
+    assert "cannot tell the dataset layout" in err and "--format synthetic|pano_grf|loc360|folder" in err

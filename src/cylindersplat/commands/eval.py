@@ -90,6 +90,8 @@ def _apply_preset(args) -> None:
         from ..training import load_config
 
         preset = load_config(args.config)
+    if args.format is None and preset is None:
+        args.format = _detect_format(args.data)
     defaults = {"format": ("synthetic", lambda c: c.data.format), "depth_prior": ("default", lambda c: c.data.depth_prior),
                 "pcc_reference": ("gt", lambda c: c.eval.pcc_reference)}
     for key, (default, from_preset) in defaults.items():
@@ -98,6 +100,20 @@ def _apply_preset(args) -> None:
     from ..data.datasets import check_reference_spec
 
     check_reference_spec(args.pcc_reference, "--pcc-reference", allowed=("gt",))
+
+
+def _detect_format(data) -> str:
+    """--format from the folder's layout, by the rule the data commands use (``data info``, ``data priors``)."""
+    from ..data.depth_prior.precompute import detect_layout
+
+    try:
+        layout = detect_layout(data)
+    except ValueError:
+        raise ValueError(f"{data}: cannot tell the dataset layout (no meta.json, not a png_render_* folder, no 360Loc "
+                         "mapping/query_360, no poses.json); name it with --format synthetic|pano_grf|loc360|folder") from None
+    chosen = {"input": "folder"}.get(layout, layout)
+    print(f"data layout: {chosen} (detected; --format to choose another)")
+    return chosen
 
 
 def run(args: argparse.Namespace) -> int:
@@ -180,7 +196,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument("--data", required=True, help="dataset folder (synthetic output, png_render_* folder, 360Loc root or a folder of posed panoramas)")
     parser.add_argument("--format", choices=["synthetic", "pano_grf", "loc360", "folder"],
-                        help="dataset layout (default synthetic, or the --config preset's); folder: posed panoramas in the "
+                        help="dataset layout (default: the --config preset's, else detected from --data as the data commands do); folder: posed panoramas in the "
                         "input format of docs/inference.md (one folder, or a folder of them), frames held out with "
                         "--targets or by --protocols two_view/one_view/n_view in poses-file order")
     parser.add_argument("--config", help="training preset or YAML (e.g. paper) whose data.format, data.depth_prior and "
