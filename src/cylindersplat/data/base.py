@@ -96,7 +96,8 @@ class PanoramaDataset(Dataset):
         return list(seen.values())
 
     # -- shared loading ----------------------------------------------------------------------------
-    def _load_frame(self, frame: FrameRef) -> tuple[Tensor, Tensor | None]:
+    def load_frame(self, frame: FrameRef) -> tuple[Tensor, Tensor | None]:
+        """One stored panorama at the dataset's resolution: ``(rgb (3, H, W) in [0, 1], depth (H, W) in metres or None)``."""
         image = read_rgb(frame.rgb, size=self.resolution, expected=self.stored_size)
         depth = None
         if frame.depth is not None:
@@ -115,7 +116,7 @@ class PanoramaDataset(Dataset):
             raise IndexError(f"{type(self).__name__} index {index} out of range (len {len(self)})")
         ref = self.example(index)
         needed = sorted(set(ref.views.context) | set(ref.views.target))
-        loaded = {i: self._load_frame(ref.frames[i]) for i in needed}
+        loaded = {i: self.load_frame(ref.frames[i]) for i in needed}
         sizes = {tuple(loaded[i][0].shape) for i in needed}
         if len(sizes) > 1:
             files = ", ".join(str(ref.frames[i].rgb) for i in needed)

@@ -143,7 +143,7 @@ def _frame_depths(dataset: PanoramaDataset, index: int, sample) -> list[torch.Te
             depths += list(group)
             continue
         frames = dataset.example(index).frames
-        depths += [dataset._load_frame(frames[i])[1] if frames[i].depth is not None else None for i in indices]
+        depths += [dataset.load_frame(frames[i])[1] if frames[i].depth is not None else None for i in indices]
     return depths
 
 
