@@ -61,3 +61,19 @@ def test_bad_variants_fail_before_training(tmp_path, capsys):
                   resolution=(32, 64))
     assert main(["ablate", "--data", str(data), "--variants", "nonsense"]) == 1
     assert "unknown variant" in capsys.readouterr().err
+
+
+def test_a_variant_is_scored_with_the_depth_prior_it_trains_with(tmp_path, monkeypatch):
+    from cylindersplat.data import datasets
+
+    data = tmp_path / "data"
+    write_synthetic_dataset(data, 2, (32, 64), SequenceConfig(frames=3), seed=3, progress=False)
+    priors, make_dataset = [], datasets.make_dataset
+    monkeypatch.setattr(datasets, "make_dataset", lambda *a, **k: priors.append(k.get("depth_prior")) or make_dataset(*a, **k))
+    variant = Variant("gt_prior", "pixel branch on ground-truth depth", ("data.depth_prior=gt",), kind="pixel")
+    assert variant.depth_prior == "gt" and Variant("x", "y").depth_prior == "default"
+    run_study(data, tmp_path / "s", [variant], seeds=(0,), schedule=Schedule(2, 0, 0), held_out=1, resolution=(32, 64),
+              log=lambda *_: None)
+    assert priors[-1] == "gt"
+    assert json.loads((tmp_path / "s" / "runs" / "gt_prior" / "seed0" / "study_run.json").read_text())["overrides"] == [
+        "data.depth_prior=gt"]

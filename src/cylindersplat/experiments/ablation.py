@@ -61,6 +61,12 @@ class Variant:
         stages = [(s, n) for s, n in stages if n > 0]
         return tuple(s for s, _ in stages), tuple(n for _, n in stages)
 
+    @property
+    def depth_prior(self) -> str:
+        """The input depth prior the variant trains and is scored with (``data.depth_prior``; the preset's by default)."""
+        chosen = [o.split("=", 1)[1] for o in self.overrides if o.startswith("data.depth_prior=")]
+        return chosen[-1] if chosen else "default"
+
 
 # The paper's volume-only rows: the volume branch alone renders every pixel (no fusion, no pruning).
 VOLUME_ONLY = ("model.fusion.strategy=concat", "train.stage2_render=volume")
@@ -177,14 +183,16 @@ def _train(variant: Variant, seed: int, schedule: Schedule, data_root: Path, tra
     return Path(summary["weights"]), train_s, int(summary.get("skipped_steps", 0))
 
 
-def _score(weights: Path, data_root: Path, held_out: list[str], device: str) -> tuple[dict, int, int]:
-    from ..data import SyntheticDataset
+def _score(weights: Path, data_root: Path, held_out: list[str], device: str, depth_prior: str = "default"
+           ) -> tuple[dict, int, int]:
+    from ..data.datasets import make_dataset
     from ..evaluation import evaluate, model_method
     from ..evaluation.methods import reconstruct
     from ..metrics import DepthRange
     from ..model import load_model
 
-    dataset = SyntheticDataset(data_root, views="two_view", scenes=held_out)
+    # scored with the input depth prior it was trained with (a variant may change data.depth_prior)
+    dataset = make_dataset("synthetic", data_root, views="two_view", depth_prior=depth_prior, scenes=held_out)
     model = load_model(weights, map_location=device)
     result = evaluate(dataset, [model_method(model, "model", device=device)], depth_range=DepthRange(0.05, 1000.0),
                       progress=False)
@@ -225,7 +233,7 @@ def run_study(
             run_dir.mkdir(parents=True, exist_ok=True)
             t0 = time.perf_counter()
             weights, train_s, skipped = _train(variant, seed, schedule, data_root, train_ids, run_dir, resolution, device)
-            metrics, count, visible = _score(weights, data_root, test_ids, device)
+            metrics, count, visible = _score(weights, data_root, test_ids, device, variant.depth_prior)
             runs.append(RunResult(metrics, train_s, skipped, count, visible, str(weights)))
             log(f"[{vi + 1}/{len(variants)}] {variant.name} seed {seed}: WS-PSNR {metrics.get('ws_psnr', float('nan')):.2f}"
                 f" (occluded {_fmt(metrics.get('ws_psnr_occluded'))}), trained {train_s:.0f} s, skipped {skipped}; "
