@@ -41,6 +41,13 @@ def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
     means = data["means"]["loc — all_between, 3 views, gap 2 (2 examples)"]
     assert set(means) == {"CylinderSplat", "Forward warp"} and means["Forward warp"]["abs_rel"] is None
     assert 0 < means["Forward warp"]["ssim"] <= 1
+    # the warp reproduces its own input views exactly (infinite PSNR): the means use the other views, and say so
+    exact = [r for r in rows if r["method"] == "Forward warp" and r["ws_psnr"] == float("inf")]
+    assert len(exact) == 2 * 3 and means["Forward warp"]["ws_psnr"] < 100
+    others = [r["ws_psnr"] for r in rows if r["method"] == "Forward warp" and r["ws_psnr"] != float("inf")]
+    assert means["Forward warp"]["ws_psnr"] == pytest.approx(np.mean(others))
+    assert "Forward warp: 6 of 10 target views rendered exactly (infinite ws_psnr, psnr" in printed
+    assert "Forward warp: 6 of 10 target views rendered exactly" in (out / "results.md").read_text()
     assert len(list((out / "examples" / "all_between_3views_gap2").glob("*.png"))) == 1
     # released layout, 4 views: contexts (s, s+1, s+3, s+4), targets s+1..s+3
     assert main(["eval", "--format", "loc360", "--data", str(tmp_path / "loc"), "--views", "4", "--gap", "2",

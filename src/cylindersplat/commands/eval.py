@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     depth_range = DepthRange(*args.depth_range) if args.depth_range else (
         DepthRange() if args.format == "pano_grf" else DepthRange(0.05, 1000.0))
     args.out.mkdir(parents=True, exist_ok=True)
-    results, details, settings = {}, {}, {}
+    results, details, settings, notes = {}, {}, {}, []
     for label, (protocol, options, dataset) in datasets.items():
         result = evaluate(dataset, methods, lpips_net, args.max_examples, args.out / "examples" / label,
                           num_pictures=args.pictures, depth_range=depth_range,
@@ -172,10 +172,13 @@ def run(args: argparse.Namespace) -> int:
             result.notes.append(f"PCC against {args.pcc_reference} (AbsRel, RMSE, δ1 against the ground truth, where there is one)")
         for note in result.notes:
             print(f"{label}: {note}")
+            notes.append(f"{label}: {note}")
     table = results_to_markdown(results, title="Evaluation")
+    if notes:  # the table's file carries what the run printed about it
+        table += "\nNotes:\n" + "".join(f"- {note}\n" for note in notes)
     atomic_write_text(args.out / "results.md", table)
     atomic_write_text(args.out / "results.json",
-                      json.dumps({"means": results, "views": details, "settings": settings}, indent=1))
+                      json.dumps({"means": results, "views": details, "settings": settings, "notes": notes}, indent=1))
     print(table)
     print(f"wrote {args.out}/results.md, results.json and examples/")
     return 0

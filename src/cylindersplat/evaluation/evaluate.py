@@ -208,13 +208,22 @@ def evaluate(
         mine = [r for r in rows if r["method"] == method.name]
         keys = [k for k in dict.fromkeys(k for r in mine for k in r) if k not in _ROW_KEYS]
         means[method.name] = {}
+        exact: dict[int, list[str]] = {}
         for key in keys:
             if key == "occluded_share" or key in OCCLUDED_METRICS:
                 # only the views that have the value (enough occluded pixels, reference depth)
                 values = [r[key] for r in mine if r.get(key) is not None]
                 means[method.name][key] = float(np.mean(values)) if values else None
             else:
-                means[method.name][key] = float(np.mean([r[key] for r in mine]))
+                values = [r[key] for r in mine]
+                finite = [v for v in values if v != math.inf]  # a PSNR of a render equal to its target is inf
+                if finite and len(finite) < len(values):
+                    exact.setdefault(len(values) - len(finite), []).append(key)
+                    values = finite
+                means[method.name][key] = float(np.mean(values))
+        for count_exact, keys_exact in exact.items():
+            notes.append(f"{method.name}: {count_exact} of {len(mine)} target views rendered exactly (infinite "
+                         f"{', '.join(keys_exact)}; e.g. a target that is also an input view) are left out of those means")
         # time is per example, not per view
         means[method.name]["time_s"] = float(np.mean([r["time_s"] for r in mine if r["view"] == 0]))
         means[method.name]["views"] = len(mine)
