@@ -1,13 +1,13 @@
 """The volume-branch experiments of benchmarks/RESULTS.md ("Volume branch"), one seed each.
 
-    python benchmarks/volume_branch_experiments.py OUT_DIR [--suite recipes|coverage|ordering]
+    python benchmarks/volume_branch_experiments.py OUT_DIR [--suite recipes|coverage|gt_prior]
 
 ``recipes`` (session 5, about 35 min on the 2-core CPU machine): fusion strategies and curricula.
 ``coverage`` (session 7, about 50 min): triplane bounds, the windowed colour retrieval, the auxiliary
 volume loss, targets farther off the contexts' line, test-time fusion settings on a volume-only
 checkpoint, and what each branch covers and paints on the occluded pixels.
-``ordering`` (session 8, about 12 min): volume-only cylindrical vs spherical with ground-truth input depth,
-two seeds.
+``gt_prior`` (session 8, about 30 min): full, pixel-only and volume-only (cylindrical, spherical) with
+ground-truth depth as the input prior, two seeds.
 
 Every variant trains the tiny model for 600 steps (300 / 150 / 150 over the stages it runs) on 20
 procedural scenes of the occlusion profile at 64x128 and is scored on the same 8 held-out scenes,
@@ -58,9 +58,15 @@ COVERAGE = [
     Variant("volume_weight_1_volume_stage2", "the same, stage 2 renders the volume branch alone",
             ("loss.volume_weight=1", "train.stage2_render=volume")),
 ]
-# Does the all-pixel coordinate ordering come from the depth prior? The sphere's (theta, latitude) plane takes
-# pixel features at their own direction whatever their depth; every cylindrical plane places them by depth.
-ORDERING = [
+# Ground-truth depth as the input prior (an oracle, sharp at occlusion boundaries), two questions:
+# does the all-pixel coordinate ordering come from the prior's errors (the sphere's (theta, latitude) plane takes
+# pixel features at their own direction whatever their depth; every cylindrical plane places them by depth), and
+# how much of the occluded-pixel lead do the blurred prior's flying pixels cost?
+GT_PRIOR = [
+    Variant("full_gt_prior", "full, ground-truth depth as the input prior", ("data.depth_prior=gt",)),
+    Variant("pixel_only_no_edge_fading_gt_prior", "pixel only, no edge fading, ground-truth input depth",
+            ("model.pixel.edge_sigma=0", "data.depth_prior=gt"), kind="pixel"),
+    Variant("pixel_only_gt_prior", "pixel only, ground-truth input depth", ("data.depth_prior=gt",), kind="pixel"),
     Variant("volume_only_cylindrical_gt_prior", "volume only, cylindrical, ground-truth depth as the input prior",
             VOLUME_ONLY + ("data.depth_prior=gt",), kind="volume"),
     Variant("volume_only_spherical_gt_prior", "volume only, spherical, ground-truth depth as the input prior",
@@ -199,17 +205,17 @@ def coverage(out: Path) -> None:
         print(name, ", ".join(f"{k} {v:.2f}" for k, v in cover.items()), flush=True)
 
 
-def ordering(out: Path) -> None:
-    """Volume-only cylindrical vs spherical with the ground-truth depth as input prior, two seeds (compare with
-    the ablation study's rows, trained on the simulated prior: same data, schedule and seeds)."""
+def gt_prior(out: Path) -> None:
+    """The study's rows with ground-truth depth as the input prior, two seeds (compare with the ablation study,
+    trained on the simulated prior: same data, schedule and seeds)."""
     data = ensure_dataset(out / "data", study_sequence_config())
-    run_study(data, out / "ordering", ORDERING, seeds=(0, 1), schedule=Schedule(300, 150, 150), held_out=8)
-    print((out / "ordering" / "ablation.md").read_text())
+    run_study(data, out / "gt_prior", GT_PRIOR, seeds=(0, 1), schedule=Schedule(300, 150, 150), held_out=8)
+    print((out / "gt_prior" / "ablation.md").read_text())
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("out", type=Path)
-    parser.add_argument("--suite", choices=("recipes", "coverage", "ordering"), default="recipes")
+    parser.add_argument("--suite", choices=("recipes", "coverage", "gt_prior"), default="recipes")
     args = parser.parse_args()
-    {"recipes": recipes, "coverage": coverage, "ordering": ordering}[args.suite](args.out)
+    {"recipes": recipes, "coverage": coverage, "gt_prior": gt_prior}[args.suite](args.out)

@@ -276,3 +276,41 @@ def test_volume_weight_adds_the_volume_branchs_own_render_loss(synth_root, tmp_p
     assert terms.parts["volume_total"] == pytest.approx(float(alone), rel=1e-5)
     with pytest.raises(ValueError, match="volume_weight"):
         load_config("tiny", ["loss.volume_weight=-1"])
+
+
+def test_stage_one_can_leave_hidden_pixels_to_the_volume_branch(tmp_path, monkeypatch):
+    """loss.pixel_stage_hidden=leave: in stage 1 of a curriculum with later volume stages, pixels no context
+    view sees weigh 0 in the RGB term (the occlusion mask from the reference depths) and drop out of the
+    depth term; a pixel-only schedule and the later stages keep every pixel."""
+    from cylindersplat.data import collate_samples
+    from cylindersplat.data.occlusion import occluded_mask
+    from cylindersplat.data.synth import profile_config
+    from cylindersplat.training.losses import LossConfig, RenderLoss
+    from cylindersplat.training.trainer import batch_to_device
+
+    # the depth term: the mean |depth - reference| over pixels with a reference and a non-zero weight
+    gen = torch.Generator().manual_seed(1)
+    depth, reference = torch.rand(1, 1, 4, 8, generator=gen) + 1, torch.rand(1, 1, 4, 8, generator=gen) + 1
+    weight = (torch.rand(1, 1, 4, 8, generator=gen) > 0.4).float()
+    terms = RenderLoss(LossConfig(use_lpips="off"))(torch.zeros(1, 1, 3, 4, 8), depth, torch.ones(1, 1, 4, 8),
+                                                   torch.zeros(1, 1, 3, 4, 8), reference, pixel_weight=weight)
+    kept = weight > 0
+    assert terms.parts["depth_l1"] == pytest.approx(float((depth - reference).abs()[kept].mean()), rel=1e-6)
+
+    root = tmp_path / "occ"
+    write_synthetic_dataset(root, 2, (32, 64), profile_config("occlusion"), seed=4, progress=False)
+    for stages, stage, leaves in (([1, 2, 3], 1, True), ([1], 1, False), ([1, 2, 3], 3, False)):
+        cfg = _config(root, tmp_path / f"run{len(stages)}{stage}", f"train.stages={stages}",
+                      f"train.steps_per_stage={[1] * len(stages)}", "loss.pixel_stage_hidden=leave")
+        trainer = Trainer(cfg)
+        trainer.stage_index = cfg.train.stages.index(stage)
+        batch = batch_to_device(collate_samples([trainer.dataset[0]]), trainer.device)
+        weights = trainer._occluded_weights(batch)
+        if not leaves:
+            assert weights is None
+            continue
+        hidden = occluded_mask(batch.target_depths[0, 0], batch.target_poses[0, 0], batch.context_gt_depths[0],
+                               batch.context_poses[0])
+        assert hidden.any() and torch.equal(weights[0, 0], (~hidden).float())
+    with pytest.raises(ValueError, match="pixel_stage_hidden"):
+        load_config("tiny", ["loss.pixel_stage_hidden=maybe"])

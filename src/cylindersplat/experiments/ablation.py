@@ -114,6 +114,8 @@ def extra_variants() -> list[Variant]:
                 ("model.volume.retrieval_window=2",)),
         Variant("volume_weight_1", "full, the volume branch's own render in the loss (loss.volume_weight=1)",
                 ("loss.volume_weight=1",)),
+        Variant("pixel_stage_leaves_hidden", "full, stage 1 leaves pixels no input view sees out of the loss",
+                ("loss.pixel_stage_hidden=leave",)),
     ]
 
 

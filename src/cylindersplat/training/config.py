@@ -225,6 +225,8 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     check_reference_spec(cfg.eval.pcc_reference, "eval.pcc_reference", allowed=("gt",))
     if cfg.loss.occluded_weight < 0:
         raise ValueError(f"loss.occluded_weight must be >= 0, got {cfg.loss.occluded_weight}")
+    if cfg.loss.pixel_stage_hidden not in ("fill", "leave"):
+        raise ValueError(f"loss.pixel_stage_hidden must be fill or leave, got {cfg.loss.pixel_stage_hidden!r}")
     if cfg.loss.volume_weight < 0:
         raise ValueError(f"loss.volume_weight must be >= 0, got {cfg.loss.volume_weight}")
     if cfg.train.stage2_render not in ("volume", "fused"):

@@ -41,6 +41,11 @@ class LossConfig:
     # volume branch a whole-scene reconstruction, so the Gaussians fusion leaves in hidden space carry
     # its colours rather than a hole-filler's; 0 = off (the paper's loss).
     volume_weight: float = 0.0
+    # Stage 1 (the pixel branch alone) of a curriculum that goes on to train the volume branch: "fill" scores
+    # every target pixel (the paper's); "leave" leaves the pixels no context view sees out of its RGB and depth
+    # terms, so the pixel branch is not taught to stretch foreground Gaussians over disocclusions the volume
+    # branch is there to fill. Needs ground-truth depths of targets and contexts.
+    pixel_stage_hidden: str = "fill"
     # D_ref of the depth term: gt (dataset ground truth), prior (the input prior of the target views,
     # the paper's UniK3D), file:NAME (precomputed files) or none. Unavailable -> error at start-up.
     depth_reference: str = "gt"
@@ -113,7 +118,8 @@ class RenderLoss(nn.Module):
         reference_depth: Float[Tensor, "*B V H W"] | None,
         pixel_weight: Float[Tensor, "*B V H W"] | None = None,
     ) -> LossTerms:
-        """``pixel_weight`` (optional) weights the RGB L1 per pixel (a weighted mean)."""
+        """``pixel_weight`` (optional) weights the RGB L1 per pixel (a weighted mean); pixels it gives weight 0
+        are left out of the depth term too."""
         cfg = self.config
         if pixel_weight is None:
             rgb_l1 = (rgb - target_rgb).abs().mean()
@@ -129,6 +135,8 @@ class RenderLoss(nn.Module):
             parts["lpips"] = float(perceptual.detach())
         if reference_depth is not None and cfg.depth_l1 > 0:
             valid = reference_depth > 0
+            if pixel_weight is not None:
+                valid = valid & (pixel_weight > 0)
             rendered = depth / alpha.clamp_min(1e-4) if cfg.normalize_depth else depth
             error = (rendered - reference_depth).abs() * valid
             depth_l1 = error.sum() / valid.sum().clamp_min(1)

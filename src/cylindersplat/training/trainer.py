@@ -202,13 +202,17 @@ class Trainer:
                                background=tuple(self.config.train.background), backend=self.config.train.render_backend)
 
     def _occluded_weights(self, batch: Sample) -> Tensor | None:
-        """``1 + loss.occluded_weight`` on target pixels no context view sees (from reference depths), else 1."""
-        weight = self.config.loss.occluded_weight
+        """``1 + loss.occluded_weight`` on target pixels no context view sees (from reference depths), else 1;
+        0 there in stage 1 with ``loss.pixel_stage_hidden=leave`` when later stages train the volume branch."""
+        lcfg = self.config.loss
+        weight, setting = lcfg.occluded_weight, "loss.occluded_weight"
+        if self.stage == 1 and lcfg.pixel_stage_hidden == "leave" and {2, 3} & set(self.config.train.stages):
+            weight, setting = -1.0, "loss.pixel_stage_hidden=leave"
         if weight == 0:
             return None
         if batch.target_depths is None or batch.context_gt_depths is None:
             if not getattr(self, "_warned_occluded", False):
-                warnings.warn("loss.occluded_weight needs reference depths of targets and contexts; not applied",
+                warnings.warn(f"{setting} needs reference depths of targets and contexts; not applied",
                               stacklevel=3)
                 self._warned_occluded = True
             return None
