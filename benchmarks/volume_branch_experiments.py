@@ -1,13 +1,14 @@
 """The volume-branch experiments of benchmarks/RESULTS.md ("Volume branch"), one seed each.
 
-    python benchmarks/volume_branch_experiments.py OUT_DIR [--suite recipes|coverage|gt_prior]
+    python benchmarks/volume_branch_experiments.py OUT_DIR [--suite recipes|coverage|gt_prior|sharp_prior]
 
 ``recipes`` (session 5, about 35 min on the 2-core CPU machine): fusion strategies and curricula.
 ``coverage`` (session 7, about 50 min): triplane bounds, the windowed colour retrieval, the auxiliary
 volume loss, targets farther off the contexts' line, test-time fusion settings on a volume-only
 checkpoint, and what each branch covers and paints on the occluded pixels.
 ``gt_prior`` (session 8, about 30 min): full, pixel-only and volume-only (cylindrical, spherical) with
-ground-truth depth as the input prior, two seeds.
+ground-truth depth as the input prior, two seeds. ``sharp_prior`` (session 8, about 20 min): full and
+pixel-only on the simulated prior with 0.5 px of edge blur instead of 1.5 px, two seeds.
 
 Every variant trains the tiny model for 600 steps (300 / 150 / 150 over the stages it runs) on 20
 procedural scenes of the occlusion profile at 64x128 and is scored on the same 8 held-out scenes,
@@ -71,6 +72,14 @@ GT_PRIOR = [
             VOLUME_ONLY + ("data.depth_prior=gt",), kind="volume"),
     Variant("volume_only_spherical_gt_prior", "volume only, spherical, ground-truth depth as the input prior",
             VOLUME_ONLY + ("model.volume.coordinates=spherical", "data.depth_prior=gt"), kind="volume"),
+]
+# The simulated prior with a third of its edge blur (0.5 px instead of 1.5 px at 64x128).
+SHARP = ("data.depth_prior=simulated:blur_sigma=0.5",)
+SHARP_PRIOR = [
+    Variant("full_sharp_prior", "full, simulated prior blurred 0.5 px", SHARP),
+    Variant("pixel_only_no_edge_fading_sharp_prior", "pixel only, no edge fading, simulated prior blurred 0.5 px",
+            ("model.pixel.edge_sigma=0",) + SHARP, kind="pixel"),
+    Variant("pixel_only_sharp_prior", "pixel only, simulated prior blurred 0.5 px", SHARP, kind="pixel"),
 ]
 # test-time settings tried on the volume-only checkpoint: (label, mode, fusion changes)
 HIDDEN = {"strategy": "depth_prune", "side": "hidden"}
@@ -213,9 +222,16 @@ def gt_prior(out: Path) -> None:
     print((out / "gt_prior" / "ablation.md").read_text())
 
 
+def sharp_prior(out: Path) -> None:
+    """Full and pixel-only on a sharper simulated prior (blur 0.5 px), two seeds."""
+    data = ensure_dataset(out / "data", study_sequence_config())
+    run_study(data, out / "sharp_prior", SHARP_PRIOR, seeds=(0, 1), schedule=Schedule(300, 150, 150), held_out=8)
+    print((out / "sharp_prior" / "ablation.md").read_text())
+
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("out", type=Path)
-    parser.add_argument("--suite", choices=("recipes", "coverage", "gt_prior"), default="recipes")
+    parser.add_argument("--suite", choices=("recipes", "coverage", "gt_prior", "sharp_prior"), default="recipes")
     args = parser.parse_args()
-    {"recipes": recipes, "coverage": coverage, "gt_prior": gt_prior}[args.suite](args.out)
+    {"recipes": recipes, "coverage": coverage, "gt_prior": gt_prior, "sharp_prior": sharp_prior}[args.suite](args.out)

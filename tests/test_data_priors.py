@@ -209,3 +209,20 @@ def test_depth_prior_specs():
         parse_depth_prior("constant:-1")
     with pytest.raises(ValueError, match="takes no"):
         parse_depth_prior("gt:1")
+
+
+def test_simulated_prior_spec_sets_its_degradation():
+    """``simulated:key=value,...`` sets the SimulatedPriorConfig fields and the seed: the spec's prior equals
+    the one built directly, and zero degradation through the spec is the ground truth."""
+    q = _query()
+    prior = parse_depth_prior("simulated:blur_sigma=0.5,seed=2")
+    assert prior.seed == 2 and prior.config == SimulatedPriorConfig(blur_sigma=0.5)
+    assert torch.equal(prior(q), SimulatedPrior(SimulatedPriorConfig(blur_sigma=0.5), seed=2)(q))
+    assert not torch.equal(prior(q), SimulatedPrior(seed=2)(q))  # the default 1.5 px blur differs
+    off = parse_depth_prior("simulated:scale_sigma=0,blur_sigma=0,noise_sigma=0,hole_fraction=0")
+    assert torch.allclose(off(q), q.gt_depth)
+    assert parse_depth_prior("simulated:4").seed == 4
+    for spec, message in (("simulated:blur=1", "unknown setting 'blur'"), ("simulated:blur_sigma=-1", ">= 0"),
+                          ("simulated:blur_sigma=abc", "not a number"), ("simulated:noise_sigma=nan", ">= 0")):
+        with pytest.raises(ValueError, match=message):
+            parse_depth_prior(spec)

@@ -45,7 +45,7 @@ NETWORK_PRIORS = ("exported", "unik3d", "depth_anything_v2")
 def parse_depth_prior(spec: str, **kwargs) -> DepthPrior:
     """A prior from a command-line spec: ``name`` or ``name:value`` (``constant:2.5``, ``exported:net.pt2``,
     ``unik3d:/models/unik3d-vitl``, ``depth_anything_v2:depth-anything/Depth-Anything-V2-Small-hf``,
-    ``file:unik3d`` or ``file:/priors/unik3d``). ``kwargs`` go to the prior (e.g. ``device=`` of a network)."""
+    ``file:unik3d``, ``file:/priors/unik3d``, ``simulated:3`` (seed) or ``simulated:blur_sigma=0.5,seed=3``). ``kwargs`` go to the prior (e.g. ``device=`` of a network)."""
     name, sep, value = spec.partition(":")
     if name not in DEPTH_PRIORS:
         make_depth_prior(name)  # the unknown-name error
@@ -54,9 +54,13 @@ def parse_depth_prior(spec: str, **kwargs) -> DepthPrior:
             raise ValueError(f"depth prior {name!r} takes no ':value' (spec {spec!r})")
         key, kind = _SPEC_ARGUMENT[name]
         try:
-            kwargs[key] = kind(value)
-        except ValueError:
-            raise ValueError(f"depth prior spec {spec!r}: {value!r} is not a valid {key}") from None
+            if name == "simulated":  # simulated:SEED or simulated:key=value,...
+                kwargs.update(SimulatedPrior.spec_arguments(value))
+            else:
+                kwargs[key] = kind(value)
+        except ValueError as error:
+            detail = str(error) if str(error).startswith("simulated prior:") else f"{value!r} is not a valid {key}"
+            raise ValueError(f"depth prior spec {spec!r}: {detail}") from None
     elif name in NETWORK_PRIORS:
         raise FileNotFoundError(f"depth prior {name!r} needs its weights: write {name}:PATH (see docs/data.md)")
     if name not in NETWORK_PRIORS:

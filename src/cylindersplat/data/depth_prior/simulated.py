@@ -12,6 +12,7 @@ Applied in this order, all reproducible from ``(seed, query key)``:
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from dataclasses import dataclass
 
@@ -80,6 +81,31 @@ class SimulatedPrior(DepthPrior):
     def __init__(self, config: SimulatedPriorConfig = SimulatedPriorConfig(), seed: int = 0) -> None:
         self.config = config
         self.seed = seed
+
+    @staticmethod
+    def spec_arguments(text: str) -> dict:
+        """Keyword arguments from a spec's value: ``SEED`` or ``key=value[,key=value...]`` with keys ``seed``
+        and the :class:`SimulatedPriorConfig` fields (``simulated:blur_sigma=0.5``, ``simulated:seed=2,noise_sigma=0``)."""
+        if "=" not in text:
+            return {"seed": int(text)}
+        fields = {f.name for f in dataclasses.fields(SimulatedPriorConfig)}
+        seed, changes = 0, {}
+        for item in text.split(","):
+            key, _, value = item.partition("=")
+            key = key.strip()
+            if key not in fields | {"seed"}:
+                raise ValueError(f"simulated prior: unknown setting {key!r}; choose from seed, {', '.join(sorted(fields))}")
+            try:
+                number = float(value)
+            except ValueError:
+                raise ValueError(f"simulated prior: {key}={value!r} is not a number") from None
+            if key == "seed":
+                seed = int(number)
+            elif not number >= 0:  # also refuses nan
+                raise ValueError(f"simulated prior: {key} must be >= 0, got {value!r}")
+            else:
+                changes[key] = number
+        return {"seed": seed, "config": SimulatedPriorConfig(**changes)}
 
     def __call__(self, query: PriorQuery) -> Tensor:
         if query.gt_depth is None:
