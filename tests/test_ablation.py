@@ -77,3 +77,15 @@ def test_a_variant_is_scored_with_the_depth_prior_it_trains_with(tmp_path, monke
     assert priors[-1] == "gt"
     assert json.loads((tmp_path / "s" / "runs" / "gt_prior" / "seed0" / "study_run.json").read_text())["overrides"] == [
         "data.depth_prior=gt"]
+    # --depth-prior: every variant's prior (trained and scored), recorded in the report and the table's caption
+    plain = Variant("pixel", "pixel branch", kind="pixel")
+    report = run_study(data, tmp_path / "t", [plain], seeds=(0,), schedule=Schedule(2, 0, 0), held_out=1,
+                       resolution=(32, 64), log=lambda *_: None, depth_prior="simulated:blur_sigma=0")
+    assert priors[-1] == "simulated:blur_sigma=0" and report["depth_prior"] == "simulated:blur_sigma=0"
+    assert "input depth prior simulated:blur_sigma=0" in study_table(report)
+    # a finished run trained with other settings is not reused as if it were this one
+    with pytest.raises(ValueError, match="other settings"):
+        run_study(data, tmp_path / "t", [plain], seeds=(0,), schedule=Schedule(2, 0, 0), held_out=1,
+                  resolution=(32, 64), log=lambda *_: None)
+    with pytest.raises(ValueError, match="unknown depth prior"):
+        run_study(data, tmp_path / "u", [plain], seeds=(0,), held_out=1, depth_prior="sharp")

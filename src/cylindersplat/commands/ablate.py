@@ -45,6 +45,9 @@ def register(subparsers) -> None:
     p.add_argument("--scenes", type=int, default=28, help="scenes to generate when --data is not given (default 28)")
     p.add_argument("--held-out", type=int, default=8, help="last N scenes are scored, not trained on (default 8)")
     p.add_argument("--resolution", type=model_resolution, default=(64, 128), help="panorama HxW (default 64x128)")
+    p.add_argument("--depth-prior", default="default", metavar="SPEC",
+                   help="input depth prior of every variant, trained and scored (a data.depth_prior spec: gt, "
+                   "simulated:blur_sigma=0.5, ...; default: the synthetic data's simulated prior)")
     p.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
     p.add_argument("--json", type=Path, help="also copy ablation.json here (e.g. benchmarks/results/ablation.json)")
     p.set_defaults(func=run)
@@ -61,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     data = args.data or _generate(args)
     schedule = Schedule(*args.steps, lr=args.lr)
     report = run_study(data, args.out, [known[n] for n in names], tuple(args.seeds), schedule, args.held_out,
-                       args.resolution, args.device)
+                       args.resolution, args.device, depth_prior=args.depth_prior)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(args.json, json.dumps(report, indent=1))

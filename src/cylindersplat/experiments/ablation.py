@@ -17,7 +17,7 @@ import json
 import math
 import statistics
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from ..utils.atomic import atomic_write_text
@@ -166,6 +166,9 @@ def _train(variant: Variant, seed: int, schedule: Schedule, data_root: Path, tra
     meta = run_dir / "study_run.json"
     if weights.is_file() and meta.is_file():
         info = json.loads(meta.read_text())
+        if info.get("overrides", list(variant.overrides)) != list(variant.overrides):
+            raise ValueError(f"{run_dir} holds a finished run of {variant.name} with other settings "
+                             f"({info['overrides']}, not {list(variant.overrides)}); choose another output folder")
         return weights, info["train_s"], info["skipped_steps"]
     stages, steps = variant.stages(schedule)
     # the variant's own switches are command-line overrides; the study's settings are typed changes
@@ -213,20 +216,28 @@ def run_study(
     resolution: tuple[int, int] = (64, 128),
     device: str = "cpu",
     log=None,
+    depth_prior: str = "default",
 ) -> dict:
-    """Train and score every variant x seed; write ``ablation.json`` / ``ablation.md`` to ``out_dir``."""
+    """Train and score every variant x seed; write ``ablation.json`` / ``ablation.md`` to ``out_dir``.
+    ``depth_prior`` (a ``data.depth_prior`` spec) is every variant's input prior unless the variant sets its own."""
     from ..data import SyntheticDataset
 
     log = log or (lambda text: print(text, flush=True))  # progress lines reach a log file as they happen
     data_root, out_dir = Path(data_root), Path(out_dir)
     variants = variants or default_variants()
+    if depth_prior != "default":  # first, so that a variant's own data.depth_prior (a later override) wins
+        from ..data.depth_prior import parse_depth_prior
+
+        parse_depth_prior(depth_prior)  # a bad spec fails before any training
+        variants = [replace(v, overrides=(f"data.depth_prior={depth_prior}",) + v.overrides) for v in variants]
     scenes = SyntheticDataset(data_root).scenes
     if held_out < 1 or len(scenes) - held_out < 1:
         raise ValueError(f"need at least one training and one held-out scene ({len(scenes)} scenes, held out {held_out})")
     train_ids, test_ids = scenes[:-held_out], scenes[-held_out:]
     _check_variants(variants)
     report: dict = {"schedule": asdict(schedule), "seeds": list(seeds), "resolution": list(resolution),
-                    "data": str(data_root), "train_scenes": len(train_ids), "held_out_scenes": test_ids, "variants": {}}
+                    "data": str(data_root), "train_scenes": len(train_ids), "held_out_scenes": test_ids,
+                    "depth_prior": depth_prior, "variants": {}}
     start = time.perf_counter()
     for vi, variant in enumerate(variants):
         runs: list[RunResult] = []
@@ -296,11 +307,13 @@ def study_table(report: dict) -> str:
         means = [v["metrics"][key]["mean"] for v in variants.values() if v["metrics"].get(key, {}).get("mean") is not None]
         best[key] = (max if higher else min)(means) if means else None
     sched = report["schedule"]
+    chosen = report.get("depth_prior", "default")
+    prior = "" if chosen == "default" else f"; input depth prior {chosen}"
     lines = [
         f"Ablation study: {report['train_scenes']} training / {len(report['held_out_scenes'])} held-out procedural scenes, "
         f"{report['resolution'][0]}x{report['resolution'][1]}, two_view; seeds {report['seeds']}; "
         f"{sched['stage1'] + sched['stage2'] + sched['stage3']} steps per variant (full: {sched['stage1']}/{sched['stage2']}/"
-        f"{sched['stage3']}), lr {sched['lr']}. Cells: mean ± half the range over seeds. \"occ.\": pixels no input view sees.",
+        f"{sched['stage3']}), lr {sched['lr']}{prior}. Cells: mean ± half the range over seeds. \"occ.\": pixels no input view sees.",
         "",
         "| Variant | " + " | ".join(h for _, h, _, _ in present) + " |",
         "|---|" + "---|" * len(present),
