@@ -121,3 +121,25 @@ def test_cubemap_faces_are_proper_rotations_covering_all_axes():
     expected = torch.tensor([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=torch.float64)
     torch.testing.assert_close(forwards, expected)
     assert cubemap_face_c2w(torch.eye(4)).shape == (6, 4, 4)
+
+
+def test_projection_gradients_stay_finite_on_the_vertical_axis():
+    """A point on a camera's vertical axis (a pole, or the centre) has no derivative of its longitude; the
+    projection gives it zero gradient instead of NaN (which once poisoned a whole training run through
+    hidden-space fusion), keeps atan2's values everywhere, and matches autograd of the plain formula off the axis."""
+    from cylindersplat.geometry.equirect import angles_to_uv, ray_to_uv
+
+    points = torch.tensor([[0.0, 1.5, 0.0], [0.0, -2.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.5, -1.0], [1e-3, 1.0, 2e-3],
+                           [1e-7, 1e-7, 1e-7]], dtype=torch.float64, requires_grad=True)
+    u, v = ray_to_uv(points, 64, 128)
+    (u.sum() + v.sum()).backward()
+    assert torch.isfinite(points.grad).all() and (points.grad[:3] == 0).all()
+    x, y, z = points.detach().unbind(-1)
+    phi, lam = torch.atan2(x, z), torch.atan2(y, torch.sqrt(x * x + z * z))
+    plain = points.detach()[3:].clone().requires_grad_(True)
+    px, py, pz = plain.unbind(-1)
+    pu, pv = angles_to_uv(torch.atan2(px, pz), torch.atan2(py, torch.sqrt(px * px + pz * pz)), 64, 128)
+    torch.testing.assert_close(u[3:], pu.detach())
+    torch.testing.assert_close(torch.stack((u, v)), torch.stack(angles_to_uv(phi, lam, 64, 128)))
+    (pu.sum() + pv.sum()).backward()
+    torch.testing.assert_close(points.grad[3:], plain.grad)

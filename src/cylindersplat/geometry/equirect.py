@@ -82,9 +82,19 @@ def ray_to_uv(
     ``u`` lies in ``[0, W]`` (atan2's branch cut is the seam ``u = 0 = W``).
     """
     x, y, z = directions.unbind(-1)
-    phi = torch.atan2(x, z)
-    lam = torch.atan2(y, torch.sqrt(x * x + z * z))
+    rho2 = x * x + z * z
+    # On the vertical axis (x = z = 0: a pole, or the camera centre) atan2 and sqrt have no derivative and
+    # autograd returns NaN (0 * inf), which poisons every gradient upstream. There the longitude is set
+    # to 0 and the latitude to +-90 degrees as constants; safe operands keep the unused branch finite.
+    on_axis = rho2 <= _AXIS_EPS * (rho2 + y * y)  # relative: directions need not be normalised
+    phi = torch.where(on_axis, 0.0, torch.atan2(torch.where(on_axis, 0.0, x), torch.where(on_axis, 1.0, z)))
+    rho = torch.sqrt(torch.where(on_axis, 1.0, rho2))
+    pole = torch.atan2(y.detach(), torch.zeros_like(y))  # +-pi/2 (0 at the centre), as atan2(y, 0) gives
+    lam = torch.where(on_axis, pole, torch.atan2(y, rho))
     return angles_to_uv(phi, lam, height, width)
+
+
+_AXIS_EPS = 1e-12  # (angle from the vertical axis)^2 below which a direction counts as on it
 
 
 def equirect_rays(height: int, width: int, device=None, dtype=torch.float32) -> Float[Tensor, "H W 3"]:
