@@ -163,7 +163,11 @@ def test_eval_cli_on_a_folder(tmp_path, tiny_checkpoint, capsys):
     capsys.readouterr()
     assert main(["eval", "--format", "folder", "--data", str(path), *common]) == 0  # --protocols two_view
     assert "two_view (1 examples)" in capsys.readouterr().out
-    assert main(["eval", "--data", str(path), "--targets", "pano_01.png", "--out", str(out)]) == 1
+    # without --format the layout is read from the folder (poses.json: a folder of panoramas)
+    assert main(["eval", "--data", str(path), "--targets", "pano_01.png", *common]) == 0
+    assert "data layout: folder (detected" in capsys.readouterr().out
+    # --targets belongs to folders: a synthetic dataset named explicitly stops with the format it needs
+    assert main(["eval", "--format", "synthetic", "--data", str(path), "--targets", "pano_01.png", "--out", str(out)]) == 1
     assert "--format folder" in capsys.readouterr().err
 
 
