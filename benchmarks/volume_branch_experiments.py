@@ -1,4 +1,4 @@
-"""The volume-branch experiments of benchmarks/RESULTS.md ("Volume branch"), one seed each.
+"""The volume-branch experiments of benchmarks/RESULTS.md ("Volume branch"); one seed unless said.
 
     python benchmarks/volume_branch_experiments.py OUT_DIR [--suite recipes|coverage|gt_prior|sharp_prior]
 
@@ -214,19 +214,17 @@ def coverage(out: Path) -> None:
         print(name, ", ".join(f"{k} {v:.2f}" for k, v in cover.items()), flush=True)
 
 
-def gt_prior(out: Path) -> None:
-    """The study's rows with ground-truth depth as the input prior, two seeds (compare with the ablation study,
-    trained on the simulated prior: same data, schedule and seeds)."""
-    data = ensure_dataset(out / "data", study_sequence_config())
-    run_study(data, out / "gt_prior", GT_PRIOR, seeds=(0, 1), schedule=Schedule(300, 150, 150), held_out=8)
-    print((out / "gt_prior" / "ablation.md").read_text())
+def two_seed_suite(name: str, variants: list[Variant]):
+    """A suite of ``variants`` on the study's data, schedule and seeds (0 and 1), written to ``OUT/name``."""
+    def suite(out: Path) -> None:
+        data = ensure_dataset(out / "data", study_sequence_config())
+        run_study(data, out / name, variants, seeds=(0, 1), schedule=Schedule(300, 150, 150), held_out=8)
+        print((out / name / "ablation.md").read_text())
+    return suite
 
 
-def sharp_prior(out: Path) -> None:
-    """Full and pixel-only on a sharper simulated prior (blur 0.5 px), two seeds."""
-    data = ensure_dataset(out / "data", study_sequence_config())
-    run_study(data, out / "sharp_prior", SHARP_PRIOR, seeds=(0, 1), schedule=Schedule(300, 150, 150), held_out=8)
-    print((out / "sharp_prior" / "ablation.md").read_text())
+gt_prior = two_seed_suite("gt_prior", GT_PRIOR)  # ground-truth input depth
+sharp_prior = two_seed_suite("sharp_prior", SHARP_PRIOR)  # simulated prior blurred 0.5 px
 
 
 if __name__ == "__main__":

@@ -20,14 +20,13 @@ Safeguards (equirect), documented so the fast backend can match them:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
 from ..gaussians import Gaussians
-from ..geometry.equirect import equirect_jacobian
+from ..geometry.equirect import equirect_jacobian, ray_to_uv
 from ..geometry.rotations import quaternion_to_matrix
 from .covariance import eval_sh
 
@@ -201,13 +200,7 @@ def _equirect_dense(
     r = torch.sqrt((rho2 + y * y).clamp_min(1e-30))
     valid = r > settings.near
 
-    # Projection with safe inputs at the pole axis (atan2(0, 0) has no gradient).
-    on_axis = rho2 < 1e-24
-    z_safe = torch.where(on_axis, torch.ones_like(z), z)
-    x_safe = torch.where(on_axis, torch.zeros_like(x), x)
-    rho = torch.sqrt(rho2.clamp_min(1e-24))
-    u = width / (2 * math.pi) * (torch.atan2(x_safe, z_safe) + math.pi)
-    v = height / math.pi * (torch.atan2(y, rho) + math.pi / 2)
+    u, v = ray_to_uv(p, height, width)  # finite gradients on the pole axis
 
     r_safe = torch.where(valid, r, torch.ones_like(r))
     p_safe = torch.where(valid[..., None], p, torch.ones_like(p))
