@@ -1,6 +1,6 @@
 """The volume-branch experiments of benchmarks/RESULTS.md ("Volume branch"); one seed unless said.
 
-    python benchmarks/volume_branch_experiments.py OUT_DIR [--suite recipes|coverage|gt_prior|sharp_prior]
+    python benchmarks/volume_branch_experiments.py OUT_DIR [--suite recipes|coverage|gt_prior|sharp_prior|wide_holes|ceilings]
 
 ``recipes`` (session 5, about 35 min on the 2-core CPU machine): fusion strategies and curricula.
 ``coverage`` (session 7, about 50 min): triplane bounds, the windowed colour retrieval, the auxiliary
@@ -9,6 +9,9 @@ checkpoint, and what each branch covers and paints on the occluded pixels.
 ``gt_prior`` (session 8, about 30 min): full, pixel-only and volume-only (cylindrical, spherical) with
 ground-truth depth as the input prior, two seeds. ``sharp_prior`` (session 8, about 20 min): full and
 pixel-only on the simulated prior with 0.5 px of edge blur instead of 1.5 px, two seeds.
+``wide_holes`` (session 9, about 40 min): full, pixel-only (with and without edge fading) and volume-only on
+targets 1.5-2.5 m off the line among 10 occluders (16 % occluded), two seeds, then ``ceilings`` (seconds):
+the occluded-pixel WS-PSNR of two fills of the *true* target (nearest visible pixel; the true mean colour).
 
 Every variant trains the tiny model for 600 steps (300 / 150 / 150 over the stages it runs) on 20
 procedural scenes of the occlusion profile at 64x128 and is scored on the same 8 held-out scenes,
@@ -137,6 +140,23 @@ def branch_coverage(weights: Path, dataset) -> dict[str, float]:
     return {k: float(np.mean(v)) for k, v in acc.items()}
 
 
+def oracle_mean_fill(dataset) -> float:
+    """WS-PSNR on occluded pixels of the *true* target with every occluded pixel replaced by the true mean
+    colour of that target's occluded pixels: an oracle that knows what colour the hidden region has on
+    average but nothing of its texture - the level a blurry completion reaches at best."""
+    values = []
+    for sample in dataset:
+        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths, sample.context_poses)
+        if not mask.any():
+            continue
+        truth = sample.target_images[0].double()
+        weight = ws_weights(truth.shape[1])[:, None] * mask
+        mean = (truth * weight).sum((1, 2), keepdim=True) / weight.sum()
+        mse = float((((mean - truth) ** 2).mean(0) * weight).sum() / weight.sum())
+        values.append(-10 * np.log10(mse))
+    return float(np.mean(values))
+
+
 def nearest_visible_fill(dataset) -> float:
     """WS-PSNR on occluded pixels of the *true* target with every occluded pixel replaced by its nearest
     visible one: what copying the surroundings (a 2D inpainting with perfect neighbours) would score."""
@@ -224,12 +244,37 @@ def two_seed_suite(name: str, variants: list[Variant]):
 
 
 gt_prior = two_seed_suite("gt_prior", GT_PRIOR)  # ground-truth input depth
+
+# Targets 1.5-2.5 m off the contexts' line among 10 extra occluders: 16 % of the target pixels hidden from both
+# inputs, in regions wide enough that stretching pixel Gaussians over them cannot look right.
+WIDE_HOLES = dict(target_offset=(1.5, 2.5), occluders=10)
+WIDE_HOLES_VARIANTS = ("full", "pixel_only", "pixel_only_no_edge_fading", "volume_only_cylindrical")
+
+
+def wide_holes(out: Path) -> None:
+    data = ensure_dataset(out / "data_wide_holes", profile_config("occlusion", **WIDE_HOLES))
+    known = {v.name: v for v in default_variants()}
+    run_study(data, out / "wide_holes", [known[n] for n in WIDE_HOLES_VARIANTS], seeds=(0, 1), held_out=8)
+    print((out / "wide_holes" / "ablation.md").read_text())
+    ceilings(out)
+
+
+def ceilings(out: Path) -> None:
+    """What copying the surroundings, or knowing the hidden region's mean colour, scores on occluded pixels."""
+    for label, data in (("study data", ensure_dataset(out / "data", study_sequence_config())),
+                        ("wide holes", ensure_dataset(out / "data_wide_holes", profile_config("occlusion", **WIDE_HOLES)))):
+        test = held_out(data)
+        print(f"{label}: occluded WS-PSNR of the true target filled with its nearest visible pixel "
+              f"{nearest_visible_fill(test):.2f}, with the occluded pixels' true mean colour {oracle_mean_fill(test):.2f}",
+              flush=True)
 sharp_prior = two_seed_suite("sharp_prior", SHARP_PRIOR)  # simulated prior blurred 0.5 px
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("out", type=Path)
-    parser.add_argument("--suite", choices=("recipes", "coverage", "gt_prior", "sharp_prior"), default="recipes")
+    suites = {"recipes": recipes, "coverage": coverage, "gt_prior": gt_prior, "sharp_prior": sharp_prior,
+              "wide_holes": wide_holes, "ceilings": ceilings}
+    parser.add_argument("--suite", choices=tuple(suites), default="recipes")
     args = parser.parse_args()
-    {"recipes": recipes, "coverage": coverage, "gt_prior": gt_prior, "sharp_prior": sharp_prior}[args.suite](args.out)
+    suites[args.suite](args.out)
