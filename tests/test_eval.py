@@ -30,7 +30,7 @@ def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
                  "--max-examples", "2", "--pictures", "1", "--lpips", "off", "--device", "cpu", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "0.94 m between neighbouring contexts, 1.88 m first to last" in printed  # 3 views, frames 0.47 m apart
-    data = json.loads((out / "results.json").read_text())
+    data = json.loads((out / "results.json").read_text(), parse_constant=_refuse)  # strict JSON: no Infinity/NaN
     assert data["settings"] == {
         "all_between_2views_gap2": {"protocol": "all_between", "context_views": 2, "gap": 2, "context_layout": "spaced"},
         "all_between_3views_gap2": {"protocol": "all_between", "context_views": 3, "gap": 2, "context_layout": "spaced"}}
@@ -41,10 +41,12 @@ def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
     means = data["means"]["loc — all_between, 3 views, gap 2 (2 examples)"]
     assert set(means) == {"CylinderSplat", "Forward warp"} and means["Forward warp"]["abs_rel"] is None
     assert 0 < means["Forward warp"]["ssim"] <= 1
-    # the warp reproduces its own input views exactly (infinite PSNR): the means use the other views, and say so
-    exact = [r for r in rows if r["method"] == "Forward warp" and r["ws_psnr"] == float("inf")]
-    assert len(exact) == 2 * 3 and means["Forward warp"]["ws_psnr"] < 100
-    others = [r["ws_psnr"] for r in rows if r["method"] == "Forward warp" and r["ws_psnr"] != float("inf")]
+    # the warp reproduces its own input views exactly (infinite PSNR, null in the file): the means use the other
+    # views, and say so
+    exact = [r for r in rows if r["method"] == "Forward warp" and r["ws_psnr"] is None]
+    assert len(exact) == 2 * 3 and all(r["psnr"] is None and r["ssim"] == pytest.approx(1.0) for r in exact)
+    assert means["Forward warp"]["ws_psnr"] < 100
+    others = [r["ws_psnr"] for r in rows if r["method"] == "Forward warp" and r["ws_psnr"] is not None]
     assert means["Forward warp"]["ws_psnr"] == pytest.approx(np.mean(others))
     assert "Forward warp: 6 of 10 target views rendered exactly (infinite ws_psnr, psnr" in printed
     assert "Forward warp: 6 of 10 target views rendered exactly" in (out / "results.md").read_text()
@@ -61,6 +63,34 @@ def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
                  "--views", "3", "--gap", "5", "--depth-prior", "constant:2", "--out", str(tmp_path / "e")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "span 10 frames, but the longest sequence has 9" in err[0]
+
+
+def _refuse(constant):
+    raise ValueError(f"non-standard JSON constant {constant}")
+
+
+def test_result_files_are_strict_json():
+    from cylindersplat.utils.jsonfile import json_text, strict_json
+
+    value = {"a": [1.0, float("inf"), (float("nan"), -float("inf"))], "b": {"c": 2, "d": "x", "e": None}}
+    assert strict_json(value) == {"a": [1.0, None, [None, None]], "b": {"c": 2, "d": "x", "e": None}}
+    assert json.loads(json_text(value), parse_constant=_refuse) == strict_json(value)
+
+
+def test_every_view_exact_gives_an_infinite_mean_and_says_so(synth_root):
+    from cylindersplat.evaluation import Method
+    from cylindersplat.render.api import RenderOutput
+
+    def exact(sample):
+        return RenderOutput(sample.target_images, sample.target_depths, torch.ones_like(sample.target_depths))
+
+    dataset = SyntheticDataset(synth_root, views="one_view")
+    result = evaluate(dataset, [Method("copy", exact)], depth_range=DepthRange(0.05, 1000.0), progress=False)
+    assert result.means["copy"]["ws_psnr"] == float("inf") and result.means["copy"]["psnr"] == float("inf")
+    assert result.means["copy"]["ssim"] == pytest.approx(1.0)
+    views = result.means["copy"]["views"]
+    assert any(f"copy: {views} of {views} target views rendered exactly" in n and "those means are infinite" in n
+               for n in result.notes)
 
 
 def test_eval_cli_views_need_loc360(tmp_path, capsys):

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from ..utils.atomic import atomic_write_text
+from ..utils.jsonfile import json_text
 
 from ._arguments import device, model_resolution
 
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
                        args.resolution, args.device, depth_prior=args.depth_prior)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(args.json, json.dumps(report, indent=1))
+        atomic_write_text(args.json, json_text(report))
     print((args.out / "ablation.md").read_text())
     return 0
 

@@ -16,13 +16,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import torch
 
 from ..utils.atomic import atomic_write_text
+from ..utils.jsonfile import json_text
 
 from ._arguments import device, model_resolution
 
@@ -166,7 +166,7 @@ def score_held_out(args, data: Path, checkpoint: Path) -> str:
                {name: dict(m) for name, m in result.means.items()}}
     table = results_to_markdown(results, title="Demo: novel views of unseen scenes")
     atomic_write_text(args.out / "results.md", table)
-    atomic_write_text(args.out / "results.json", json.dumps({"means": results, "views": result.rows}, indent=1))
+    atomic_write_text(args.out / "results.json", json_text({"means": results, "views": result.rows}))
     return table
 
 

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from ..utils.atomic import atomic_write_text
+from ..utils.jsonfile import json_text
 
 from ._arguments import device, equirect_resolution
 
@@ -178,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
         table += "\nNotes:\n" + "".join(f"- {note}\n" for note in notes)
     atomic_write_text(args.out / "results.md", table)
     atomic_write_text(args.out / "results.json",
-                      json.dumps({"means": results, "views": details, "settings": settings, "notes": notes}, indent=1))
+                      json_text({"means": results, "views": details, "settings": settings, "notes": notes}))
     print(table)
     print(f"wrote {args.out}/results.md, results.json and examples/")
     return 0

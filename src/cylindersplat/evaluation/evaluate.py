@@ -217,13 +217,14 @@ def evaluate(
             else:
                 values = [r[key] for r in mine]
                 finite = [v for v in values if v != math.inf]  # a PSNR of a render equal to its target is inf
-                if finite and len(finite) < len(values):
+                if len(finite) < len(values):
                     exact.setdefault(len(values) - len(finite), []).append(key)
-                    values = finite
-                means[method.name][key] = float(np.mean(values))
+                means[method.name][key] = float(np.mean(finite)) if finite else math.inf
         for count_exact, keys_exact in exact.items():
-            notes.append(f"{method.name}: {count_exact} of {len(mine)} target views rendered exactly (infinite "
-                         f"{', '.join(keys_exact)}; e.g. a target that is also an input view) are left out of those means")
+            what = (f"{method.name}: {count_exact} of {len(mine)} target views rendered exactly (infinite "
+                    f"{', '.join(keys_exact)}; e.g. a target that is also an input view)")
+            notes.append(f"{what} are left out of those means" if count_exact < len(mine) else
+                         f"{what}: those means are infinite (null in results.json)")
         # time is per example, not per view
         means[method.name]["time_s"] = float(np.mean([r["time_s"] for r in mine if r["view"] == 0]))
         means[method.name]["views"] = len(mine)

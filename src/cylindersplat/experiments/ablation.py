@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from ..utils.atomic import atomic_write_text
+from ..utils.jsonfile import json_text
 
 
 __all__ = ["Schedule", "Variant", "default_variants", "extra_variants", "all_variants", "VARIANT_NAMES", "run_study",
@@ -254,7 +255,7 @@ def run_study(
         report["variants"][variant.name] = _aggregate(variant, runs)
     report["study_s"] = time.perf_counter() - start
     out_dir.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out_dir / "ablation.json", json.dumps(report, indent=1))
+    atomic_write_text(out_dir / "ablation.json", json_text(report))
     atomic_write_text(out_dir / "ablation.md", study_table(report))
     return report
 
