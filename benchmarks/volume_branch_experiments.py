@@ -157,6 +157,32 @@ def oracle_mean_fill(dataset) -> float:
     return float(np.mean(values))
 
 
+@torch.no_grad()
+def completion_figure(checkpoints: dict[str, Path], dataset, path: Path, examples: int = 4) -> None:
+    """One row per held-out target: the truth, then each checkpoint's render. Pixels some input view sees are
+    shown in dim grey, so what keeps its colour is what the model had to complete."""
+    from cylindersplat.data.io import write_rgb
+
+    models = {name: load_model(weights) for name, weights in checkpoints.items()}
+    rows = []
+    for index in range(min(examples, len(dataset))):
+        sample = dataset[index]
+        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths, sample.context_poses)
+        h, w = sample.target_images.shape[-2:]
+        def highlight(tile):  # visible pixels: half-bright grey; occluded pixels: as rendered
+            return torch.where(mask, tile, tile.mean(0, keepdim=True) * 0.5)
+
+        tiles = [sample.target_images[0]] + [
+            render_views(reconstruct(model, sample), sample.target_poses, h, w, (0, 0, 0)).rgb[0].clamp(0, 1)
+            for model in models.values()]
+        gap = torch.ones(3, h, 2)
+        rows.append(torch.cat([torch.cat([highlight(tile), gap], dim=2) for tile in tiles], dim=2))
+        rows.append(torch.ones(3, 2, rows[-1].shape[2]))
+    image = torch.cat(rows[:-1], dim=1).repeat_interleave(2, 1).repeat_interleave(2, 2)
+    write_rgb(path, image)
+    print(f"wrote {path}: columns truth, {', '.join(models)}", flush=True)
+
+
 def nearest_visible_fill(dataset) -> float:
     """WS-PSNR on occluded pixels of the *true* target with every occluded pixel replaced by its nearest
     visible one: what copying the surroundings (a 2D inpainting with perfect neighbours) would score."""
@@ -257,6 +283,9 @@ def wide_holes(out: Path) -> None:
     run_study(data, out / "wide_holes", [known[n] for n in WIDE_HOLES_VARIANTS], seeds=(0, 1), held_out=8)
     print((out / "wide_holes" / "ablation.md").read_text())
     ceilings(out)
+    runs = out / "wide_holes" / "runs"
+    completion_figure({name: runs / name / "seed0" / "model.safetensors" for name in WIDE_HOLES_VARIANTS[:2] + WIDE_HOLES_VARIANTS[3:]},
+                      held_out(data), Path(__file__).parent / "figures" / "completion_wide_holes.png")
 
 
 def ceilings(out: Path) -> None:
