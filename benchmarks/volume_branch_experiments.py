@@ -1,6 +1,6 @@
 """The volume-branch experiments of benchmarks/RESULTS.md ("Volume branch"); one seed unless said.
 
-    python benchmarks/volume_branch_experiments.py OUT_DIR [--suite recipes|coverage|gt_prior|sharp_prior|wide_holes|ceilings]
+    python benchmarks/volume_branch_experiments.py OUT_DIR [--suite NAME]
 
 ``recipes`` (session 5, about 35 min on the 2-core CPU machine): fusion strategies and curricula.
 ``coverage`` (session 7, about 50 min): triplane bounds, the windowed colour retrieval, the auxiliary
@@ -11,7 +11,9 @@ ground-truth depth as the input prior, two seeds. ``sharp_prior`` (session 8, ab
 pixel-only on the simulated prior with 0.5 px of edge blur instead of 1.5 px, two seeds.
 ``wide_holes`` (session 9, about 40 min): full, pixel-only (with and without edge fading) and volume-only on
 targets 1.5-2.5 m off the line among 10 occluders (16 % occluded), two seeds, then ``ceilings`` (seconds):
-the occluded-pixel WS-PSNR of two fills of the *true* target (nearest visible pixel; the true mean colour).
+the occluded-pixel WS-PSNR of fills of the *true* target (nearest visible pixel; true mean colours per target,
+per hidden region, per region and depth band). ``fine_grids_at_scale`` (session 9, about 40 min, two runs side
+by side): volume only with finer triplane grids on 200 scenes (session 8's data) for 3000 steps, one seed.
 
 Every variant trains the tiny model for 600 steps (300 / 150 / 150 over the stages it runs) on 20
 procedural scenes of the occlusion profile at 64x128 and is scored on the same 8 held-out scenes,
@@ -140,19 +142,35 @@ def branch_coverage(weights: Path, dataset) -> dict[str, float]:
     return {k: float(np.mean(v)) for k, v in acc.items()}
 
 
-def oracle_mean_fill(dataset) -> float:
-    """WS-PSNR on occluded pixels of the *true* target with every occluded pixel replaced by the true mean
-    colour of that target's occluded pixels: an oracle that knows what colour the hidden region has on
-    average but nothing of its texture - the level a blurry completion reaches at best."""
+def oracle_mean_fill(dataset, regions: str = "target") -> float:
+    """WS-PSNR on occluded pixels of the *true* target with occluded pixels replaced by true mean colours: of
+    all the target's occluded pixels (``regions="target"``), of each connected hidden region (``"component"``),
+    or of each region split into 10 %-wide depth bands (``"component_depth"``, roughly one surface each).
+    Oracles that know what colour hidden regions have on average but nothing of their texture."""
+    from scipy import ndimage
+
     values = []
     for sample in dataset:
         mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths, sample.context_poses)
         if not mask.any():
             continue
-        truth = sample.target_images[0].double()
-        weight = ws_weights(truth.shape[1])[:, None] * mask
-        mean = (truth * weight).sum((1, 2), keepdim=True) / weight.sum()
-        mse = float((((mean - truth) ** 2).mean(0) * weight).sum() / weight.sum())
+        truth = sample.target_images[0].double().numpy()
+        hidden = mask.numpy()
+        weight = ws_weights(truth.shape[1])[:, None].numpy() * hidden
+        if regions == "target":
+            labels = hidden.astype(int)
+        else:
+            labels, _ = ndimage.label(hidden, structure=np.ones((3, 3)))
+            if regions == "component_depth":
+                band = np.floor(np.log(np.maximum(sample.target_depths[0].numpy(), 1e-3)) / 0.1).astype(int)
+                labels = np.where(hidden, labels * 10_000 + (band - band.min()), 0)
+            elif regions != "component":
+                raise ValueError(f"unknown regions {regions!r}")
+        fill = truth.copy()
+        for label in np.unique(labels[hidden]):
+            region = labels == label
+            fill[:, region] = (truth[:, region] * weight[region]).sum(1, keepdims=True) / weight[region].sum()
+        mse = float((((fill - truth) ** 2).mean(0) * weight).sum() / weight.sum())
         values.append(-10 * np.log10(mse))
     return float(np.mean(values))
 
@@ -288,14 +306,45 @@ def wide_holes(out: Path) -> None:
                       held_out(data), Path(__file__).parent / "figures" / "completion_wide_holes.png")
 
 
+def ensure_scale_dataset(root: Path) -> Path:
+    """Session 8's 208 scenes of the study's profile (seed 0), ordered so that the study's 8 held-out scenes
+    (20-27) come last: 200 training scenes, the same held-out scenes as every other suite."""
+    import json
+
+    if not (root / "meta.json").is_file():
+        write_synthetic_dataset(root, 208, (64, 128), study_sequence_config(), seed=0)
+        meta = json.loads((root / "meta.json").read_text())
+        ids = sorted(meta["scenes"])
+        meta["scenes"] = ids[:20] + ids[28:] + ids[20:28]
+        (root / "meta.json").write_text(json.dumps(meta, indent=1))
+    return root
+
+
+# Volume only at 200 scenes and 3000 steps with finer triplanes: does the volume branch's resolution (22.5 deg x
+# 2.5 m cells in the tiny preset) cap what it paints on hidden regions once data and steps are there?
+FINE_GRIDS = [
+    Variant("volume_only_grid_8x32x16", "volume only, grid 8x32x16 (11.25 deg, 1.25 m cells)",
+            VOLUME_ONLY + ("model.volume.grid=[8,32,16]", "model.volume.image_grid=[4,16,8]"), kind="volume"),
+    Variant("volume_only_grid_8x64x16", "volume only, grid 8x64x16 (5.6 deg, 1.25 m cells)",
+            VOLUME_ONLY + ("model.volume.grid=[8,64,16]", "model.volume.image_grid=[4,32,8]"), kind="volume"),
+]
+
+
+def fine_grids_at_scale(out: Path) -> None:
+    data = ensure_scale_dataset(out / "data_208")
+    run_study(data, out / "fine_grids_at_scale", FINE_GRIDS, seeds=(0,), schedule=Schedule(1500, 750, 750), held_out=8)
+    print((out / "fine_grids_at_scale" / "ablation.md").read_text())
+
+
 def ceilings(out: Path) -> None:
-    """What copying the surroundings, or knowing the hidden region's mean colour, scores on occluded pixels."""
+    """What copying the surroundings, or knowing the hidden regions' mean colours, scores on occluded pixels."""
     for label, data in (("study data", ensure_dataset(out / "data", study_sequence_config())),
                         ("wide holes", ensure_dataset(out / "data_wide_holes", profile_config("occlusion", **WIDE_HOLES)))):
         test = held_out(data)
+        oracles = ", ".join(f"{regions} {oracle_mean_fill(test, regions):.2f}"
+                            for regions in ("target", "component", "component_depth"))
         print(f"{label}: occluded WS-PSNR of the true target filled with its nearest visible pixel "
-              f"{nearest_visible_fill(test):.2f}, with the occluded pixels' true mean colour {oracle_mean_fill(test):.2f}",
-              flush=True)
+              f"{nearest_visible_fill(test):.2f}; with true mean colours per {oracles}", flush=True)
 sharp_prior = two_seed_suite("sharp_prior", SHARP_PRIOR)  # simulated prior blurred 0.5 px
 
 
@@ -303,7 +352,7 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("out", type=Path)
     suites = {"recipes": recipes, "coverage": coverage, "gt_prior": gt_prior, "sharp_prior": sharp_prior,
-              "wide_holes": wide_holes, "ceilings": ceilings}
+              "wide_holes": wide_holes, "ceilings": ceilings, "fine_grids_at_scale": fine_grids_at_scale}
     parser.add_argument("--suite", choices=tuple(suites), default="recipes")
     args = parser.parse_args()
     suites[args.suite](args.out)
