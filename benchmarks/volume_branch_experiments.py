@@ -13,7 +13,8 @@ pixel-only on the simulated prior with 0.5 px of edge blur instead of 1.5 px, tw
 targets 1.5-2.5 m off the line among 10 occluders (16 % occluded), two seeds, then ``ceilings`` (seconds):
 the occluded-pixel WS-PSNR of fills of the *true* target (nearest visible pixel; true mean colours per target,
 per hidden region, per region and depth band). ``fine_grids_at_scale`` (session 9, about 40 min, two runs side
-by side): volume only with finer triplane grids on 200 scenes (session 8's data) for 3000 steps, one seed.
+by side): volume only and full with finer triplane grids on 200 scenes (session 8's data) for 3000 steps,
+one seed.
 
 Every variant trains the tiny model for 600 steps (300 / 150 / 150 over the stages it runs) on 20
 procedural scenes of the occlusion profile at 64x128 and is scored on the same 8 held-out scenes,
@@ -327,6 +328,8 @@ FINE_GRIDS = [
             VOLUME_ONLY + ("model.volume.grid=[8,32,16]", "model.volume.image_grid=[4,16,8]"), kind="volume"),
     Variant("volume_only_grid_8x64x16", "volume only, grid 8x64x16 (5.6 deg, 1.25 m cells)",
             VOLUME_ONLY + ("model.volume.grid=[8,64,16]", "model.volume.image_grid=[4,32,8]"), kind="volume"),
+    Variant("full_grid_8x64x16", "full (the tiny preset's recipe), grid 8x64x16",
+            ("model.volume.grid=[8,64,16]", "model.volume.image_grid=[4,32,8]")),
 ]
 
 
