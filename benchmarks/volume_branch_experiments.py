@@ -295,6 +295,7 @@ gt_prior = two_seed_suite("gt_prior", GT_PRIOR)  # ground-truth input depth
 # inputs, in regions wide enough that stretching pixel Gaussians over them cannot look right.
 WIDE_HOLES = dict(target_offset=(1.5, 2.5), occluders=10)
 WIDE_HOLES_VARIANTS = ("full", "pixel_only", "pixel_only_no_edge_fading", "volume_only_cylindrical")
+WIDE_HOLES_FIGURE = ("pixel_only", "full", "volume_only_cylindrical")  # columns after the truth
 
 
 def wide_holes(out: Path) -> None:
@@ -304,7 +305,7 @@ def wide_holes(out: Path) -> None:
     print((out / "wide_holes" / "ablation.md").read_text())
     ceilings(out)
     runs = out / "wide_holes" / "runs"
-    completion_figure({name: runs / name / "seed0" / "model.safetensors" for name in WIDE_HOLES_VARIANTS[:2] + WIDE_HOLES_VARIANTS[3:]},
+    completion_figure({name: runs / name / "seed0" / "model.safetensors" for name in WIDE_HOLES_FIGURE},
                       held_out(data), Path(__file__).parent / "figures" / "completion_wide_holes.png")
 
 
@@ -313,10 +314,11 @@ def ensure_scale_dataset(root: Path) -> Path:
     (20-27) come last: 200 training scenes, the same held-out scenes as every other suite."""
     import json
 
-    if not (root / "meta.json").is_file():
+    ids = [f"{i:08d}" for i in range(208)]
+    if not all((root / i / "meta.json").is_file() for i in ids):  # new, or a killed generation: it resumes
         write_synthetic_dataset(root, 208, (64, 128), study_sequence_config(), seed=0)
-        meta = json.loads((root / "meta.json").read_text())
-        ids = sorted(meta["scenes"])
+    meta = json.loads((root / "meta.json").read_text())
+    if meta["scenes"] != ids[:20] + ids[28:] + ids[20:28]:
         meta["scenes"] = ids[:20] + ids[28:] + ids[20:28]
         (root / "meta.json").write_text(json.dumps(meta, indent=1))
     return root
