@@ -99,17 +99,31 @@ class PanoramaDataset(Dataset):
     def load_frame(self, frame: FrameRef) -> tuple[Tensor, Tensor | None]:
         """One stored panorama at the dataset's resolution: ``(rgb (3, H, W) in [0, 1], depth (H, W) in metres or None)``."""
         image = read_rgb(frame.rgb, size=self.resolution, expected=self.stored_size)
-        depth = None
-        if frame.depth is not None:
-            size = tuple(image.shape[-2:])
-            if Path(frame.depth).suffix.lower() == ".npy":
-                depth = read_depth_npy(frame.depth, size=size, resize_mode=self.depth_resize)
-                if frame.depth_scale is not None:
-                    depth = depth / frame.depth_scale
-            else:
-                depth = read_depth_png(frame.depth, size=size, expected=self.stored_size, resize_mode=self.depth_resize,
-                                       **({} if frame.depth_scale is None else {"scale": frame.depth_scale}))
-        return image, depth
+        return image, self._read_depth(frame, tuple(image.shape[-2:]))
+
+    def _read_depth(self, frame: FrameRef, size: tuple[int, int] | None) -> Tensor | None:
+        """A frame's stored depth in metres, resized to ``size`` (None: as stored), or None without a file."""
+        if frame.depth is None:
+            return None
+        if Path(frame.depth).suffix.lower() == ".npy":
+            depth = read_depth_npy(frame.depth, size=size, resize_mode=self.depth_resize)
+            return depth if frame.depth_scale is None else depth / frame.depth_scale
+        return read_depth_png(frame.depth, size=size, expected=self.stored_size, resize_mode=self.depth_resize,
+                              **({} if frame.depth_scale is None else {"scale": frame.depth_scale}))
+
+    def stored_depths(self, index: int) -> tuple[Tensor | None, Tensor | None]:
+        """Ground-truth depth of example ``index`` at the stored resolution: ``(targets (T, Hs, Ws), contexts
+        (V, Hs, Ws))``, each None where a frame has no depth. The occluded-pixel masks are decided on these
+        (:func:`~cylindersplat.data.occlusion.occluded_mask`), whatever the evaluation resolution."""
+        ref = self.example(index)
+
+        def stack(indices):
+            depths = [self._read_depth(ref.frames[i], None) for i in indices]
+            if not depths or any(d is None for d in depths) or len({tuple(d.shape) for d in depths}) > 1:
+                return None
+            return torch.stack(depths)
+
+        return stack(ref.views.target), stack(ref.views.context)
 
     def __getitem__(self, index: int) -> Sample:
         if not 0 <= index < len(self):

@@ -44,19 +44,38 @@ class EvalResult:
     notes: list[str] = field(default_factory=list)
 
 
-def occluded_masks(sample, rel_tol: float = 0.05) -> tuple[torch.Tensor | None, str | None]:
+def occluded_masks(sample, stored_target_depths=None, stored_context_depths=None, rel_tol: float = 0.05
+                   ) -> tuple[torch.Tensor | None, str | None]:
     """``(T, H, W)`` masks of the target pixels no context view sees, or ``(None, reason)``.
 
     Needs the ground-truth depth of the targets (to lift their pixels) and of the contexts (to
-    depth-test): the depth prior is not what the context cameras saw, so it is never used here.
+    depth-test): the depth prior is not what the context cameras saw, so it is never used here. When
+    the stored, full-resolution depth maps are given (``(T, Hs, Ws)`` / ``(V, Hs, Ws)``, e.g. from
+    :meth:`~cylindersplat.data.base.PanoramaDataset.stored_depths`), visibility is decided on them and
+    sampled at the sample's pixel centres, so that the mask does not depend on the evaluation size.
     """
     if sample.target_depths is None:
         return None, "the targets have no ground-truth depth"
     if sample.context_gt_depths is None:
         return None, "the context views have no ground-truth depth (the depth prior is not used for this)"
-    masks = [occluded_mask(depth, pose, sample.context_gt_depths, sample.context_poses, rel_tol=rel_tol)
-             for depth, pose in zip(sample.target_depths, sample.target_poses)]
+    targets, contexts = sample.target_depths, sample.context_gt_depths
+    if stored_target_depths is not None and stored_context_depths is not None:
+        targets, contexts = stored_target_depths, stored_context_depths
+    size = tuple(sample.target_depths.shape[-2:])
+    masks = [occluded_mask(depth, pose, contexts, sample.context_poses, rel_tol=rel_tol, out_size=size)
+             for depth, pose in zip(targets, sample.target_poses)]
     return torch.stack(masks), None
+
+
+def stored_depths_for(dataset, index: int, sample) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """The stored-resolution depths of example ``index`` when the dataset resized them for ``sample``, else Nones."""
+    reader = getattr(dataset, "stored_depths", None)
+    if reader is None or sample.target_depths is None or getattr(dataset, "resolution", None) is None:
+        return None, None
+    targets, contexts = reader(index)
+    if targets is None or contexts is None or targets.shape[-2:] == sample.target_depths.shape[-2:]:
+        return None, None
+    return targets, contexts
 
 
 def _finite_or_none(value) -> float | None:
@@ -175,7 +194,7 @@ def evaluate(
             if pcc_depths is None:
                 raise ValueError("evaluate: pcc_reference='reference' but the samples have no target_reference_depths "
                                  "(open the dataset with make_dataset(..., reference='file:NAME'))")
-        occluded, reason = occluded_masks(sample)
+        occluded, reason = occluded_masks(sample, *stored_depths_for(dataset, index, sample))
         if reason is not None and sample.target_depths is not None:
             # Without target depth no depth metric exists and the table says so; a missing context
             # depth is worth a word, as it silently drops only the occluded columns.
