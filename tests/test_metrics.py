@@ -134,10 +134,26 @@ def test_depth_metrics_known_values_and_range():
     assert float(pcc(-ramp, ramp)) == pytest.approx(-1.0, abs=1e-6)
 
 
-def test_lrce():
-    img = torch.zeros(2, 3, 4, 8)
-    img[0, :, :, -1] = 0.5
-    assert torch.allclose(lrce(img), torch.tensor([0.5, 0.0]))
-    depth = torch.zeros(1, 4, 8)
-    depth[..., 0] = torch.tensor([1.0, 2.0, 3.0, 4.0])
-    assert float(lrce(depth, channel_dim=False)) == pytest.approx(2.5)
+def test_lrce_is_the_seam_error_relative_to_the_reference():
+    # The released evaluation's formula written out: mean over rows of |(p0 - pW) - (t0 - tW)|.
+    h, w = 4, 8
+    target = torch.full((2, h, w), 3.0)
+    target[..., 0] = torch.tensor([2.0, 3.0, 4.0, 5.0])  # the truth itself has a step at the seam
+    pred = target.clone()
+    assert torch.equal(lrce(pred, target), torch.zeros(2))  # matching the truth's seam: no error
+    pred[0, :, -1] += torch.tensor([0.4, -0.4, 0.0, 0.8])
+    assert float(lrce(pred, target)[0]) == pytest.approx((0.4 + 0.4 + 0.0 + 0.8) / 4)
+    # A blurred render that is seamless where the truth is not is penalised (the old reference-free LRCE gave it 0).
+    flat = torch.full((1, h, w), 3.0)
+    assert float(lrce(flat, target[:1])) == pytest.approx((1 + 0 + 1 + 2) / 4)
+    # Rows whose reference end pixels are not valid depths do not count; none valid: NaN.
+    holes = target[:1].clone()
+    holes[0, 0, 0] = 0.0
+    assert float(lrce(flat, holes)) == pytest.approx((0 + 1 + 2) / 3)
+    assert math.isnan(float(lrce(flat, torch.zeros_like(flat))))
+    # RGB variant, relative too: channels and rows averaged.
+    img, ref = torch.zeros(1, 3, h, w), torch.zeros(1, 3, h, w)
+    img[..., -1] = 0.5
+    assert float(lrce(img, ref, channel_dim=True, depth_range=None)) == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="differ in shape"):
+        lrce(flat, target)

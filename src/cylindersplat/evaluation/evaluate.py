@@ -102,7 +102,6 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
         "ws_psnr": ws_psnr(rgb, target),
         "psnr": psnr(rgb, target),
         "ssim": ssim(rgb, target),
-        "lrce": lrce(rgb),
     }
     if lpips_net is not None:
         with torch.no_grad():
@@ -117,7 +116,10 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
         scores["abs_rel"] = abs_rel(depth, target_depths.float(), depth_range=depth_range)
         scores["rmse"] = rmse(depth, target_depths.float(), depth_range=depth_range)
         scores["delta1"] = delta1(depth, target_depths.float(), depth_range=depth_range)
-    rows = [{k: float(v[i]) for k, v in scores.items()} for i in range(rgb.shape[0])]
+        # the paper's LRCE: the render's depth seam against the ground truth's (metrics.depth.lrce)
+        scores["lrce"] = lrce(depth, target_depths.float(), depth_range=depth_range)
+    rows = [{k: _finite_or_none(v[i]) if k == "lrce" else float(v[i]) for k, v in scores.items()}
+            for i in range(rgb.shape[0])]
     if occluded is not None:
         occluded = occluded.to(rgb.device).bool()
         if occluded.shape != (rgb.shape[0], *rgb.shape[-2:]):
@@ -229,8 +231,8 @@ def evaluate(
         means[method.name] = {}
         exact: dict[int, list[str]] = {}
         for key in keys:
-            if key == "occluded_share" or key in OCCLUDED_METRICS:
-                # only the views that have the value (enough occluded pixels, reference depth)
+            if key in ("occluded_share", "lrce") or key in OCCLUDED_METRICS:
+                # only the views that have the value (enough occluded pixels, valid reference depth at the seam)
                 values = [r[key] for r in mine if r.get(key) is not None]
                 means[method.name][key] = float(np.mean(values)) if values else None
             else:

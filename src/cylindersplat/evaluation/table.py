@@ -16,6 +16,7 @@ METRIC_COLUMNS = [
     ("abs_rel", "AbsRel ↓", False, "{:.3f}"),
     ("rmse", "RMSE ↓", False, "{:.3f}"),
     ("delta1", "δ1 ↑", True, "{:.3f}"),
+    # the paper's LRCE: the depth seam |d(col 0) - d(col W-1)| against the ground truth's, in metres (metrics.depth.lrce)
     ("lrce", "LRCE ↓", False, "{:.4f}"),
     ("time_s", "Time (s) ↓", False, "{:.2f}"),
     # On the occluded pixels only: target pixels no input view sees (docs/evaluation.md, "Occluded pixels").
@@ -58,7 +59,7 @@ def results_to_markdown(results: dict[str, dict[str, dict[str, float | None]]], 
             why = []
             if "LPIPS" in missing:
                 why.append("LPIPS needs local VGG weights")
-            if set(missing) & {"PCC", "AbsRel", "RMSE", "δ1"}:
+            if set(missing) & {"PCC", "AbsRel", "RMSE", "δ1", "LRCE"}:
                 why.append("depth metrics need reference depth")
             lines += ["", f"Not available here: {', '.join(missing)}" + (f" ({'; '.join(why)})." if why else ".")]
         lines += _occluded_note(by_method, [c for c in OCCLUDED_COLUMNS if c in present])

@@ -1,4 +1,4 @@
-"""Depth metrics on batched panoramas ``(..., H, W)`` with validity masks, plus LRCE.
+"""Depth metrics on batched panoramas ``(..., H, W)`` with validity masks, plus LRCE (on depth, against the reference).
 
 Per-image values are returned (shape ``(...)``); images without a single valid pixel give NaN so
 that a dataset mean can skip them explicitly (``torch.nanmean``) instead of silently averaging 0.
@@ -100,15 +100,36 @@ def pcc(pred, target, mask=None, depth_range: DepthRange | None = DepthRange()) 
     return torch.where(denom > 0, cov / denom.clamp(min=1e-300), torch.full_like(cov, float("nan"))).to(pred.dtype)
 
 
-def lrce(image: Float[Tensor, "*b C H W"] | Float[Tensor, "*b H W"], channel_dim: bool = True) -> Tensor:
-    """Left-right consistency error: mean ``|x[..., :, 0] - x[..., :, -1]|`` per image.
+def lrce(pred: Float[Tensor, "*b H W"] | Float[Tensor, "*b C H W"], target: Tensor, channel_dim: bool = False,
+         depth_range: DepthRange | None = DepthRange()) -> Tensor:
+    """Left-right consistency error, the paper's LRCE: how much worse than the reference the seam is.
 
-    For images ``(..., C, H, W)`` (``channel_dim=True``) the mean runs over channels and rows; for depth
-    maps ``(..., H, W)`` pass ``channel_dim=False``. A seamless panorama scores ~0.
+    ``mean_rows |(p[:, 0] - p[:, -1]) - (t[:, 0] - t[:, -1])|`` per image: the difference between the
+    first and last pixel columns of the prediction, against the same difference in the reference (the
+    released CylinderSplat evaluation's ``continuity``, on metric depth). A render whose seam matches the
+    truth scores 0, whatever the scene has at the seam; a blurred one does not win (the earlier
+    reference-free variant, ``mean |x[:, 0] - x[:, -1]|`` of the render alone, rewarded blur).
+
+    Depth maps ``(..., H, W)`` (default): only rows where both reference end pixels are valid depths
+    in ``depth_range`` count (the released code has no mask: a hole in the reference would score as
+    an error); NaN when no row does. ``channel_dim=True``: images ``(..., C, H, W)`` (the mean runs over
+    channels too; pass ``depth_range=None``), the RGB variant, also relative to the reference.
     """
-    diff = (image[..., 0].double() - image[..., -1].double()).abs()
-    dims = (-2, -1) if channel_dim else (-1,)
-    return diff.mean(dim=dims).to(image.dtype)
+    if pred.shape != target.shape:
+        raise ValueError(f"lrce: prediction {tuple(pred.shape)} and reference {tuple(target.shape)} differ in shape")
+    p, t = pred.double(), target.double()
+    diff = ((p[..., 0] - p[..., -1]) - (t[..., 0] - t[..., -1])).abs()  # (..., [C,] H)
+    if channel_dim:
+        diff = diff.mean(dim=-2)
+    if depth_range is None:
+        return diff.mean(dim=-1).to(pred.dtype)
+    ends = torch.stack([t[..., 0], t[..., -1]])
+    rows = ((ends > depth_range.near) & (ends < depth_range.far) & torch.isfinite(ends)).all(dim=0)
+    if channel_dim:
+        rows = rows.all(dim=-2)
+    count = rows.sum(dim=-1)
+    mean = (diff * rows).sum(dim=-1) / count.clamp(min=1)
+    return torch.where(count > 0, mean, torch.full_like(mean, float("nan"))).to(pred.dtype)
 
 
 def depth_metrics(pred, target, mask=None, depth_range: DepthRange = DepthRange()) -> dict[str, Tensor]:
