@@ -271,3 +271,49 @@ def test_real_fixture_occluded_share_does_not_depend_on_the_evaluation_size(pano
                 assert 0.005 < high < 0.02 and low == pytest.approx(high, rel=0.2)
             else:  # under 0.1 %, a handful of pixels at 64x128: agree within 0.05 percentage points
                 assert 0 < high < 0.002 and abs(low - high) < 5e-4
+
+
+def test_released_protocol_scores_inputs_and_target():
+    from cylindersplat.data.views import ViewSplit, select_views
+
+    assert select_views(3, "released") == ViewSplit((0, 2), (0, 1, 2))
+    assert select_views(9, "released") == ViewSplit((0, 8), (0, 4, 8))
+    with pytest.raises(ValueError, match="released needs"):
+        select_views(2, "released")
+
+
+def test_pcc_against_a_non_metric_reference_ignores_the_metric_range(synth_root):
+    """A network's relative depth (here the truth x 100, far beyond 0.45-10 m) is scored on every positive pixel."""
+    from cylindersplat.metrics import pcc
+
+    sample = SyntheticDataset(synth_root, views="two_view")[0]
+    out = forward_warp_method().run(sample)
+    reference = sample.target_depths * 100.0
+    rows = score_views(out, sample.target_images, None, depth_range=DepthRange(), pcc_depths=reference)
+    depth = normalized_depth(out.depth.float(), out.alpha.float())
+    expected = pcc(depth, reference, depth_range=DepthRange(0.0, math.inf))
+    assert rows[0]["pcc"] == pytest.approx(float(expected[0]), rel=1e-6) and rows[0]["pcc"] > 0.5
+
+
+def test_eval_cli_fill_rows_backgrounds_and_released_protocol(pano_grf_fixture, tmp_path, capsys):
+    out = tmp_path / "eval"
+    assert main(["eval", "--data", str(pano_grf_fixture), "--no-model", "--depth-prior", "gt", "--protocols",
+                 "released", "--out", str(out), "--pictures", "0", "--lpips", "off"]) == 0
+    data = json.loads((out / "results.json").read_text())
+    (key, means), = data["means"].items()
+    assert "released" in key and "256x512" in key
+    assert list(means) == ["Forward warp", "Forward warp + mean fill", "Forward warp + inpaint fill"]
+    assert all(m["views"] == 3 for m in means.values())  # inputs 0 and 2 scored as well as frame 1
+    rows = data["views"]["released"]
+    assert {r["view"] for r in rows} == {0, 1, 2}
+    # The fills only colour what the warp leaves uncovered: better images, the same depth.
+    assert means["Forward warp + inpaint fill"]["ws_psnr"] > means["Forward warp"]["ws_psnr"]
+    assert means["Forward warp + mean fill"]["abs_rel"] == means["Forward warp"]["abs_rel"]
+    assert data["backgrounds"]["Forward warp"] == "black"
+    table = (out / "results.md").read_text()
+    assert ("Background where a render covers no pixel: black (Forward warp); the inputs' mean colour (Forward warp "
+            "+ mean fill); a 2-D inpaint from the covered pixels (Forward warp + inpaint fill).") in table
+    assert main(["eval", "--data", str(pano_grf_fixture), "--no-model", "--depth-prior", "gt", "--fills", "none",
+                 "--resolution", "64x128", "--out", str(tmp_path / "plain"), "--pictures", "0", "--lpips", "off"]) == 0
+    plain = json.loads((tmp_path / "plain" / "results.json").read_text())["means"]
+    assert [list(m) for m in plain.values()] == [["Forward warp"]]

@@ -11,6 +11,27 @@ from ..utils.jsonfile import json_text
 from ._arguments import device, equirect_resolution
 
 
+RELEASED_RESOLUTION = (256, 512)  # evaluate_mp3d_double_256.py of the authors' released code
+PROTOCOL_TITLES = {
+    "two_view": "two_view (inputs first+last, the middle frame scored)",
+    "released": "released (inputs first+last, all three frames scored: the authors' released scoring, comparable "
+                "with the paper's Table 1)",
+}
+
+
+def fill_list(text: str) -> list[str]:
+    """``"mean,inpaint"`` / ``"none"`` -> the fills of the fill rows; an argparse type."""
+    from ..evaluation.fills import FILLS
+
+    chosen = [part.strip() for part in text.split(",") if part.strip()]
+    if chosen == ["none"]:
+        return []
+    bad = [part for part in chosen if part not in FILLS]
+    if bad or not chosen:
+        raise argparse.ArgumentTypeError(f"expected none or a comma list of {', '.join(FILLS)}, got {text!r}")
+    return chosen
+
+
 def positive_int_list(text: str) -> list[int]:
     """``"3"`` or ``"2,3,4"`` -> ``[3]`` / ``[2, 3, 4]`` (integers >= 1); an argparse type."""
     try:
@@ -78,7 +99,10 @@ def open_eval_dataset(args, protocol: str, loader_options: dict | None = None):
     options.update(loader_options or {})
     # The PCC reference: gt is Sample.target_depths; file:NAME arrives as Sample.target_reference_depths.
     reference = "none" if args.pcc_reference == "gt" else args.pcc_reference
-    return make_dataset(args.format, args.data, views=protocol, split=args.split, resolution=args.resolution,
+    resolution = args.resolution
+    if resolution is None and protocol == "released":  # the released scoring's size (paper Table 1 matches it)
+        resolution = RELEASED_RESOLUTION
+    return make_dataset(args.format, args.data, views=protocol, split=args.split, resolution=resolution,
                         depth_prior=args.depth_prior, reference=reference, prior_option="--depth-prior",
                         reference_option="--pcc-reference", **options)
 
@@ -117,7 +141,15 @@ def _detect_format(data) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..evaluation import METRIC_COLUMNS, VIEW_COUNTS, evaluate, forward_warp_method, model_method, results_to_markdown
+    from ..evaluation import (
+        METRIC_COLUMNS,
+        VIEW_COUNTS,
+        evaluate,
+        fill_methods,
+        forward_warp_method,
+        model_method,
+        results_to_markdown,
+    )
     from ..metrics import DepthRange, load_lpips
 
     _apply_preset(args)
@@ -131,9 +163,15 @@ def run(args: argparse.Namespace) -> int:
         if args.checkpoint is None:
             print(f"using the shipped {DEFAULT_PRETRAINED} weights (--checkpoint for your own, --no-model for the baseline only)")
         model = from_pretrained(args.checkpoint or DEFAULT_PRETRAINED, map_location=args.device)
-        methods.append(model_method(model, "CylinderSplat", device=args.device))
+        if model.mode == "pixel":  # a pixel-only model leaves holes: its fill rows beside it
+            methods += fill_methods(model_method(model, "CylinderSplat (pixel only)", device=args.device), args.fills)
+        else:
+            methods.append(model_method(model, "CylinderSplat", device=args.device))
+        if model.mode == "both" and args.fills:  # what the volume branch must beat: its pixel branch with a fill
+            pixel = from_pretrained(args.checkpoint or DEFAULT_PRETRAINED, map_location=args.device).set_mode("pixel")
+            methods += fill_methods(model_method(pixel, "its pixel branch", device=args.device), args.fills)
     if not args.no_baseline:
-        methods.append(forward_warp_method())
+        methods += fill_methods(forward_warp_method(), args.fills)
     if not methods:
         raise ValueError("nothing to evaluate: drop --no-model or --no-baseline")
     lpips_net = None
@@ -155,7 +193,9 @@ def run(args: argparse.Namespace) -> int:
         result = evaluate(dataset, methods, lpips_net, args.max_examples, args.out / "examples" / label,
                           num_pictures=args.pictures, depth_range=depth_range,
                           pcc_reference="gt" if args.pcc_reference == "gt" else "reference")
-        title = protocol
+        title = PROTOCOL_TITLES.get(protocol, protocol)
+        if protocol == "released" and args.resolution is None:
+            title += f", {RELEASED_RESOLUTION[0]}x{RELEASED_RESOLUTION[1]}"
         if options:
             title += f", {options['context_views']} views, gap {options['gap']}"
             title += ", released layout" if options["context_layout"] == "released" else ""
@@ -173,12 +213,14 @@ def run(args: argparse.Namespace) -> int:
         for note in result.notes:
             print(f"{label}: {note}")
             notes.append(f"{label}: {note}")
-    table = results_to_markdown(results, title="Evaluation")
+    backgrounds = {m.name: m.background for m in methods}
+    table = results_to_markdown(results, title="Evaluation", backgrounds=backgrounds)
     if notes:  # the table's file carries what the run printed about it
         table += "\nNotes:\n" + "".join(f"- {note}\n" for note in notes)
     atomic_write_text(args.out / "results.md", table)
     atomic_write_text(args.out / "results.json",
-                      json_text({"means": results, "views": details, "settings": settings, "notes": notes}))
+                      json_text({"means": results, "views": details, "settings": settings, "notes": notes,
+                                 "backgrounds": backgrounds}))
     print(table)
     print(f"wrote {args.out}/results.md, results.json and examples/")
     return 0
@@ -207,7 +249,14 @@ def register(subparsers) -> None:
     parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train), a run folder or a shipped model "
                         "name (default: the shipped tiny-synth weights)")
     parser.add_argument("--no-model", action="store_true", help="score only the forward-warp baseline")
-    parser.add_argument("--protocols", default="two_view", help="comma list of two_view, one_view, n_view, all_between (default two_view)")
+    parser.add_argument("--protocols", default="two_view", help="comma list of two_view, one_view, n_view, all_between, "
+                        "released (default two_view). released: the authors' released scoring (first+last frame in, all "
+                        "three frames scored, the inputs included; 256x512 unless --resolution), the one to put beside the "
+                        "paper's Table 1; two_view scores only the novel middle frame")
+    parser.add_argument("--fills", type=fill_list, default=["mean", "inpaint"], metavar="FILL[,FILL...]",
+                        help="fill rows: the forward warp (and a model's pixel branch) again with mean (the inputs' mean "
+                        "colour) or inpaint (a 2-D inpaint) behind the pixels it leaves uncovered; none for no fill rows "
+                        "(default mean,inpaint)")
     parser.add_argument("--views", type=positive_int_list, metavar="N[,N...]",
                         help="360Loc (all_between): context views per example, e.g. 3 or 2,3,4 for the paper's "
                         "multi-view table (default 2); one table each")

@@ -6,6 +6,11 @@ Protocols (paper Sec. 4 and its peers), for a sequence of ``n`` frames on a line
   test: frames 00, 02 -> 01; Residential: 0, 8 -> 4);
 * ``"one_view"``: the middle frame in, the first and last frames out;
 * ``"n_view"``: every frame but the middle one in, the middle one out;
+* ``"released"``: the authors' released scoring (``data/mp3d_dataloader_double_256.py`` of
+  wangqww/CylinderSplat: ``context_indices = [0, 2]``, ``target_indices = [0, 1, 2]``): first and last
+  frame in, and the first, middle and last frame out -- the two inputs are scored as well as the novel
+  view, which lifts every number; the paper's Table 1 matches this at 256x512 (``cylindersplat eval
+  --protocols released`` defaults to that size);
 * ``"all_between"``: two contexts ``gap`` frames apart starting at ``start``, every frame between
   them *including the contexts* out (PanSplat's 360Loc test protocol, ``gap = 3``). With more
   context views (the paper's Table 5: 3 and 4 views on 360Loc) see :func:`all_between`'s layouts.
@@ -18,7 +23,7 @@ from dataclasses import dataclass
 __all__ = ["ViewSplit", "PROTOCOLS", "ALL_BETWEEN_LAYOUTS", "select_views", "all_between", "all_between_span",
            "all_between_starts"]
 
-PROTOCOLS = ("two_view", "one_view", "n_view")
+PROTOCOLS = ("two_view", "one_view", "n_view", "released")
 
 
 @dataclass(frozen=True)
@@ -43,6 +48,10 @@ def select_views(num_frames: int, protocol: str | ViewSplit = "two_view") -> Vie
         return ViewSplit((0, num_frames - 1), (mid,))
     if protocol == "one_view":
         return ViewSplit((mid,), tuple(sorted({0, num_frames - 1} - {mid})))
+    if protocol == "released":
+        if num_frames < 3:
+            raise ValueError("released needs >= 3 frames (first/last in; first, middle and last out)")
+        return ViewSplit((0, num_frames - 1), (0, mid, num_frames - 1))
     if protocol == "n_view":
         if num_frames < 3:
             raise ValueError("n_view needs >= 3 frames")

@@ -25,6 +25,8 @@ __all__ = ["EvalResult", "evaluate", "score_views", "comparison_image", "occlude
 
 # Per-view keys computed on the occluded pixels only (None when the view has too few of them).
 OCCLUDED_METRICS = ("ws_psnr_occluded", "psnr_occluded", "l1_occluded", "abs_rel_occluded")
+# Valid depth of a PCC reference that is not metric (a network's relative depth): any positive finite value.
+NON_METRIC_RANGE = DepthRange(0.0, math.inf)
 # Row keys that are bookkeeping, not metrics to average.
 _ROW_KEYS = ("example", "scene", "view", "method", "occluded_pixels")
 
@@ -42,6 +44,7 @@ class EvalResult:
     rows: list[dict] = field(default_factory=list)
     num_examples: int = 0
     notes: list[str] = field(default_factory=list)
+    backgrounds: dict[str, str] = field(default_factory=dict)  # method -> what it shows where it covers nothing
 
 
 def occluded_masks(sample, stored_target_depths=None, stored_context_depths=None, rel_tol: float = 0.05
@@ -89,7 +92,8 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
 
     ``pcc_depths`` ``(T, H, W)``: the PCC reference when it is not ``target_depths`` (e.g. files of
     another depth network, as the paper scores PCC against Depth Anywhere); then PCC is computed even
-    without ground-truth depth.
+    without ground-truth depth, on every pixel where that reference is positive (it need not be metric,
+    so ``depth_range`` does not apply to it).
 
     ``occluded``: ``(T, H, W)`` bool masks of the pixels no context sees (:func:`occluded_masks`);
     when given, every view also gets ``occluded_share`` (latitude-weighted share of the mask),
@@ -109,9 +113,12 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
     depth = None
     if target_depths is not None or pcc_depths is not None:
         depth = normalized_depth(render.depth.float(), render.alpha.float())
-        # PCC over every reference pixel in range; pixels the method left empty count with depth 0.
+        # PCC over every reference pixel in range; pixels the method left empty count with depth 0. A reference
+        # from another network (pcc_depths, e.g. Depth Anywhere) need not be metric: the metric range does not
+        # apply to it, only positive finite depth.
         reference = pcc_depths if pcc_depths is not None else target_depths
-        scores["pcc"] = pcc(depth, reference.float().to(depth.device), depth_range=depth_range)
+        pcc_range = depth_range if pcc_depths is None else NON_METRIC_RANGE
+        scores["pcc"] = pcc(depth, reference.float().to(depth.device), depth_range=pcc_range)
     if target_depths is not None:
         scores["abs_rel"] = abs_rel(depth, target_depths.float(), depth_range=depth_range)
         scores["rmse"] = rmse(depth, target_depths.float(), depth_range=depth_range)
@@ -250,4 +257,4 @@ def evaluate(
         means[method.name]["time_s"] = float(np.mean([r["time_s"] for r in mine if r["view"] == 0]))
         means[method.name]["views"] = len(mine)
         means[method.name]["occluded_views"] = sum(r.get("ws_psnr_occluded") is not None for r in mine)
-    return EvalResult(means, rows, count, notes)
+    return EvalResult(means, rows, count, notes, {m.name: m.background for m in methods})

@@ -17,13 +17,35 @@ from ..data import Sample
 from ..inference.pipeline import reconstruct_gaussians, render_views
 from ..render.api import RenderOutput
 
-__all__ = ["Method", "model_method", "forward_warp_method", "reconstruct"]
+__all__ = ["Method", "model_method", "forward_warp_method", "reconstruct", "with_fill", "fill_methods"]
 
 
 @dataclass
 class Method:
+    """A named renderer of a sample's targets; ``background``: what it shows where it covers no pixel
+    (said under every table, since holes scored against black lose dB that a trivial fill recovers)."""
+
     name: str
     run: Callable[[Sample], RenderOutput]
+    background: str = "black"
+
+
+def with_fill(method: Method, fill: str, name: str | None = None) -> Method:
+    """``method`` with a trivial fill behind its render (:mod:`cylindersplat.evaluation.fills`)."""
+    from .fills import FILL_DESCRIPTIONS, fill_uncovered
+
+    if fill not in FILL_DESCRIPTIONS:
+        raise ValueError(f"unknown fill {fill!r}; choose from {', '.join(FILL_DESCRIPTIONS)}")
+
+    def run(sample: Sample) -> RenderOutput:
+        return fill_uncovered(method.run(sample), sample.context_images, fill)
+
+    return Method(name or f"{method.name} + {fill} fill", run, FILL_DESCRIPTIONS[fill])
+
+
+def fill_methods(method: Method, fills) -> list[Method]:
+    """``method`` followed by itself with each fill of ``fills`` (the fill rows of a table)."""
+    return [method] + [with_fill(method, fill) for fill in fills]
 
 
 def reconstruct(model, sample: Sample, device: torch.device | str = "cpu"):

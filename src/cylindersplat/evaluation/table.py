@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .masked import MIN_OCCLUDED_PIXELS
 
-__all__ = ["METRIC_COLUMNS", "OCCLUDED_COLUMNS", "VIEW_COUNTS", "results_to_markdown"]
+__all__ = ["METRIC_COLUMNS", "OCCLUDED_COLUMNS", "VIEW_COUNTS", "results_to_markdown", "background_note"]
 
 # (key, header, higher is better (None: no best value), format)
 METRIC_COLUMNS = [
@@ -31,8 +31,12 @@ OCCLUDED_COLUMNS = [c for c in METRIC_COLUMNS if c[0].endswith("_occluded") or c
 VIEW_COUNTS = ("views", "occluded_views")
 
 
-def results_to_markdown(results: dict[str, dict[str, dict[str, float | None]]], title: str | None = None) -> str:
+def results_to_markdown(results: dict[str, dict[str, dict[str, float | None]]], title: str | None = None,
+                        backgrounds: dict[str, str] | None = None) -> str:
     """``results[protocol][method][metric]`` -> one Markdown table per protocol; best value in bold.
+
+    ``backgrounds`` (method -> what it shows where it covers no pixel, :attr:`Method.background`): said
+    under every table, since a method that leaves holes scores against that.
 
     Metrics a method could not compute (no LPIPS weights, no reference depth) show ``n/a``. The
     occluded-pixel columns ("occ.") average only the views with enough occluded pixels; when the
@@ -63,6 +67,8 @@ def results_to_markdown(results: dict[str, dict[str, dict[str, float | None]]], 
                 why.append("depth metrics need reference depth")
             lines += ["", f"Not available here: {', '.join(missing)}" + (f" ({'; '.join(why)})." if why else ".")]
         lines += _occluded_note(by_method, [c for c in OCCLUDED_COLUMNS if c in present])
+        if backgrounds:
+            lines += ["", background_note({name: backgrounds[name] for name in by_method if name in backgrounds})]
         lines.append("")
     return "\n".join(lines)
 
@@ -86,3 +92,14 @@ def _occluded_note(by_method: dict[str, dict], shown: list) -> list[str]:
     note = (f"occ.: on the target pixels no input view sees (docs/evaluation.md, \"Occluded pixels\"); means over "
             f"{scope} with at least {MIN_OCCLUDED_PIXELS} such pixels; {share}.")
     return ["", note]
+
+
+def background_note(backgrounds: dict[str, str]) -> str:
+    """One line: what the methods show where they cover no pixel, each background once with its methods."""
+    groups: dict[str, list[str]] = {}
+    for name, text in backgrounds.items():
+        groups.setdefault(text, []).append(name)
+    if len(groups) == 1:
+        return f"Background where a render covers no pixel: {next(iter(groups))} (every method)."
+    parts = [f"{text} ({', '.join(names)})" for text, names in groups.items()]
+    return "Background where a render covers no pixel: " + "; ".join(parts) + "."
