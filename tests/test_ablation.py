@@ -37,7 +37,13 @@ def test_study_trains_scores_resumes_and_tabulates(tmp_path):
                        resolution=(32, 64), log=lines.append)
     assert len(lines) == 4
     saved = json.loads((tmp_path / "study" / "ablation.json").read_text())
-    assert set(saved["variants"]) == {"full", "pixel_only"}
+    fill_rows = {"pixel_only + mean fill", "pixel_only + inpaint fill", "forward_warp", "forward_warp + mean fill",
+                 "forward_warp + inpaint fill"}
+    assert set(saved["variants"]) == {"full", "pixel_only"} | fill_rows
+    # A fill row is the same weights with a fill behind: its image scores differ, its depth scores do not.
+    plain, filled = (saved["variants"][k]["metrics"] for k in ("pixel_only", "pixel_only + mean fill"))
+    assert filled["abs_rel"]["seeds"] == plain["abs_rel"]["seeds"] and filled["ws_psnr"]["seeds"] != plain["ws_psnr"]["seeds"]
+    assert len(saved["variants"]["forward_warp"]["metrics"]["ws_psnr"]["seeds"]) == 1
     ws = saved["variants"]["full"]["metrics"]["ws_psnr"]
     assert len(ws["seeds"]) == 2 and ws["mean"] == pytest.approx(sum(ws["seeds"]) / 2)
     assert ws["spread"] == pytest.approx(abs(ws["seeds"][0] - ws["seeds"][1]) / 2)
@@ -46,6 +52,8 @@ def test_study_trains_scores_resumes_and_tabulates(tmp_path):
     assert pixel == 2 * 32 * 64 and full > pixel
     table = (tmp_path / "study" / "ablation.md").read_text()
     assert "| full |" in table and "| pixel_only |" in table and "WS-PSNR" in table
+    assert "| pixel_only + mean fill |" in table and "| forward_warp + inpaint fill |" in table
+    assert "Background where a render covers no pixel: black, except the fill rows (+ mean fill: the inputs' mean colour" in table
     # A second call scores the finished runs without training them again.
     again = run_study(data, tmp_path / "study", variants, seeds=(0, 1), schedule=Schedule(3, 2, 2), held_out=1,
                       resolution=(32, 64), log=lambda *_: None)
@@ -74,7 +82,7 @@ def test_a_variant_is_scored_with_the_depth_prior_it_trains_with(tmp_path, monke
     assert variant.depth_prior == "gt" and Variant("x", "y").depth_prior == "default"
     run_study(data, tmp_path / "s", [variant], seeds=(0,), schedule=Schedule(2, 0, 0), held_out=1, resolution=(32, 64),
               log=lambda *_: None)
-    assert priors[-1] == "gt"
+    assert priors[-2:] == ["gt", "default"]  # the variant scored with its prior; the forward-warp rows with the study's
     assert json.loads((tmp_path / "s" / "runs" / "gt_prior" / "seed0" / "study_run.json").read_text())["overrides"] == [
         "data.depth_prior=gt"]
     # --depth-prior: every variant's prior (trained and scored), recorded in the report and the table's caption

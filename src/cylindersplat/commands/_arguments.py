@@ -76,3 +76,16 @@ def check_output(path, folder: bool, option: str = "--out") -> None:
         raise ValueError(f"{option} {path}: {parent} is a file, not a folder: choose another {option}")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ValueError(f"{option} {path}: no permission to write in {parent}: choose another {option}")
+
+
+def fill_list(text: str) -> list[str]:
+    """``"mean,inpaint"`` / ``"none"`` -> the fills of the fill rows; an argparse type."""
+    from ..evaluation.fills import FILLS
+
+    chosen = [part.strip() for part in text.split(",") if part.strip()]
+    if chosen == ["none"]:
+        return []
+    bad = [part for part in chosen if part not in FILLS]
+    if bad or not chosen:
+        raise argparse.ArgumentTypeError(f"expected none or a comma list of {', '.join(FILLS)}, got {text!r}")
+    return chosen

@@ -8,7 +8,7 @@ from pathlib import Path
 from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
-from ._arguments import device, model_resolution
+from ._arguments import device, fill_list, model_resolution
 
 
 def _steps(text: str) -> tuple[int, int, int]:
@@ -49,6 +49,10 @@ def register(subparsers) -> None:
                    help="input depth prior of every variant, trained and scored (a data.depth_prior spec: gt, "
                    "simulated:blur_sigma=0.5, ...; default: the synthetic data's simulated prior)")
     p.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
+    p.add_argument("--fills", type=fill_list, default=["mean", "inpaint"], metavar="FILL[,FILL...]",
+                   help="fill rows of the pixel-only variants and the forward warp: mean (the inputs' mean colour) or "
+                   "inpaint (a 2-D inpaint) behind the pixels a render leaves uncovered; none for no fill rows "
+                   "(default mean,inpaint)")
     p.add_argument("--json", type=Path, help="also copy ablation.json here (e.g. benchmarks/results/ablation.json)")
     p.set_defaults(func=run)
 
@@ -64,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     data = args.data or _generate(args)
     schedule = Schedule(*args.steps, lr=args.lr)
     report = run_study(data, args.out, [known[n] for n in names], tuple(args.seeds), schedule, args.held_out,
-                       args.resolution, args.device, depth_prior=args.depth_prior)
+                       args.resolution, args.device, depth_prior=args.depth_prior, fills=tuple(args.fills))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(args.json, json_text(report))

@@ -148,7 +148,7 @@ def train_or_reuse(args, data: Path) -> Path:
 
 def score_held_out(args, data: Path, checkpoint: Path) -> str:
     from ..data import SyntheticDataset
-    from ..evaluation import evaluate, forward_warp_method, model_method, results_to_markdown
+    from ..evaluation import FILLS, evaluate, fill_methods, forward_warp_method, model_method, results_to_markdown
     from ..metrics import DepthRange
     from ..model import load_model
 
@@ -157,16 +157,18 @@ def score_held_out(args, data: Path, checkpoint: Path) -> str:
     dataset = SyntheticDataset(data, views="two_view", scenes=held_out)
     model = load_model(checkpoint, map_location=args.device)
     methods = [model_method(model, "CylinderSplat (tiny)", device=args.device)]
-    if model.mode == "both":  # the same weights with the pixel branch alone: what the volume branch adds
+    if model.mode == "both":  # the same weights with the pixel branch alone, on black and with trivial fills:
+        # what the volume branch adds, and what a hole fill alone would give
         pixel_only = load_model(checkpoint, map_location=args.device).set_mode("pixel")
-        methods.append(model_method(pixel_only, "its pixel branch alone", device=args.device))
-    result = evaluate(dataset, methods + [forward_warp_method()],
+        methods += fill_methods(model_method(pixel_only, "its pixel branch alone", device=args.device), FILLS)
+    result = evaluate(dataset, methods + fill_methods(forward_warp_method(), FILLS),
                       example_dir=args.out / "examples", num_pictures=len(held_out), depth_range=DepthRange(0.05, 1000.0))
     results = {f"Held-out synthetic scenes — two_view ({result.num_examples} scenes, {args.resolution[0]}x{args.resolution[1]})":
                {name: dict(m) for name, m in result.means.items()}}
-    table = results_to_markdown(results, title="Demo: novel views of unseen scenes")
+    table = results_to_markdown(results, title="Demo: novel views of unseen scenes", backgrounds=result.backgrounds)
     atomic_write_text(args.out / "results.md", table)
-    atomic_write_text(args.out / "results.json", json_text({"means": results, "views": result.rows}))
+    atomic_write_text(args.out / "results.json", json_text({"means": results, "views": result.rows,
+                                                            "backgrounds": result.backgrounds}))
     return table
 
 

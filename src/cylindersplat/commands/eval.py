@@ -8,7 +8,7 @@ from pathlib import Path
 from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
-from ._arguments import device, equirect_resolution
+from ._arguments import device, equirect_resolution, fill_list
 
 
 RELEASED_RESOLUTION = (256, 512)  # evaluate_mp3d_double_256.py of the authors' released code
@@ -17,19 +17,6 @@ PROTOCOL_TITLES = {
     "released": "released (inputs first+last, all three frames scored: the authors' released scoring, comparable "
                 "with the paper's Table 1)",
 }
-
-
-def fill_list(text: str) -> list[str]:
-    """``"mean,inpaint"`` / ``"none"`` -> the fills of the fill rows; an argparse type."""
-    from ..evaluation.fills import FILLS
-
-    chosen = [part.strip() for part in text.split(",") if part.strip()]
-    if chosen == ["none"]:
-        return []
-    bad = [part for part in chosen if part not in FILLS]
-    if bad or not chosen:
-        raise argparse.ArgumentTypeError(f"expected none or a comma list of {', '.join(FILLS)}, got {text!r}")
-    return chosen
 
 
 def positive_int_list(text: str) -> list[int]:

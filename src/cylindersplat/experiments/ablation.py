@@ -20,6 +20,7 @@ import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
+from ..evaluation.fills import FILL_DESCRIPTIONS
 from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
@@ -189,10 +190,12 @@ def _train(variant: Variant, seed: int, schedule: Schedule, data_root: Path, tra
     return Path(summary["weights"]), train_s, int(summary.get("skipped_steps", 0))
 
 
-def _score(weights: Path, data_root: Path, held_out: list[str], device: str, depth_prior: str = "default"
-           ) -> tuple[dict, int, int]:
+def _score(weights: Path, data_root: Path, held_out: list[str], device: str, depth_prior: str = "default",
+           fills: tuple[str, ...] = ()) -> tuple[dict, int, int, dict[str, dict]]:
+    """The run's means on the held-out scenes, its Gaussian counts, and the means with each of ``fills`` behind
+    its renders (``fill -> means``; the fill rows of pixel-only variants)."""
     from ..data.datasets import make_dataset
-    from ..evaluation import evaluate, model_method
+    from ..evaluation import evaluate, fill_methods, model_method
     from ..evaluation.methods import reconstruct
     from ..metrics import DepthRange
     from ..model import load_model
@@ -200,11 +203,25 @@ def _score(weights: Path, data_root: Path, held_out: list[str], device: str, dep
     # scored with the input depth prior it was trained with (a variant may change data.depth_prior)
     dataset = make_dataset("synthetic", data_root, views="two_view", depth_prior=depth_prior, scenes=held_out)
     model = load_model(weights, map_location=device)
-    result = evaluate(dataset, [model_method(model, "model", device=device)], depth_range=DepthRange(0.05, 1000.0),
-                      progress=False)
+    methods = fill_methods(model_method(model, "model", device=device), fills)
+    result = evaluate(dataset, methods, depth_range=DepthRange(0.05, 1000.0), progress=False)
     gaussians = reconstruct(model, dataset[0], device)
     visible = int((gaussians.opacities > 0.005).sum())
-    return result.means["model"], len(gaussians), visible
+    filled = {fill: result.means[m.name] for fill, m in zip(fills, methods[1:])}
+    return result.means["model"], len(gaussians), visible, filled
+
+
+def _score_forward_warp(data_root: Path, held_out: list[str], depth_prior: str, fills: tuple[str, ...]
+                        ) -> dict[str | None, dict]:
+    """The forward warp of the nearest input on the held-out scenes: ``fill -> means``, ``None`` on black."""
+    from ..data.datasets import make_dataset
+    from ..evaluation import evaluate, fill_methods, forward_warp_method
+    from ..metrics import DepthRange
+
+    dataset = make_dataset("synthetic", data_root, views="two_view", depth_prior=depth_prior, scenes=held_out)
+    methods = fill_methods(forward_warp_method(), fills)
+    result = evaluate(dataset, methods, depth_range=DepthRange(0.05, 1000.0), progress=False)
+    return {fill: result.means[m.name] for fill, m in zip((None,) + tuple(fills), methods)}
 
 
 def run_study(
@@ -218,9 +235,12 @@ def run_study(
     device: str = "cpu",
     log=None,
     depth_prior: str = "default",
+    fills: tuple[str, ...] = ("mean", "inpaint"),
 ) -> dict:
     """Train and score every variant x seed; write ``ablation.json`` / ``ablation.md`` to ``out_dir``.
-    ``depth_prior`` (a ``data.depth_prior`` spec) is every variant's input prior unless the variant sets its own."""
+    ``depth_prior`` (a ``data.depth_prior`` spec) is every variant's input prior unless the variant sets its own.
+    ``fills``: the fill rows (:mod:`cylindersplat.evaluation.fills`) of every pixel-only variant and of the forward
+    warp, which the study scores too (the cheapest alternatives any completion must beat); ``()`` for none."""
     from ..data import SyntheticDataset
 
     log = log or (lambda text: print(text, flush=True))  # progress lines reach a log file as they happen
@@ -239,20 +259,37 @@ def run_study(
     report: dict = {"schedule": asdict(schedule), "seeds": list(seeds), "resolution": list(resolution),
                     "data": str(data_root), "train_scenes": len(train_ids), "held_out_scenes": test_ids,
                     "depth_prior": depth_prior, "variants": {}}
+    report["fills"] = list(fills)
     start = time.perf_counter()
     for vi, variant in enumerate(variants):
         runs: list[RunResult] = []
+        # a pixel-only model leaves holes: its fill rows (the same weights, a trivial fill behind) beside it
+        variant_fills = tuple(fills) if variant.kind == "pixel" else ()
+        filled_runs: dict[str, list[RunResult]] = {fill: [] for fill in variant_fills}
         for seed in seeds:
             run_dir = out_dir / "runs" / variant.name / f"seed{seed}"
             run_dir.mkdir(parents=True, exist_ok=True)
             t0 = time.perf_counter()
             weights, train_s, skipped = _train(variant, seed, schedule, data_root, train_ids, run_dir, resolution, device)
-            metrics, count, visible = _score(weights, data_root, test_ids, device, variant.depth_prior)
+            metrics, count, visible, filled = _score(weights, data_root, test_ids, device, variant.depth_prior,
+                                                     variant_fills)
             runs.append(RunResult(metrics, train_s, skipped, count, visible, str(weights)))
+            for fill, means in filled.items():
+                filled_runs[fill].append(RunResult(means, train_s, skipped, count, visible, str(weights)))
             log(f"[{vi + 1}/{len(variants)}] {variant.name} seed {seed}: WS-PSNR {metrics.get('ws_psnr', float('nan')):.2f}"
                 f" (occluded {_fmt(metrics.get('ws_psnr_occluded'))}), trained {train_s:.0f} s, skipped {skipped}; "
                 f"{time.perf_counter() - t0:.0f} s, study {time.perf_counter() - start:.0f} s")
         report["variants"][variant.name] = _aggregate(variant, runs)
+        for fill, fill_runs in filled_runs.items():
+            row = replace(variant, name=f"{variant.name} + {fill} fill",
+                          description=f"{variant.description}, {FILL_DESCRIPTIONS[fill]} behind its renders")
+            report["variants"][row.name] = _aggregate(row, fill_runs)
+    if fills:  # the cheapest alternative of all: no model, the nearest input warped, with and without the fills
+        for fill, means in _score_forward_warp(data_root, test_ids, depth_prior, tuple(fills)).items():
+            what = "the nearest input panorama forward-warped with its depth prior (no training)"
+            row = (Variant("forward_warp", what, kind="baseline") if fill is None else
+                   Variant(f"forward_warp + {fill} fill", f"{what}, {FILL_DESCRIPTIONS[fill]} behind", kind="baseline"))
+            report["variants"][row.name] = _aggregate(row, [RunResult(means, 0.0, 0, 0, 0, "")])
     report["study_s"] = time.perf_counter() - start
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out_dir / "ablation.json", json_text(report))
@@ -315,6 +352,10 @@ def study_table(report: dict) -> str:
         f"{report['resolution'][0]}x{report['resolution'][1]}, two_view; seeds {report['seeds']}; "
         f"{sched['stage1'] + sched['stage2'] + sched['stage3']} steps per variant (full: {sched['stage1']}/{sched['stage2']}/"
         f"{sched['stage3']}), lr {sched['lr']}{prior}. Cells: mean ± half the range over seeds. \"occ.\": pixels no input view sees.",
+        "",
+        "Background where a render covers no pixel: black" + (", except the fill rows (" + "; ".join(
+            f"+ {fill} fill: {FILL_DESCRIPTIONS[fill]}" for fill in report["fills"]) + "; forward_warp rows: no training, "
+            "one value)" if report.get("fills") else "") + ".",
         "",
         "| Variant | " + " | ".join(h for _, h, _, _ in present) + " |",
         "|---|" + "---|" * len(present),
