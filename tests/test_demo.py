@@ -11,6 +11,11 @@ from cylindersplat.cli import main
 from cylindersplat.gaussians import load_ply
 from cylindersplat.scenes import demo_room
 
+# the model, its pixel branch and the forward warp, the last two also with each trivial fill behind
+DEMO_ROWS = {"CylinderSplat (tiny)", "its pixel branch alone", "its pixel branch alone + mean fill",
+             "its pixel branch alone + inpaint fill", "Forward warp", "Forward warp + mean fill",
+             "Forward warp + inpaint fill"}
+
 
 def test_demo_end_to_end_and_reuse(tmp_path, capsys):
     out = tmp_path / "demo"
@@ -23,7 +28,9 @@ def test_demo_end_to_end_and_reuse(tmp_path, capsys):
     table = (out / "results.md").read_text()
     assert "| CylinderSplat (tiny) |" in table and "| Forward warp |" in table
     means = next(iter(json.loads((out / "results.json").read_text())["means"].values()))
-    assert set(means) == {"CylinderSplat (tiny)", "its pixel branch alone", "Forward warp"}
+    assert set(means) == DEMO_ROWS
+    assert all(m["lrce"] is not None and m["lrce"] >= 0 for m in means.values())  # the depth LRCE, vs the truth
+    assert "Background where a render covers no pixel: black (CylinderSplat (tiny), its pixel branch alone" in table
     # comparison: 3 rows (ground truth, ours, baseline) x (RGB | depth), shown at 2x
     assert Image.open(out / "comparison.png").size == (2 * (2 * 32 + 4), 2 * (3 * 16 + 2 * 4))
     assert Image.open(out / "flythrough.gif").n_frames == 3
@@ -41,7 +48,7 @@ def test_demo_uses_the_shipped_weights_by_default(tmp_path, capsys):
     assert "using the shipped tiny-synth weights" in printed and "training the tiny model" not in printed
     assert not (out / "train").exists()
     means = next(iter(json.loads((out / "results.json").read_text())["means"].values()))
-    assert set(means) == {"CylinderSplat (tiny)", "its pixel branch alone", "Forward warp"}
+    assert set(means) == DEMO_ROWS
 
 
 def test_demo_rejects_bad_options(tmp_path, capsys):
