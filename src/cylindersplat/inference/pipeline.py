@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-import sys
-import time
 from pathlib import Path
 from typing import Iterator
 
@@ -12,7 +10,6 @@ import numpy as np
 import torch
 from jaxtyping import Float
 from torch import Tensor
-from tqdm.auto import tqdm
 
 from ..data.io import DEPTH_PNG_SCALE, to_uint8, write_depth_png, write_rgb
 from ..gaussians import Gaussians
@@ -21,6 +18,7 @@ from ..render.api import RenderOutput
 from ..render.cameras import CameraModel
 from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
+from ..utils.progress import Progress
 from .camera_path import flythrough_path
 from .memory import check_forward_memory
 from .video import VideoWriter
@@ -59,32 +57,6 @@ def reconstruct_gaussians(
     return gaussians
 
 
-class _Progress:
-    """Progress over ``total`` items: a tqdm bar on a terminal; where stderr is not one (log files, pipes),
-    one line at each quarter instead of a bar's carriage returns; nothing when disabled."""
-
-    def __init__(self, total: int, desc: str, unit: str, enabled: bool = True) -> None:
-        self.total, self.desc, self.unit, self.done = total, desc, unit, 0
-        self.enabled = enabled and total > 0
-        self._bar = tqdm(total=total, desc=desc, unit=unit) if self.enabled and sys.stderr.isatty() else None
-        self._marks = sorted({max(1, round(total * q / 4)) for q in (1, 2, 3, 4)})
-        self._start = time.perf_counter()
-
-    def update(self, n: int) -> None:
-        before, self.done = self.done, self.done + n
-        if not self.enabled:
-            return
-        if self._bar is not None:
-            self._bar.update(n)
-        elif any(before < mark <= self.done for mark in self._marks):
-            print(f"{self.desc}: {self.done}/{self.total} {self.unit}s ({time.perf_counter() - self._start:.1f} s)",
-                  file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
-
-
 @torch.no_grad()
 def iter_views(
     gaussians: Gaussians,
@@ -107,7 +79,7 @@ def iter_views(
     if (camera.height, camera.width) != (height, width):
         raise ValueError(f"camera is {camera.height}x{camera.width} but {height}x{width} was asked for")
     device = gaussians.device
-    bar = _Progress(len(c2w), desc, unit, progress)
+    bar = Progress(len(c2w), desc, unit, progress)
     try:
         for start in range(0, len(c2w), chunk):
             out = render(gaussians, c2w[start:start + chunk].to(device), camera, background=background)
