@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+from typing import Any, Callable, Iterator
 
 
 def equirect_resolution(text: str, min_height: int = 1) -> tuple[int, int]:
@@ -76,3 +78,15 @@ def check_output(path, folder: bool, option: str = "--out") -> None:
         raise ValueError(f"{option} {path}: {parent} is a file, not a folder: choose another {option}")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ValueError(f"{option} {path}: no permission to write in {parent}: choose another {option}")
+
+
+@contextlib.contextmanager
+def memory_advice(advice: str | Callable[[Any], str]) -> Iterator[None]:
+    """Within the block (or the decorated command), the renderer's memory refusal ends in ``advice`` (the
+    command's own options; or ``advice(refusal)``) instead of the library's generic words."""
+    from ..render.rasterize import RenderMemoryError
+
+    try:
+        yield
+    except RenderMemoryError as exc:
+        raise exc.advise(advice(exc) if callable(advice) else advice) from None

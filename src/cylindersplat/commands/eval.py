@@ -8,7 +8,7 @@ from pathlib import Path
 from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
-from ._arguments import device, equirect_resolution
+from ._arguments import device, equirect_resolution, memory_advice
 
 
 def positive_int_list(text: str) -> list[int]:
@@ -116,11 +116,18 @@ def _detect_format(data) -> str:
     return chosen
 
 
+@memory_advice("use a smaller --resolution (the size everything is scored at), or a GPU (--device cuda)")
 def run(args: argparse.Namespace) -> int:
     from ..evaluation import METRIC_COLUMNS, VIEW_COUNTS, evaluate, forward_warp_method, model_method, results_to_markdown
     from ..metrics import DepthRange, load_lpips
 
     _apply_preset(args)
+    if args.resolution is None and not args.no_model:  # the model's size, not the stored one (read from its header)
+        from ..model.pretrained import DEFAULT_PRETRAINED, weights_config
+
+        from ._inference import model_size
+
+        args.resolution = model_size(weights_config(args.checkpoint or DEFAULT_PRETRAINED), None)
     # Every dataset first: a missing prior or reference fails before any model is loaded.
     runs = eval_runs(args)
     datasets = {label: (protocol, options, open_eval_dataset(args, protocol, options)) for label, protocol, options in runs}
@@ -219,7 +226,8 @@ def register(subparsers) -> None:
                         "last scored; default) or released (the released code's three_sample/four_sample: the pair "
                         "--gap apart plus adjacent frames); see docs/evaluation.md")
     parser.add_argument("--out", type=Path, default=Path("outputs/eval"), help="output folder (default outputs/eval)")
-    parser.add_argument("--resolution", type=equirect_resolution, help="evaluate at HxW (default: stored size)")
+    parser.add_argument("--resolution", type=equirect_resolution, help="evaluate at HxW (default: the model's own "
+                        "resolution; with --no-model the stored size)")
     parser.add_argument("--split", default="test", help="split of pano_grf / loc360 data (default test)")
     parser.add_argument("--scenes", help="synthetic data: comma list of scene ids to use")
     parser.add_argument("--targets", help="--format folder: comma list of frames (image names or stems) held out as "
