@@ -254,10 +254,12 @@ def read_kitti(path: str | Path, scale: float = 1.0) -> list[PoseRecord]:
             for i, row in enumerate(_numeric_lines(path, 12, "KITTI"))]
 
 
-def match_timestamps_to_images(records: list[PoseRecord], images: list[str], fps: float | None, source: Path) -> list[PoseRecord]:
-    """Give trajectory poses their image names: with ``fps``, pose at time ``t`` is image ``round(t * fps)`` of
-    ``images`` (frames numbered from 0, as stella_vslam's examples time a video or image sequence); without,
-    poses and images pair up in order (the counts must agree)."""
+def match_timestamps_to_images(records: list[PoseRecord], images: list[str], fps: float | None, source: Path,
+                               start: float | str = 0.0) -> list[PoseRecord]:
+    """Give trajectory poses their image names: with ``fps``, pose at time ``t`` is image ``round((t - start) * fps)``
+    of ``images`` (frames numbered from 0, as stella_vslam's examples time a video or image sequence); ``start`` is
+    the time of image 0 in seconds, or ``"first"``: the trajectory's first timestamp (SLAM runs that stamp poses
+    with the clock). Without ``fps``, poses and images pair up in order (the counts must agree)."""
     if fps is None:
         if len(images) != len(records):
             raise ValueError(f"{source} has {len(records)} poses but {len(images)} images were given; pass --fps to match "
@@ -265,14 +267,19 @@ def match_timestamps_to_images(records: list[PoseRecord], images: list[str], fps
         return [PoseRecord(name, r.c2w, r.depth, r.timestamp) for name, r in zip(images, records)]
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
+    if any(r.timestamp is None for r in records):
+        raise ValueError(f"{source}: --fps needs timestamps (a TUM trajectory)")
+    if start == "first":
+        start = min(r.timestamp for r in records)
+    elif isinstance(start, str):
+        raise ValueError(f"the start time must be seconds or 'first', got {start!r}")
     out = []
     for r in records:
-        if r.timestamp is None:
-            raise ValueError(f"{source}: --fps needs timestamps (a TUM trajectory)")
-        index = math.floor(r.timestamp * fps + 0.5)
+        index = math.floor((r.timestamp - start) * fps + 0.5)
         if not 0 <= index < len(images):
+            clock = "; clock timestamps? --start-time first counts from the first pose" if start == 0 else ""
             raise ValueError(f"{source}: timestamp {r.timestamp:g} s is frame {index} at {fps:g} fps, but only "
-                             f"{len(images)} images were given")
+                             f"{len(images)} images were given (image 0 is at {start:g} s{clock})")
         out.append(PoseRecord(images[index], r.c2w, r.depth, r.timestamp))
     return out
 
