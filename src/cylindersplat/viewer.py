@@ -166,6 +166,13 @@ def write_html(path: str | Path, gaussians: Gaussians, cameras: list[ViewCamera]
     return path
 
 
+def serving_line(host: str, port: int, gaussians: int, cameras: int, duration: float | None) -> str:
+    """What ``serve`` prints: the address, the scene's size, and how serving ends (Ctrl+C, or after ``duration``)."""
+    shown = "localhost" if host in ("0.0.0.0", "::") else host
+    ends = "Ctrl+C stops" if duration is None else f"stops after {duration:g} s (or Ctrl+C)"
+    return f"viewer: http://{shown}:{port}  ({gaussians:,} Gaussians, {cameras} cameras; {ends})"
+
+
 def serve(gaussians: Gaussians, cameras: list[ViewCamera] = (), host: str = "127.0.0.1", port: int = 8080,
           frustum_scale: float = 0.2, duration: float | None = None) -> None:
     """Serve the scene at ``http://host:port`` until interrupted (Ctrl+C) or ``duration`` seconds pass."""
@@ -173,9 +180,7 @@ def serve(gaussians: Gaussians, cameras: list[ViewCamera] = (), host: str = "127
     server = _quiet_server(viser, host, port)
     try:
         scene = build_scene(server, gaussians, cameras, frustum_scale)
-        shown = "localhost" if host in ("0.0.0.0", "::") else host
-        print(f"viewer: http://{shown}:{server.get_port()}  ({len(gaussians):,} Gaussians, "
-              f"{len(scene.frustums)} cameras; Ctrl+C stops)", flush=True)
+        print(serving_line(host, server.get_port(), len(gaussians), len(scene.frustums), duration), flush=True)
         end = None if duration is None else time.monotonic() + duration
         while end is None or time.monotonic() < end:
             time.sleep(0.2 if end is None else max(min(0.2, end - time.monotonic()), 0.0))

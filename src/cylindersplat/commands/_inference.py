@@ -12,7 +12,7 @@ from ._arguments import device, model_resolution
 def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
     parser.add_argument("--input", required=required, type=Path,
                         help="folder of equirect panoramas + poses.json (OpenCV c2w; see docs/inference.md)")
-    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train / demo), a run folder, or a shipped "
+    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train / demo), a run folder (or its checkpoints/latest), or a shipped "
                         "model name (default: the shipped tiny-synth weights, trained on procedural scenes)")
     parser.add_argument("--poses-file", type=Path, help="poses file (default INPUT/poses.json)")
     parser.add_argument("--resolution", type=model_resolution,

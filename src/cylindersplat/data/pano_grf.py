@@ -16,7 +16,7 @@ repository chengzhag/PanSplat): ``(rot, tran)`` is a Habitat camera-to-world pos
 y up, z backward; world y up). PanSplat builds ``c2w = W @ [rot | tran] @ C`` with the fixed
 world change ``W`` = rows ``(1,0,0), (0,0,-1), (0,1,0)`` (a z-up world) and the camera flip
 ``C = diag(1, -1, -1)`` (Habitat camera -> OpenCV camera). We use the same camera flip but the
-world change ``diag(1, -1, -1)`` instead of ``W``, so that world +y is gravity-down as DESIGN.md
+world change ``diag(1, -1, -1)`` instead of ``W``, so that world +y is gravity-down as docs/conventions.md
 asks; the two worlds differ by one fixed rotation, so all relative poses (and every reprojection)
 are identical to PanSplat's. With identity rotations the result is ``c2w = [I | diag(1,-1,-1) tran]``;
 the test ``tests/test_data_pano_grf.py`` proves the convention on a real triplet by reprojection.
