@@ -8,6 +8,7 @@ from pathlib import Path
 from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
+from ..dataset_layouts import DATASET_LAYOUTS
 from ._arguments import device, equirect_resolution, memory_advice
 
 
@@ -104,14 +105,13 @@ def _apply_preset(args) -> None:
 
 def _detect_format(data) -> str:
     """--format from the folder's layout, by the rule the data commands use (``data info``, ``data priors``)."""
-    from ..data.depth_prior.precompute import detect_layout
+    from ..dataset_layouts import detect_layout
 
     try:
-        layout = detect_layout(data)
+        chosen = detect_layout(data)
     except ValueError:
         raise ValueError(f"{data}: cannot tell the dataset layout (no meta.json, not a png_render_* folder, no 360Loc "
                          "mapping/query_360, no poses.json); name it with --format synthetic|pano_grf|loc360|folder") from None
-    chosen = {"input": "folder"}.get(layout, layout)
     print(f"data layout: {chosen} (detected; --format to choose another)")
     return chosen
 
@@ -205,7 +205,7 @@ def register(subparsers) -> None:
         ),
     )
     parser.add_argument("--data", required=True, help="dataset folder (synthetic output, png_render_* folder, 360Loc root or a folder of posed panoramas)")
-    parser.add_argument("--format", choices=["synthetic", "pano_grf", "loc360", "folder"],
+    parser.add_argument("--format", "--layout", dest="format", choices=DATASET_LAYOUTS,
                         help="dataset layout (default: the --config preset's, else detected from --data as the data commands do); folder: posed panoramas in the "
                         "input format of docs/inference.md (one folder, or a folder of them), frames held out with "
                         "--targets or by --protocols two_view/one_view/n_view in poses-file order")
