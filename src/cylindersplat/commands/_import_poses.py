@@ -11,7 +11,7 @@ FORMATS = ("opensfm", "nerfstudio", "tum", "kitti")
 
 def _run(args: argparse.Namespace) -> int:
     from ..inference.inputs import IMAGE_SUFFIXES
-    from ..inference.pose_formats import (
+    from ..data.pose_formats import (
         PoseRecord,
         match_timestamps_to_images,
         read_kitti,
