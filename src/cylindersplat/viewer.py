@@ -29,6 +29,7 @@ from torch import Tensor
 from .gaussians import Gaussians
 from .geometry.rotations import matrix_to_quaternion
 from .render.covariance import covariance_3d
+from .view_framing import default_view  # the first view: the scene framed from behind and above
 
 __all__ = ["VIEW_INSTALL", "ViewCamera", "ViewerScene", "SplatArrays", "splat_arrays", "import_viser", "build_scene",
            "default_view", "serve", "write_html", "render_picture"]
@@ -88,26 +89,6 @@ class ViewerScene:
     frustums: list = field(default_factory=list)
     position: tuple[float, float, float] = (0.0, 0.0, 0.0)
     look_at: tuple[float, float, float] = (0.0, 0.0, 1.0)
-
-
-def default_view(gaussians: Gaussians, cameras: list[ViewCamera]) -> tuple[np.ndarray, np.ndarray]:
-    """``(position, look_at)`` of the first view: behind and above the input cameras' centre, looking
-    along the first camera's forward axis; without cameras, outside the splats' middle 90 %, looking at
-    their median."""
-    up = np.array([0.0, -1.0, 0.0])  # OpenCV world: +y is down
-    if cameras:
-        centres = np.stack([c.c2w[:3, 3].double().numpy() for c in cameras])
-        centre = centres.mean(axis=0)
-        forward = cameras[0].c2w[:3, 2].double().numpy()
-        forward = forward / max(np.linalg.norm(forward), 1e-9)
-        return centre - 0.75 * forward + 0.25 * up, centre + 1.0 * forward
-    means = gaussians.means.detach().to("cpu", torch.float64).reshape(-1, 3).numpy()
-    if len(means) == 0:
-        return np.array([0.0, -1.0, -3.0]), np.zeros(3)
-    centre = np.median(means, axis=0)
-    lo, hi = np.percentile(means, [5, 95], axis=0)
-    size = float(max(np.linalg.norm(hi - lo), 1e-3))
-    return centre + size * np.array([0.0, -0.35, -0.9]), centre
 
 
 def _thumbnail(image: np.ndarray, height: int = 128) -> np.ndarray:
