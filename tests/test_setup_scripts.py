@@ -70,12 +70,15 @@ def _externally_managed_python() -> str | None:
             continue
         stdlib = subprocess.run([candidate, "-c", "import sysconfig; print(sysconfig.get_path('stdlib'))"],
                                 capture_output=True, text=True).stdout.strip()
-        if stdlib and (Path(stdlib) / "EXTERNALLY-MANAGED").is_file():
+        can_make_venvs = subprocess.run([candidate, "-c", "import ensurepip, venv"], capture_output=True).returncode == 0
+        if stdlib and (Path(stdlib) / "EXTERNALLY-MANAGED").is_file() and can_make_venvs:
             return candidate
     return None
 
 
-@pytest.mark.skipif(_externally_managed_python() is None, reason="no externally managed (PEP 668) Python here")
+@pytest.mark.slow  # makes a real virtual environment (~15 s)
+@pytest.mark.skipif(_externally_managed_python() is None,
+                    reason="no externally managed (PEP 668) Python with venv support here")
 def test_a_real_pep668_python_gets_a_working_virtual_environment(tmp_path):
     base = _externally_managed_python()
     out = _choose(tmp_path, {"CYLINDERSPLAT_BASE_PYTHON": base, "PYTHON": ""})
