@@ -31,6 +31,17 @@ def image_resolution(text: str) -> tuple[int, int]:
     return size
 
 
+def positive_int(text: str) -> int:
+    """An integer >= 1; an argparse type."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
 def model_resolution(text: str) -> tuple[int, int]:
     """An equirect resolution the model can run at (the backbone downsamples: H >= 8)."""
     return equirect_resolution(text, min_height=8)

@@ -6,7 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
-from ._arguments import check_output, image_resolution, memory_advice
+from ._arguments import check_output, image_resolution, memory_advice, positive_int
 from ._inference import add_input_arguments, reconstruct_from_args
 
 VIEW_PATTERNS = ("view_*_rgb.png", "view_*_depth.png", "view_*_depth.npy", "view_*_depth_mm.png", "poses.json")
@@ -40,17 +40,6 @@ def _camera(args, height: int, width: int):
         raise ValueError(f"panoramas need W == 2H, got --output-resolution {height}x{width}; "
                          "for other shapes render perspective views with --camera pinhole")
     return Equirect(height, width)
-
-
-def _positive(text: str) -> int:
-    """An integer >= 1; an argparse type."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return value
 
 
 def camera_record(camera, fov: float | None = None) -> dict:
@@ -205,7 +194,7 @@ def register(subparsers) -> None:
     parser.add_argument("--output-resolution", type=image_resolution,
                         help="HxW of the views and fly-through (default: the input resolution; with --ply 512x1024; "
                         "pinhole: that height at 3:4)")
-    parser.add_argument("--view-batch", type=_positive, metavar="N",
+    parser.add_argument("--view-batch", type=positive_int, metavar="N",
                         help="views (and fly-through frames) rendered at once (default: automatic, 4 at a time, fewer "
                         "when they would not fit in free memory)")
     parser.add_argument("--metric-depth", action="store_true",
