@@ -13,7 +13,9 @@
 # browser ~65 s (apt-get update + chromium) + ~6 s (playwright).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-PY=${PYTHON:-python3}
+. scripts/_python.sh
+choose_python  # the Python install.sh uses (.venv where the system Python refuses installs)
+PY=$PYTHON
 SPLAT_TRANSFORM_VERSION=${SPLAT_TRANSFORM_VERSION:-3.7.0}
 
 install_video() {

@@ -3,6 +3,8 @@
 # `python -m pytest -m "not slow"` is the quick local run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+. scripts/_python.sh
+choose_python  # exported PYTHON: the scripts below install into the same one (.venv under PEP 668)
 bash scripts/install.sh test
 # The optional tools (viewer, browser, splat formats), so that their tests run instead of skipping; a tool
 # that cannot be installed here only makes its tests skip (CYLINDERSPLAT_SKIP_OPTIONAL=1 skips the installs).
@@ -12,4 +14,4 @@ if [ -z "${CYLINDERSPLAT_SKIP_OPTIONAL:-}" ]; then
             || echo "optional part '$part' not installed: its tests will skip" >&2
     done
 fi
-exec "${PYTHON:-python3}" -m pytest -q "$@"
+exec "$PYTHON" -m pytest -q "$@"

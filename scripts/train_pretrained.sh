@@ -5,6 +5,9 @@
 #   bash scripts/train_pretrained.sh [OUT]          (default outputs/pretrained)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+. scripts/_python.sh
+choose_python  # the Python the set-up scripts installed into (.venv where the system Python refuses installs)
+cylindersplat() { "$PYTHON" -m cylindersplat "$@"; }
 OUT=${1:-outputs/pretrained}
 export OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
 cylindersplat data synth --out "$OUT/data" --scenes 96 --resolution 64x128 --profile occlusion --seed 1

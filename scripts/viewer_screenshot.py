@@ -125,6 +125,9 @@ def shoot(url: str, out: Path, chromium: str, timeout: float, min_share: float, 
             context.close()
     webgl = [line for line in console if "WebGL" in line and "GL Driver" not in line]
     stats["webgl"] = webgl[0] if webgl else "(no WebGL message)"
+    # viser 1.1's splat mesh has a 2-component "position" attribute (its quad), which three.js's bounding sphere
+    # reads as NaN: one "computeBoundingSphere(): Computed radius is NaN" per page, from viser's client, not the data.
+    stats["console_nan"] = [line[:120] for line in console if "NaN" in line]
     stats["drawn"] = looks_drawn(stats, min_share, min_std)
     return stats
 

@@ -98,6 +98,8 @@ def test_adapter_weight_checks(tmp_path, monkeypatch):
         parse_depth_prior("unik3d")
     (tmp_path / "w.pth").write_bytes(b"")
     assert UniK3DAdapter(weights=tmp_path / "w.pth").weights == tmp_path / "w.pth"
+    (tmp_path / "hub" / "models--lpiccinelli--unik3d-vitl" / "snapshots" / "abc").mkdir(parents=True)
+    monkeypatch.setenv("HF_HUB_CACHE", str(tmp_path / "hub"))  # cached: usable offline (tests/test_data_items.py)
     hub = UniK3DAdapter(weights="lpiccinelli/unik3d-vitl")  # a hub id: loaded by the package itself
     assert hub.weights is None and hub.source == "lpiccinelli/unik3d-vitl"
 

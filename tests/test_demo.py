@@ -8,6 +8,7 @@ import numpy as np
 from PIL import Image
 
 from cylindersplat.cli import main
+from cylindersplat.utils.picture_grid import LABEL_HEIGHT
 from cylindersplat.gaussians import load_ply
 from cylindersplat.scenes import demo_room
 
@@ -31,8 +32,8 @@ def test_demo_end_to_end_and_reuse(tmp_path, capsys):
     assert set(means) == DEMO_ROWS
     assert all(m["lrce"] is not None and m["lrce"] >= 0 for m in means.values())  # the depth LRCE, vs the truth
     assert "Background where a render covers no pixel: black (CylinderSplat (tiny), its pixel branch alone" in table
-    # comparison: 3 rows (ground truth, ours, baseline) x (RGB | depth), shown at 2x
-    assert Image.open(out / "comparison.png").size == (2 * (2 * 32 + 4), 2 * (3 * 16 + 2 * 4))
+    # comparison: 3 rows (ground truth, ours, baseline) x (RGB | depth), each with its caption, titles on top, at 2x
+    assert Image.open(out / "comparison.png").size == (2 * (2 * 32 + 4), 2 * (LABEL_HEIGHT + 3 * (4 + LABEL_HEIGHT + 16)))
     assert Image.open(out / "flythrough.gif").n_frames == 3
     assert len(load_ply(out / "gaussians.ply")) > 0
     assert "training the tiny model" in capsys.readouterr().out

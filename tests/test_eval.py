@@ -15,6 +15,7 @@ from cylindersplat.evaluation import evaluate, forward_warp_method, model_method
 from cylindersplat.evaluation.evaluate import comparison_image, normalized_depth
 from cylindersplat.metrics import DepthRange, abs_rel, delta1, pcc, psnr, rmse, ssim, ws_psnr
 from cylindersplat.model import save_model
+from cylindersplat.utils.picture_grid import LABEL_HEIGHT
 
 
 def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
@@ -148,7 +149,7 @@ def test_scores_equal_direct_metric_calls(synth_root, tiny_model, tmp_path):
     pictures = sorted(tmp_path.glob("example_*.png"))
     assert len(pictures) == 2  # one target per example, fewer than the 3 asked for
     sheet = np.asarray(Image.open(pictures[0]))
-    assert sheet.shape == (3 * 32 + 2 * 4, 2 * 64 + 4, 3)  # ground truth + 2 methods; RGB | depth
+    assert sheet.shape == (LABEL_HEIGHT + 3 * (4 + LABEL_HEIGHT + 32), 2 * 64 + 4, 3)  # titles; GT + 2 methods, captioned
 
 
 def test_known_values_of_an_oracle(synth_root):
@@ -174,7 +175,7 @@ def test_known_values_of_an_oracle(synth_root):
 def test_comparison_image_rows_are_the_inputs():
     rgb = torch.rand(3, 8, 16)
     depth = torch.rand(8, 16) + 1
-    sheet = comparison_image(rgb, depth, {"a": (rgb * 0, depth, torch.ones(8, 16))})
+    sheet = comparison_image(rgb, depth, {"a": (rgb * 0, depth, torch.ones(8, 16))}, labels=False)
     np.testing.assert_array_equal(sheet[:8, :16], (rgb.permute(1, 2, 0).numpy() * 255 + 0.5).astype(np.uint8))
     np.testing.assert_array_equal(sheet[12:20, :16], 0)  # the method's black render
     np.testing.assert_array_equal(sheet[:8, 20:], sheet[12:20, 20:])  # same depth -> same colours

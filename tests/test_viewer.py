@@ -20,7 +20,7 @@ from cylindersplat.gaussians import Gaussians, save_ply, sh0_to_rgb
 from cylindersplat.geometry import make_c2w
 from cylindersplat.geometry.rotations import quaternion_to_matrix
 from cylindersplat.scenes import demo_room
-from cylindersplat.viewer import ViewCamera, splat_arrays
+from cylindersplat.viewer import ViewCamera, default_view, splat_arrays
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -99,10 +99,11 @@ def test_viser_scene_holds_the_splats_and_one_frustum_per_camera():
             np.testing.assert_allclose(frustum.position, pose[:3, 3].numpy(), atol=1e-6)
             back = quaternion_to_matrix(torch.as_tensor(frustum.wxyz)).numpy()
             np.testing.assert_allclose(back, pose[:3, :3].numpy(), atol=1e-6)
-        # The view starts behind the cameras' centre, looking along the first camera's +z.
-        centre = np.mean([p[:3, 3].numpy() for p in poses], axis=0)
-        np.testing.assert_allclose(scene.look_at, centre + np.array([0.0, 0.0, 1.0]), atol=1e-6)
-        assert scene.position[2] < centre[2] and scene.position[1] < centre[1]  # behind and above (+y is down)
+        # The view starts behind and above the scene's bounds, looking at their centre (tests/test_view_framing.py).
+        position, look_at = default_view(g, cameras)
+        np.testing.assert_allclose(scene.look_at, look_at, atol=1e-6)
+        np.testing.assert_allclose(scene.position, position, atol=1e-6)
+        assert scene.position[2] < scene.look_at[2] and scene.position[1] < scene.look_at[1]  # behind, above (+y down)
     finally:
         server.stop()
 

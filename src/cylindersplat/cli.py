@@ -50,6 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     from .utils.allocator import keep_freed_memory
+    from .utils.notices import one_line_warnings
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -58,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        result = args.func(args)
+        with one_line_warnings(f"cylindersplat {args.command}"):  # notices, not tracebacks-like source lines
+            result = args.func(args)
     except KeyboardInterrupt:
         print(f"cylindersplat {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -1,6 +1,6 @@
 """Built-in Gaussian scenes (no download needed): a textured demo room and a random indoor layout.
 
-Coordinates follow DESIGN.md: world +y is down, the camera sits at the origin about 1.6 m above the
+Coordinates follow docs/conventions.md: world +y is down, the camera sits at the origin about 1.6 m above the
 floor, metres throughout.
 """
 

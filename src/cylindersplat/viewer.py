@@ -29,6 +29,7 @@ from torch import Tensor
 from .gaussians import Gaussians
 from .geometry.rotations import matrix_to_quaternion
 from .render.covariance import covariance_3d
+from .view_framing import default_view  # the first view: the scene framed from behind and above
 
 __all__ = ["VIEW_INSTALL", "ViewCamera", "ViewerScene", "SplatArrays", "splat_arrays", "import_viser", "build_scene",
            "default_view", "serve", "write_html", "render_picture"]
@@ -90,26 +91,6 @@ class ViewerScene:
     look_at: tuple[float, float, float] = (0.0, 0.0, 1.0)
 
 
-def default_view(gaussians: Gaussians, cameras: list[ViewCamera]) -> tuple[np.ndarray, np.ndarray]:
-    """``(position, look_at)`` of the first view: behind and above the input cameras' centre, looking
-    along the first camera's forward axis; without cameras, outside the splats' middle 90 %, looking at
-    their median."""
-    up = np.array([0.0, -1.0, 0.0])  # OpenCV world: +y is down
-    if cameras:
-        centres = np.stack([c.c2w[:3, 3].double().numpy() for c in cameras])
-        centre = centres.mean(axis=0)
-        forward = cameras[0].c2w[:3, 2].double().numpy()
-        forward = forward / max(np.linalg.norm(forward), 1e-9)
-        return centre - 0.75 * forward + 0.25 * up, centre + 1.0 * forward
-    means = gaussians.means.detach().to("cpu", torch.float64).reshape(-1, 3).numpy()
-    if len(means) == 0:
-        return np.array([0.0, -1.0, -3.0]), np.zeros(3)
-    centre = np.median(means, axis=0)
-    lo, hi = np.percentile(means, [5, 95], axis=0)
-    size = float(max(np.linalg.norm(hi - lo), 1e-3))
-    return centre + size * np.array([0.0, -0.35, -0.9]), centre
-
-
 def _thumbnail(image: np.ndarray, height: int = 128) -> np.ndarray:
     from PIL import Image
 
@@ -166,6 +147,13 @@ def write_html(path: str | Path, gaussians: Gaussians, cameras: list[ViewCamera]
     return path
 
 
+def serving_line(host: str, port: int, gaussians: int, cameras: int, duration: float | None) -> str:
+    """What ``serve`` prints: the address, the scene's size, and how serving ends (Ctrl+C, or after ``duration``)."""
+    shown = "localhost" if host in ("0.0.0.0", "::") else host
+    ends = "Ctrl+C stops" if duration is None else f"stops after {duration:g} s (or Ctrl+C)"
+    return f"viewer: http://{shown}:{port}  ({gaussians:,} Gaussians, {cameras} cameras; {ends})"
+
+
 def serve(gaussians: Gaussians, cameras: list[ViewCamera] = (), host: str = "127.0.0.1", port: int = 8080,
           frustum_scale: float = 0.2, duration: float | None = None) -> None:
     """Serve the scene at ``http://host:port`` until interrupted (Ctrl+C) or ``duration`` seconds pass."""
@@ -173,9 +161,7 @@ def serve(gaussians: Gaussians, cameras: list[ViewCamera] = (), host: str = "127
     server = _quiet_server(viser, host, port)
     try:
         scene = build_scene(server, gaussians, cameras, frustum_scale)
-        shown = "localhost" if host in ("0.0.0.0", "::") else host
-        print(f"viewer: http://{shown}:{server.get_port()}  ({len(gaussians):,} Gaussians, "
-              f"{len(scene.frustums)} cameras; Ctrl+C stops)", flush=True)
+        print(serving_line(host, server.get_port(), len(gaussians), len(scene.frustums), duration), flush=True)
         end = None if duration is None else time.monotonic() + duration
         while end is None or time.monotonic() < end:
             time.sleep(0.2 if end is None else max(min(0.2, end - time.monotonic()), 0.0))

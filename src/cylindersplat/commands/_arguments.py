@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+from typing import Any, Callable, Iterator
 
 
 def equirect_resolution(text: str, min_height: int = 1) -> tuple[int, int]:
@@ -27,6 +29,17 @@ def image_resolution(text: str) -> tuple[int, int]:
     if min(size) < 1:
         raise argparse.ArgumentTypeError(f"resolution must be positive, got {text!r}")
     return size
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1; an argparse type."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
 
 
 def model_resolution(text: str) -> tuple[int, int]:
@@ -89,3 +102,15 @@ def fill_list(text: str) -> list[str]:
     if bad or not chosen:
         raise argparse.ArgumentTypeError(f"expected none or a comma list of {', '.join(FILLS)}, got {text!r}")
     return chosen
+
+
+@contextlib.contextmanager
+def memory_advice(advice: str | Callable[[Any], str]) -> Iterator[None]:
+    """Within the block (or the decorated command), the renderer's memory refusal ends in ``advice`` (the
+    command's own options; or ``advice(refusal)``) instead of the library's generic words."""
+    from ..render.rasterize import RenderMemoryError
+
+    try:
+        yield
+    except RenderMemoryError as exc:
+        raise exc.advise(advice(exc) if callable(advice) else advice) from None

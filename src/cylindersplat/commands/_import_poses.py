@@ -11,7 +11,7 @@ FORMATS = ("opensfm", "nerfstudio", "tum", "kitti")
 
 def _run(args: argparse.Namespace) -> int:
     from ..inference.inputs import IMAGE_SUFFIXES
-    from ..inference.pose_formats import (
+    from ..data.pose_formats import (
         PoseRecord,
         match_timestamps_to_images,
         read_kitti,
@@ -27,6 +27,8 @@ def _run(args: argparse.Namespace) -> int:
     if args.fps is not None and args.source_format != "tum":
         raise ValueError("--fps matches TUM timestamps to frame numbers; it does not apply to --from "
                          f"{args.source_format}")
+    if args.start_time is not None and args.fps is None:
+        raise ValueError("--start-time is the timestamp of the first image when matching by --fps; give --fps too")
     if args.source_format == "opensfm":
         records = read_opensfm(source, args.scale, args.reconstruction)
     elif args.source_format == "nerfstudio":
@@ -48,13 +50,15 @@ def _run(args: argparse.Namespace) -> int:
     if args.images is not None:
         if not args.images.is_dir():
             raise FileNotFoundError(f"--images: folder not found: {args.images}")
+        # Each frame keeps its own name: only the folder is resolved, a symlinked image is not followed to its target.
+        folder = args.images.resolve()
         if args.source_format in ("tum", "kitti"):
-            images = sorted(p for p in args.images.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
+            images = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
                             and not p.stem.endswith("_depth"))
-            records = match_timestamps_to_images(records, [os.path.relpath(p.resolve(), base) for p in images],
-                                                 args.fps, source)
+            records = match_timestamps_to_images(records, [os.path.relpath(folder / name, base) for name in images],
+                                                 args.fps, source, _start_time(args.start_time))
         elif args.source_format == "opensfm":
-            records = [PoseRecord(os.path.relpath((args.images / r.image).resolve(), base), r.c2w) for r in records]
+            records = [PoseRecord(os.path.relpath(folder / r.image, base), r.c2w) for r in records]
         else:
             raise ValueError("--images does not apply to --from nerfstudio (its frames name their images)")
         missing = [r.image for r in records if not (base / r.image).is_file()]
@@ -68,6 +72,18 @@ def _run(args: argparse.Namespace) -> int:
     print(f"wrote {len(records)} poses (OpenCV camera-to-world, {args.scale:g} m per source unit) to {path}"
           + (f" with their {named} image names" if named else "; they pair with the folder's images in name order"))
     return 0
+
+
+def _start_time(text: str | None) -> float | str:
+    """--start-time: seconds, or ``first``; default 0."""
+    if text is None:
+        return 0.0
+    if text == "first":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"--start-time must be seconds or 'first', got {text!r}") from None
 
 
 def register(sub) -> None:
@@ -89,6 +105,9 @@ def register(sub) -> None:
     parser.add_argument("--fps", type=float,
                         help="TUM: the pose at time t belongs to image number round(t * fps) of --images (frames "
                         "numbered from 0, as stella_vslam times a video)")
+    parser.add_argument("--start-time", metavar="SECONDS|first",
+                        help="with --fps: the timestamp of image 0 (default 0); 'first' takes the trajectory's first "
+                        "timestamp, for SLAM runs that stamp poses with the clock")
     parser.add_argument("--reconstruction", type=int, default=0,
                         help="OpenSfM: which reconstruction of the file (default 0, the largest)")
     parser.set_defaults(func=_run)

@@ -12,7 +12,7 @@ from ._arguments import device, model_resolution
 def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
     parser.add_argument("--input", required=required, type=Path,
                         help="folder of equirect panoramas + poses.json (OpenCV c2w; see docs/inference.md)")
-    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train / demo), a run folder, or a shipped "
+    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train / demo), a run folder (or its checkpoints/latest), or a shipped "
                         "model name (default: the shipped tiny-synth weights, trained on procedural scenes)")
     parser.add_argument("--poses-file", type=Path, help="poses file (default INPUT/poses.json)")
     parser.add_argument("--resolution", type=model_resolution,
@@ -26,6 +26,16 @@ def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) 
     parser.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
 
 
+def model_size(config, given: tuple[int, int] | None, option: str = "--resolution") -> tuple[int, int]:
+    """``given`` (HxW from ``option``), else the model's own resolution (``config.image_height`` x 2), said in one
+    line: a dataset stored at 512x1024 run through a model made for 64x128 would need 64x the memory and time."""
+    if given:
+        return tuple(given)
+    size = (config.image_height, 2 * config.image_height)
+    print(f"running the model at {size[0]}x{size[1]}, its own resolution ({option} HxW to choose another)")
+    return size
+
+
 def reconstruct_from_args(args: argparse.Namespace):
     """-> (inputs, gaussians, model) for the parsed options; prints what it did."""
     from ..data.depth_prior import parse_depth_prior
@@ -36,7 +46,7 @@ def reconstruct_from_args(args: argparse.Namespace):
         print(f"using the shipped {DEFAULT_PRETRAINED} weights (trained on procedural scenes; --checkpoint for your own)")
     # refuses missing files, pickles, broken or diverged weights by name
     model = from_pretrained(args.checkpoint or DEFAULT_PRETRAINED, map_location=args.device)
-    size = args.resolution or (model.config.image_height, 2 * model.config.image_height)
+    size = model_size(model.config, args.resolution)
     stride = model.config.backbone.token_stride
     if size[0] % stride:
         low = max(stride, size[0] // stride * stride)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
+from ..dataset_layouts import DATASET_LAYOUTS, LAYOUT_ALIASES
 from ._arguments import device, equirect_resolution
 
 PROFILE_NAMES = ("default", "occlusion")  # cylindersplat.data.synth.PROFILES (not imported: keeps the CLI start fast)
@@ -122,12 +123,17 @@ def _priors(args) -> int:
     from ..data.depth_prior.precompute import write_priors
 
     run = write_priors(args.data, args.net, name=args.name, out=args.out, layout=args.layout, split=args.split,
-                       file_format=args.format, resolution=args.resolution, batch_size=args.batch_size,
+                       file_format=args.file_format, resolution=args.resolution, batch_size=args.batch_size,
                        device=args.device, overwrite=args.overwrite, net_size=args.net_size)
     print(f"depth priors {args.net} -> {run.tree}: {run.written} written, {run.skipped} already there "
           f"({run.frames} panoramas, {run.seconds:.1f} s on {args.device}); use them as "
           f"file:{args.name if args.out is None else run.tree}")
     return 0
+
+
+def _dataset_layout(text: str) -> str:
+    """--layout: ``auto`` or a layout name of the registry (an older alias becomes its name); an argparse type."""
+    return text if text == "auto" else LAYOUT_ALIASES.get(text, text)
 
 
 def register(subparsers) -> None:
@@ -219,15 +225,16 @@ def register(subparsers) -> None:
                         "depth_anything_v2:MODEL_DIR_OR_HUB_ID (needs transformers)")
     priors.add_argument("--name", help="prior name: files go to DATA/priors/NAME and are read as file:NAME")
     priors.add_argument("--out", help="write the tree here instead (e.g. for read-only data); read it as file:OUT")
-    priors.add_argument("--format", choices=["png", "npy"], default="png",
-                        help="png: 16-bit millimetres, 0 = unknown, up to 65.5 m (default); npy: float32 metres")
+    priors.add_argument("--file-format", "--format", dest="file_format", choices=["png", "npy"], default="png",
+                        help="png: 16-bit millimetres, 0 = unknown, up to 65.5 m (default); npy: float32 metres "
+                        "(--format is its older name)")
     priors.add_argument("--resolution", type=equirect_resolution,
                         help="HxW the network sees and the files have (default: each panorama's stored size)")
     priors.add_argument("--net-size", type=equirect_resolution,
                         help="exported networks: HxW the network runs at (for networks exported with fixed shapes; "
                         "its output is resized back)")
-    priors.add_argument("--layout", choices=["auto", "synthetic", "pano_grf", "loc360", "input"], default="auto",
-                        help="dataset layout (default: detected)")
+    priors.add_argument("--layout", type=_dataset_layout, choices=["auto", *DATASET_LAYOUTS], default="auto",
+                        help="dataset layout, as train and eval name it (default: detected; 'input' is folder's older name)")
     priors.add_argument("--split", default="all", help="360Loc: train, test or all locations (default all)")
     priors.add_argument("--batch-size", type=int, default=4, help="panoramas per network call (default 4)")
     priors.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")

@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..dataset_layouts import DATASET_LAYOUTS
 from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
-from ._arguments import device, equirect_resolution, fill_list
+from ._arguments import device, equirect_resolution, fill_list, memory_advice
 
 
 RELEASED_RESOLUTION = (256, 512)  # evaluate_mp3d_double_256.py of the authors' released code
@@ -89,6 +90,8 @@ def open_eval_dataset(args, protocol: str, loader_options: dict | None = None):
     resolution = args.resolution
     if resolution is None and protocol == "released":  # the released scoring's size (paper Table 1 matches it)
         resolution = RELEASED_RESOLUTION
+    elif resolution is None:  # a model's own size (set by run), else the stored size
+        resolution = getattr(args, "model_resolution", None)
     return make_dataset(args.format, args.data, views=protocol, split=args.split, resolution=resolution,
                         depth_prior=args.depth_prior, reference=reference, prior_option="--depth-prior",
                         reference_option="--pcc-reference", **options)
@@ -115,18 +118,18 @@ def _apply_preset(args) -> None:
 
 def _detect_format(data) -> str:
     """--format from the folder's layout, by the rule the data commands use (``data info``, ``data priors``)."""
-    from ..data.depth_prior.precompute import detect_layout
+    from ..dataset_layouts import detect_layout
 
     try:
-        layout = detect_layout(data)
+        chosen = detect_layout(data)
     except ValueError:
         raise ValueError(f"{data}: cannot tell the dataset layout (no meta.json, not a png_render_* folder, no 360Loc "
                          "mapping/query_360, no poses.json); name it with --format synthetic|pano_grf|loc360|folder") from None
-    chosen = {"input": "folder"}.get(layout, layout)
     print(f"data layout: {chosen} (detected; --format to choose another)")
     return chosen
 
 
+@memory_advice("use a smaller --resolution (the size everything is scored at), or a GPU (--device cuda)")
 def run(args: argparse.Namespace) -> int:
     from ..evaluation import (
         METRIC_COLUMNS,
@@ -140,6 +143,14 @@ def run(args: argparse.Namespace) -> int:
     from ..metrics import DepthRange, load_lpips
 
     _apply_preset(args)
+    protocols = args.protocols.split(",")
+    if args.resolution is None and not args.no_model and protocols != ["released"]:
+        # the model's size, not the stored one (read from its header); the released protocol keeps its own 256x512
+        from ..model.pretrained import DEFAULT_PRETRAINED, weights_config
+
+        from ._inference import model_size
+
+        args.model_resolution = model_size(weights_config(args.checkpoint or DEFAULT_PRETRAINED), None)
     # Every dataset first: a missing prior or reference fails before any model is loaded.
     runs = eval_runs(args)
     datasets = {label: (protocol, options, open_eval_dataset(args, protocol, options)) for label, protocol, options in runs}
@@ -181,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
                           num_pictures=args.pictures, depth_range=depth_range,
                           pcc_reference="gt" if args.pcc_reference == "gt" else "reference")
         title = PROTOCOL_TITLES.get(protocol, protocol)
-        if protocol == "released" and args.resolution is None:
+        if protocol == "released" and args.resolution is None:  # its own size, whatever the other tables use
             title += f", {RELEASED_RESOLUTION[0]}x{RELEASED_RESOLUTION[1]}"
         if options:
             title += f", {options['context_views']} views, gap {options['gap']}"
@@ -227,7 +238,7 @@ def register(subparsers) -> None:
         ),
     )
     parser.add_argument("--data", required=True, help="dataset folder (synthetic output, png_render_* folder, 360Loc root or a folder of posed panoramas)")
-    parser.add_argument("--format", choices=["synthetic", "pano_grf", "loc360", "folder"],
+    parser.add_argument("--format", "--layout", dest="format", choices=DATASET_LAYOUTS,
                         help="dataset layout (default: the --config preset's, else detected from --data as the data commands do); folder: posed panoramas in the "
                         "input format of docs/inference.md (one folder, or a folder of them), frames held out with "
                         "--targets or by --protocols two_view/one_view/n_view in poses-file order")
@@ -255,7 +266,8 @@ def register(subparsers) -> None:
                         "last scored; default) or released (the released code's three_sample/four_sample: the pair "
                         "--gap apart plus adjacent frames); see docs/evaluation.md")
     parser.add_argument("--out", type=Path, default=Path("outputs/eval"), help="output folder (default outputs/eval)")
-    parser.add_argument("--resolution", type=equirect_resolution, help="evaluate at HxW (default: stored size)")
+    parser.add_argument("--resolution", type=equirect_resolution, help="evaluate at HxW (default: the model's own "
+                        "resolution; with --no-model the stored size; the released protocol: 256x512)")
     parser.add_argument("--split", default="test", help="split of pano_grf / loc360 data (default test)")
     parser.add_argument("--scenes", help="synthetic data: comma list of scene ids to use")
     parser.add_argument("--targets", help="--format folder: comma list of frames (image names or stems) held out as "

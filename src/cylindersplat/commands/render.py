@@ -1,4 +1,4 @@
-"""``cylindersplat render``: posed panoramas (or any 3DGS PLY) -> novel views (RGB + depth), a fly-through, a PLY."""
+"""``cylindersplat render``: posed panoramas (or any 3DGS splat file) -> novel views (RGB + depth), a fly-through, a PLY."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
-from ._arguments import check_output, image_resolution
+from ._arguments import check_output, image_resolution, memory_advice, positive_int
 from ._inference import add_input_arguments, reconstruct_from_args
 
 VIEW_PATTERNS = ("view_*_rgb.png", "view_*_depth.png", "view_*_depth.npy", "view_*_depth_mm.png", "poses.json")
@@ -53,13 +53,20 @@ def camera_record(camera, fov: float | None = None) -> dict:
     return {"model": "equirect", "height": camera.height, "width": camera.width}
 
 
+def _memory_advice(refusal) -> str:
+    """What fixes a render refused for memory, in this command's options."""
+    fewer = "" if refusal.cameras == 1 else f"--view-batch {max(1, refusal.cameras // 2)} (views rendered at once), "
+    return f"use {fewer}a smaller --output-resolution, or a GPU (--device cuda)"
+
+
+@memory_advice(_memory_advice)
 def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..gaussians import save_ply
     from ..inference import depth_limits, flythrough_path, midpoint_poses, read_poses_file, write_flythrough, write_view
     from ..inference.pipeline import iter_views, sampled_depth_limits, write_metric_depth
-    from ..inference.pose_formats import PoseRecord, write_poses_json
+    from ..data.pose_formats import PoseRecord, write_poses_json
     from ..inference.video import video_path_with_fallback
 
     if args.frames < 0:
@@ -78,8 +85,9 @@ def run(args: argparse.Namespace) -> int:
         if note:
             print(note)
     if args.ply:  # an existing 3DGS scene: no model, no input panoramas
-        from ..gaussians import load_ply
+        from ..gaussians.formats import READ_FORMATS, splat_format
 
+        splat_format(args.ply, READ_FORMATS)  # an unknown format fails before anything is read
         if args.input or args.checkpoint:
             raise ValueError("give either --ply or --input/--checkpoint, not both")
         if view_poses is None and path_poses is None:
@@ -93,7 +101,9 @@ def run(args: argparse.Namespace) -> int:
     turn = _yaw(args.yaw)
 
     if args.ply:
-        gaussians = load_ply(args.ply, device=args.device)
+        from ..gaussians import load_gaussians
+
+        gaussians = load_gaussians(args.ply, device=args.device)  # the loader of `view`: every splat format
         print(f"loaded {len(gaussians):,} Gaussians from {args.ply}")
         inputs = None
     else:
@@ -122,7 +132,8 @@ def run(args: argparse.Namespace) -> int:
         view_poses = view_poses @ turn
         view_dir.mkdir(exist_ok=True)
         records, index = [], 0
-        for out in iter_views(gaussians, view_poses, h, w, background, progress=True, desc="novel views", camera=camera):
+        for out in iter_views(gaussians, view_poses, h, w, background, args.view_batch, progress=True, desc="novel views",
+                              camera=camera):
             for k in range(len(out.rgb)):  # written as rendered: memory holds one chunk of views
                 stem = f"view_{index:03d}"
                 write_view(view_dir / f"{stem}_rgb.png", view_dir / f"{stem}_depth.png", out.rgb[k], out.depth[k],
@@ -150,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             frames = flythrough_path(keys, args.frames) @ turn
         written = write_flythrough(video, gaussians, None, h, w, fps=args.fps, near=near, far=far, background=background,
-                                   camera=camera, poses=frames)
+                                   camera=camera, poses=frames, chunk=args.view_batch)
         poses_file = write_poses_json(args.out / "flythrough_poses.json", [PoseRecord(None, p) for p in frames],
                                       fps=args.fps, camera=record)
         print(f"wrote {written} ({len(frames)} frames, RGB above depth) and {poses_file.name}")
@@ -167,8 +178,10 @@ def register(subparsers) -> None:
         "perspective views with --camera pinhole. Input format: docs/inference.md.",
     )
     add_input_arguments(parser, required=False)
-    parser.add_argument("--ply", type=Path, help="render this 3DGS PLY (from cylindersplat or any 3DGS tool) instead of "
-                        "reconstructing; needs --views and/or --camera-path")
+    parser.add_argument("--ply", type=Path, metavar="SPLATS",
+                        help="render this 3DGS scene instead of reconstructing: any splat file `view` reads (.ply, .splat; "
+                        ".spz, .compressed.ply, .sog, .ksplat with splat-transform), from cylindersplat or any 3DGS tool; "
+                        "needs --views and/or --camera-path")
     parser.add_argument("--out", type=Path, default=Path("outputs/render"), help="output folder (default outputs/render)")
     parser.add_argument("--views", type=Path, help="poses file of the views to render: poses.json (any \"convention\") "
                         "or nerfstudio transforms.json")
@@ -181,6 +194,9 @@ def register(subparsers) -> None:
     parser.add_argument("--output-resolution", type=image_resolution,
                         help="HxW of the views and fly-through (default: the input resolution; with --ply 512x1024; "
                         "pinhole: that height at 3:4)")
+    parser.add_argument("--view-batch", type=positive_int, metavar="N",
+                        help="views (and fly-through frames) rendered at once (default: automatic, 4 at a time, fewer "
+                        "when they would not fit in free memory)")
     parser.add_argument("--metric-depth", action="store_true",
                         help="also write each view's depth in metres: view_NNN_depth.npy (float32) and "
                         "view_NNN_depth_mm.png (16-bit millimetres)")

@@ -15,8 +15,6 @@ def run(args: argparse.Namespace) -> int:
     overrides = list(args.overrides)
     if args.data:
         overrides.append(f"data.root={args.data}")
-    if args.out:
-        overrides.append(f"output_dir={args.out}")
     if args.stages:
         overrides.append(f"train.stages=[{args.stages}]")
     if args.steps:
@@ -25,7 +23,15 @@ def run(args: argparse.Namespace) -> int:
         overrides.append(f"train.init={args.init}")
     if args.device:
         overrides.append(f"train.device={args.device}")
-    config = load_config(args.config, overrides)
+    if args.resume is None:
+        if args.out:
+            overrides.append(f"output_dir={args.out}")
+        config = load_config(args.config or "tiny", overrides)
+    else:
+        resume = _resume_point(args)
+        # The run keeps writing into its own folder (wherever it lies now) unless --out forks it elsewhere.
+        overrides.append(f"output_dir={args.out or resume.run_folder}")
+        config = resume.config(overrides)
     if args.print_config:
         import yaml
 
@@ -36,6 +42,12 @@ def run(args: argparse.Namespace) -> int:
     check_output(config.output_dir, folder=True)
     if args.resume is None:
         _refuse_to_trample(Path(config.output_dir), args.overwrite)
+    else:
+        if resume.finished(config):
+            print(f"{resume.run_folder}: the run already finished at step {resume.global_step}; nothing to train "
+                  "(to train longer, give the last stage more steps, e.g. train.steps_per_stage=[...])")
+            return 0
+        _say_resume(resume, config)
     trainer = Trainer(config, resume=args.resume)
     summary = trainer.fit(max_steps=args.max_steps)
     state = "finished" if summary["finished"] else f"stopped at step {summary['global_step']} (resume with --resume {config.output_dir})"
@@ -43,6 +55,30 @@ def run(args: argparse.Namespace) -> int:
     if summary["finished"]:
         print(f"weights: {summary['weights']}")
     return 0
+
+
+def _resume_point(args: argparse.Namespace):
+    """The checkpoint ``--resume`` names, with its saved config; ``--config`` may only name the run's own preset."""
+    from ..training.config import load_config
+    from ..training.resume import find_resume_point
+
+    resume = find_resume_point(args.resume)
+    if args.config is not None:
+        preset_name = load_config(args.config).name
+        if preset_name != resume.saved.get("name"):
+            raise ValueError(f"--resume continues {resume.run_folder} with its own config (preset "
+                             f"{resume.saved.get('name')!r}), not --config {args.config}; leave out --config and change "
+                             "single settings with KEY=VALUE (e.g. train.steps_per_stage=[8])")
+    return resume
+
+
+def _say_resume(resume, config) -> None:
+    """One line: where the run continues, and every setting the command line changed (e.g. the schedule)."""
+    from ..training.resume import config_changes
+
+    changes = [c for c in config_changes(resume.saved, config) if not c.startswith("output_dir ")]
+    said = f"; changed on the command line: {'; '.join(changes)}" if changes else " (unchanged)"
+    print(f"resuming {resume.checkpoint} at step {resume.global_step} with the run's own config{said}", flush=True)
 
 
 # What a run writes into its folder (``--overwrite`` removes exactly these, nothing else of the user's).
@@ -72,18 +108,22 @@ def register(subparsers) -> None:
             "is read, then every KEY=VALUE override (e.g. train.lr=3e-4 model.volume.init=isolated "
             "data.resolution=[128,256]) is applied; unknown keys are errors. Stages: 1 pixel branch, "
             "2 volume branch (pixel frozen), 3 joint. Checkpoints (safetensors weights + training "
-            "state) go to OUTPUT_DIR/checkpoints; --resume continues a killed run exactly. "
+            "state) go to OUTPUT_DIR/checkpoints; --resume RUN continues a killed run exactly, with the "
+            "config it was started with. "
             "Several GPUs: torchrun --nproc_per_node=N -m cylindersplat train ... (see docs/training.md)."
         ),
     )
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides (YAML values)")
-    parser.add_argument("--config", default="tiny", help="preset name (tiny, paper, finetune_360loc) or YAML path (default tiny)")
+    parser.add_argument("--config", help="preset name (tiny, paper, finetune_360loc) or YAML path (default tiny; "
+                        "with --resume, the run's own config)")
     parser.add_argument("--data", help="dataset folder (same as data.root=...)")
     parser.add_argument("--out", help="run folder for checkpoints, logs, weights (same as output_dir=...)")
     parser.add_argument("--stages", help="comma list of curriculum stages to run, e.g. 1,2,3 or 3 (same as train.stages)")
     parser.add_argument("--steps", help="optimizer steps per stage: one number or a comma list per stage")
     parser.add_argument("--init", help="model.safetensors to start from (fine-tuning)")
-    parser.add_argument("--resume", help="run folder or checkpoint to continue from (must use the same stages)")
+    parser.add_argument("--resume", metavar="RUN",
+                        help="run folder or checkpoint to continue, with the run's own config and schedule; "
+                             "KEY=VALUE settings given with it change that config (and are reported)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the run already in the output folder (its checkpoints, logs and weights)")
     parser.add_argument("--max-steps", type=int, help="stop (with a checkpoint) after this many steps of this call")

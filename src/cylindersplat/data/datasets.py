@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Callable
 
 from .base import FrameRef, PanoramaDataset
+from ..dataset_layouts import DATASET_LAYOUTS, layout_name
 from .depth_prior import FilePrior, MissingPrior, NoPrior, StoredDepthPrior, parse_depth_prior, require_depth_prior
 from .folder import FolderDataset
 from .loc360 import Loc360Dataset
@@ -57,6 +58,8 @@ def _folder(root, *, views="all_inputs", split=None, **kwargs) -> PanoramaDatase
 # layout name -> loader(root, *, views, split, resolution, depth_prior, **layout options)
 DATASETS: dict[str, Callable[..., PanoramaDataset]] = {"synthetic": _synthetic, "pano_grf": _pano_grf, "loc360": _loc360,
                                                        "folder": _folder}
+
+assert tuple(DATASETS) == DATASET_LAYOUTS  # one vocabulary: the names every command offers (dataset_layouts.py)
 
 REFERENCES = ("gt", "prior", "none", "file:NAME")
 
@@ -142,8 +145,7 @@ def make_dataset(
     ``options`` go to the loader (``scenes=[...]`` for synthetic data, ``dist=`` for PanoGRF, ...);
     ``prior_option`` / ``reference_option`` name the settings in error messages.
     """
-    if layout not in DATASETS:
-        raise ValueError(f"unknown dataset format {layout!r}; expected one of {', '.join(DATASETS)}")
+    layout = layout_name(layout)
     if not root:
         raise ValueError("no dataset folder given (data.root / --data), e.g. one from `cylindersplat data synth`")
     check_reference_spec(reference, reference_option)

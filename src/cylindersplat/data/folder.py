@@ -22,7 +22,7 @@ or gives only poses, matched to the folder's images in name order::
 Poses are OpenCV camera-to-world (+x right, +y down, +z forward; 3x4 or 4x4) in metres, unless
 ``"convention"`` says ``opengl_c2w``/``blender_c2w`` (+y up, +z back), ``opencv_w2c`` or ``opengl_w2c``. A folder
 with a nerfstudio ``transforms.json`` (``"camera_model": "EQUIRECTANGULAR"``) instead of ``poses.json`` is read
-as well (:mod:`cylindersplat.inference.pose_formats`). Every problem (missing/corrupt file, non-2:1 image, count
+as well (:mod:`cylindersplat.data.pose_formats`, which owns every pose convention). Every problem (missing/corrupt file, non-2:1 image, count
 mismatch, non-finite or non-rigid pose, depth of the wrong size) raises an error naming the file.
 
 :class:`FolderDataset` reads such folders through the machinery every dataset shares
@@ -44,11 +44,12 @@ from typing import Sequence
 import torch
 from torch import Tensor
 
-from ..geometry import validate_c2w
 from .base import ExampleRef, FrameRef, PanoramaDataset
 from .depth_prior.base import DepthPrior, MissingPrior, StoredDepthPrior
 from .depth_prior.files import PRIORS_DIR
 from .io import DEPTH_PNG_SCALE
+from .pose_formats import (POSE_CONVENTIONS, is_transforms_json, parse_pose_matrix, read_transforms_json,
+                           to_opencv_c2w)
 from .views import ViewSplit, select_views
 
 __all__ = ["FolderDataset", "FOLDER_VIEWS", "IMAGE_SUFFIXES", "POSES_FILE", "TRANSFORMS_FILE", "POSE_CONVENTIONS",
@@ -58,10 +59,6 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".bmp", ".tif", ".tiff")
 POSES_FILE = "poses.json"
 TRANSFORMS_FILE = "transforms.json"  # nerfstudio's format, read when a folder has no poses.json
 
-# Pose conventions a poses file may declare ("convention"), each mapped to OpenCV camera-to-world.
-_GL_TO_CV = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))  # +y up, +z back -> +y down, +z forward
-POSE_CONVENTIONS = ("opencv_c2w", "opengl_c2w", "blender_c2w", "opencv_w2c", "opengl_w2c")
-
 # Views of a folder: every frame an input (no target), the frames named by `targets` held out, or a protocol.
 FOLDER_VIEWS = ("all_inputs", "held_out", "two_view", "one_view", "n_view")
 
@@ -69,36 +66,9 @@ FOLDER_VIEWS = ("all_inputs", "held_out", "two_view", "one_view", "n_view")
 # --- the poses file ---------------------------------------------------------------------------------------
 
 
-def _all_numbers(value) -> bool:
-    """Nested lists of JSON numbers only (no strings, booleans or nulls, which torch would convert or choke on)."""
-    if isinstance(value, list):
-        return all(_all_numbers(v) for v in value)
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
 def _parse_pose(value, where: str, convention: str = "opencv_c2w") -> Tensor:
-    if not isinstance(value, list) or not _all_numbers(value):
-        raise ValueError(f"{where}: pose must be a 3x4 or 4x4 list of numbers, got {value!r:.80}")
-    try:
-        pose = torch.tensor(value, dtype=torch.float64)
-    except (TypeError, ValueError) as exc:  # ragged rows
-        raise ValueError(f"{where}: pose must be a 3x4 or 4x4 list of numbers ({exc})") from None
-    if pose.shape == (3, 4):
-        pose = torch.cat((pose, torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=pose.dtype)))
-    if pose.shape != (4, 4):
-        raise ValueError(f"{where}: pose must be 3x4 or 4x4, got shape {tuple(pose.shape)}")
-    validate_c2w(pose, name=where)  # finite, orthonormal rotation (det +1), last row 0 0 0 1
-    return _to_opencv_c2w(pose, convention).float()
-
-
-def _to_opencv_c2w(pose: Tensor, convention: str) -> Tensor:
-    if convention.endswith("_w2c"):
-        rot, t = pose[:3, :3], pose[:3, 3]
-        pose = torch.eye(4, dtype=pose.dtype)
-        pose[:3, :3], pose[:3, 3] = rot.T, -rot.T @ t
-    if convention.startswith(("opengl", "blender")):
-        pose = pose @ _GL_TO_CV.to(pose.dtype)
-    return pose
+    """One pose of a poses file as OpenCV c2w (float32); the conversion is :mod:`.pose_formats`'."""
+    return to_opencv_c2w(parse_pose_matrix(value, where), convention).float()
 
 
 def read_poses_file(path: str | Path) -> list[tuple[str | None, Tensor, str | None]]:
@@ -123,8 +93,6 @@ def _read_poses(path: str | Path) -> tuple[list[tuple[str | None, Tensor, str | 
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
-    from ..inference.pose_formats import is_transforms_json, read_transforms_json  # (inference imports data)
-
     if is_transforms_json(data):  # nerfstudio: OpenGL c2w of EQUIRECTANGULAR frames
         records = read_transforms_json(path, data=data)
         return [(r.image, r.c2w.float(), r.depth) for r in records], True, _depth_scale(data, path)

@@ -16,7 +16,7 @@ repository chengzhag/PanSplat): ``(rot, tran)`` is a Habitat camera-to-world pos
 y up, z backward; world y up). PanSplat builds ``c2w = W @ [rot | tran] @ C`` with the fixed
 world change ``W`` = rows ``(1,0,0), (0,0,-1), (0,1,0)`` (a z-up world) and the camera flip
 ``C = diag(1, -1, -1)`` (Habitat camera -> OpenCV camera). We use the same camera flip but the
-world change ``diag(1, -1, -1)`` instead of ``W``, so that world +y is gravity-down as DESIGN.md
+world change ``diag(1, -1, -1)`` instead of ``W``, so that world +y is gravity-down as docs/conventions.md
 asks; the two worlds differ by one fixed rotation, so all relative poses (and every reprojection)
 are identical to PanSplat's. With identity rotations the result is ``c2w = [I | diag(1,-1,-1) tran]``;
 the test ``tests/test_data_pano_grf.py`` proves the convention on a real triplet by reprojection.
@@ -39,7 +39,8 @@ from .views import select_views
 __all__ = ["PanoGRFDataset", "panogrf_c2w", "panogrf_folder_name", "PANOGRF_NAMES"]
 
 PANOGRF_NAMES = ("m3d", "replica", "residential")
-_FOLDER = re.compile(r"png_render_(?P<split>\w+?)_(?P<w>\d+)x(?P<h>\d+)_seq_len_(?P<n>\d+)_(?P<name>\w+?)_dist_(?P<d>[\d.]+)")
+# Any text after "_dist_": PanoGRF's own folders end in a distance (0.5, 1.0, ...), others in e.g. "var".
+_FOLDER = re.compile(r"png_render_(?P<split>\w+?)_(?P<w>\d+)x(?P<h>\d+)_seq_len_(?P<n>\d+)_(?P<name>\w+?)_dist_(?P<d>.+)")
 _HABITAT_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
 
 
@@ -49,6 +50,13 @@ def panogrf_c2w(rot: np.ndarray, tran: np.ndarray) -> Tensor:
     c2w[:3, :3] = _HABITAT_TO_OPENCV @ rot @ _HABITAT_TO_OPENCV
     c2w[:3, 3] = _HABITAT_TO_OPENCV @ tran
     return torch.from_numpy(c2w).float()
+
+
+def _distance(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:
+        return None
 
 
 def panogrf_folder_name(split: str, size: tuple[int, int], name: str, dist: float | str) -> str:
@@ -83,7 +91,10 @@ class PanoGRFDataset(PanoramaDataset):
         folder = Path(folder)
         if not _FOLDER.fullmatch(folder.name):
             if stored_size is None:
-                raise ValueError(f"{folder}: not a png_render_* folder; pass stored_size=(H, W) to locate one inside")
+                inside = sorted(p.name for p in folder.glob("png_render_*") if _FOLDER.fullmatch(p.name))
+                hint = f" (here: {', '.join(inside[:3])}{' ...' if len(inside) > 3 else ''})" if inside else ""
+                raise ValueError(f"{folder}: not a png_render_{{split}}_{{W}}x{{H}}_seq_len_3_{{name}}_dist_{{d}} folder; "
+                                 f"give that folder itself as --data (data.root){hint}")
             folder = folder / panogrf_folder_name(split, stored_size, name, dist)
         match = _FOLDER.fullmatch(folder.name)
         if not folder.is_dir():
@@ -93,7 +104,7 @@ class PanoGRFDataset(PanoramaDataset):
         self.folder = self.data_root = folder
         self.name = match["name"]
         self.dataset_name = self.name
-        self.dist = float(match["d"])
+        self.dist = _distance(match["d"])  # None where the suffix is no distance (e.g. dist_var)
         self.split = match["split"]
         self.views = views
         # (a `priors` folder holds depth priors written by `cylindersplat data priors`, not a scene)
@@ -120,5 +131,5 @@ class PanoGRFDataset(PanoramaDataset):
             )
             for d in frame_dirs
         ]
-        meta = {"dist": self.dist, "nominal_baseline": 2 * self.dist, "split": self.split}
+        meta = {"dist": self.dist, "nominal_baseline": None if self.dist is None else 2 * self.dist, "split": self.split}
         return ExampleRef(scene, frames, select_views(len(frames), self.views), meta)

@@ -13,6 +13,7 @@ from PIL import Image
 from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
 from .base import FrameRef, PanoramaDataset, _baseline
+from ..dataset_layouts import detect_layout  # the rule of every command
 from .depth_prior.base import NoPrior
 from .folder import FolderDataset
 from .io import read_depth_npy, read_depth_png, to_uint8
@@ -30,17 +31,15 @@ def open_dataset(path: str | Path, resolution: tuple[int, int] | None = None, vi
     (``poses.json`` or ``transforms.json``, or a folder of such folders). ``views`` defaults to ``n_view`` (every
     frame of a 3-frame sequence), for a folder of panoramas to ``all_inputs`` (every frame, in poses-file order,
     whatever their number); ``targets`` (folders only) holds those frames out, as ``eval --targets`` does."""
-    from .depth_prior.precompute import detect_layout  # the rule `data priors` uses: both commands agree
-
     path = Path(path)
     try:
         layout = detect_layout(path)
     except ValueError:  # none it knows (a missing folder keeps its FileNotFoundError)
         layout = None
-    if targets and layout != "input":
+    if targets and layout != "folder":
         raise ValueError(f"{path}: targets hold out frames of a folder of posed panoramas (poses.json), "
                          "not of a synthetic or png_render_* dataset; choose views (--views) there")
-    if layout == "input":  # depth files only as ground truth: pictures and occlusion need no prior
+    if layout == "folder":  # depth files only as ground truth: pictures and occlusion need no prior
         return FolderDataset(path, views=views or "all_inputs", targets=targets, resolution=resolution,
                              depth_prior=NoPrior(), depth_files="reference")
     views = views or "n_view"

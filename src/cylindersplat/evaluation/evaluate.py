@@ -17,6 +17,7 @@ from ..data.occlusion import occluded_fraction, occluded_mask
 from ..inference.pipeline import depth_limits, normalized_depth
 from ..metrics import DepthRange, abs_rel, delta1, lrce, pcc, psnr, rmse, ssim, ws_psnr
 from ..utils.colormap import colorize_depth
+from ..utils.picture_grid import picture_grid
 from .masked import MIN_OCCLUDED_PIXELS, masked_l1, masked_psnr, masked_ws_psnr
 from .methods import Method
 
@@ -150,22 +151,17 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
 
 
 def comparison_image(target_rgb, target_depth, renders: dict, labels: bool = True) -> np.ndarray:
-    """uint8 grid, one row per source (ground truth first, then each method): RGB | depth colormap."""
+    """uint8 grid, one row per source (ground truth first, then each method): RGB | depth colormap; with
+    ``labels``, column titles on top and each row's name above it (:func:`~cylindersplat.utils.picture_grid.picture_grid`)."""
     near, far = depth_limits(target_depth) if target_depth is not None else (None, None)
-    rows = []
     blank = np.zeros_like(to_uint8(target_rgb))
     gt_depth = colorize_depth(target_depth, near, far, as_uint8=True) if target_depth is not None else blank
-    rows.append(("ground truth", to_uint8(target_rgb), gt_depth))
+    rows = [("ground truth", to_uint8(target_rgb), gt_depth)]
     for name, (rgb, depth, alpha) in renders.items():
         d = normalized_depth(depth, alpha)
         rows.append((name, to_uint8(rgb), colorize_depth(d, near, far, as_uint8=True)))
-    gap = 4
-    h, w = rows[0][1].shape[:2]
-    sheet = np.full((len(rows) * (h + gap) - gap, 2 * w + gap, 3), 255, np.uint8)
-    for r, (_, rgb, depth) in enumerate(rows):
-        sheet[r * (h + gap): r * (h + gap) + h, :w] = rgb
-        sheet[r * (h + gap): r * (h + gap) + h, w + gap:] = depth
-    return sheet
+    return picture_grid([[rgb, depth] for _, rgb, depth in rows], [name for name, _, _ in rows] if labels else None,
+                        ["RGB", "depth (near blue, far red)"] if labels else None)
 
 
 def evaluate(

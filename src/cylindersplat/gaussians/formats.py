@@ -1,6 +1,6 @@
 """Every splat file format by its name: ``save_gaussians`` / ``load_gaussians``.
 
-* ``.ply`` (standard 3DGS PLY, all SH) and ``.splat`` (32 bytes per Gaussian) are written here
+* ``.ply`` (standard 3DGS PLY, all SH) and ``.splat`` (32 bytes per Gaussian) are written and read here
   (:mod:`.ply`, :mod:`.splat`);
 * ``.spz`` (Niantic's compressed format), ``.compressed.ply`` (PlayCanvas / SuperSplat's chunked
   quantised PLY) and ``.sog`` (PlayCanvas's WebP-texture bundle) go through PlayCanvas
@@ -8,6 +8,9 @@
   PLY and it writes the format (its ``.spz`` writer is Niantic's reference encoder compiled to
   WebAssembly). Reading those formats (and ``.ksplat``) converts them back to a standard PLY the same
   way. No encoder for these formats is written here.
+
+:func:`load_gaussians` is the one reader of every format: every command that takes a splat file (``view``,
+``render --ply``) goes through it.
 
 splat-transform is found through ``$CYLINDERSPLAT_SPLAT_TRANSFORM`` (its executable, or a command such
 as ``npx @playcanvas/splat-transform``), then ``splat-transform`` on ``PATH``, then
@@ -30,7 +33,7 @@ import torch
 from ..utils.atomic import atomic_path
 from .container import Gaussians
 from .ply import load_ply, save_ply
-from .splat import save_splat
+from .splat import load_splat, save_splat
 
 __all__ = [
     "SPLAT_TRANSFORM_ENV", "SPLAT_TRANSFORM_INSTALL", "SplatTransformError", "WRITE_FORMATS", "READ_FORMATS",
@@ -50,9 +53,8 @@ WRITE_FORMATS = {
     ".spz": "Niantic SPZ (quantised, zstd/gzip)",
     ".sog": "PlayCanvas SOG (WebP textures, k-means codebooks)",
 }
-#: Input formats (the PLY is read here, the others through splat-transform).
+#: Input formats (the PLY and .splat are read here, the others through splat-transform).
 READ_FORMATS = (".ply", ".compressed.ply", ".spz", ".sog", ".splat", ".ksplat")
-_SPLAT_TRANSFORM_FORMATS = (".compressed.ply", ".spz", ".sog", ".splat", ".ksplat")
 
 
 class SplatTransformError(ValueError):
@@ -148,6 +150,8 @@ def load_gaussians(path: str | Path, device=None, dtype=torch.float32) -> Gaussi
     fmt = splat_format(path, READ_FORMATS)
     if fmt == ".ply" and not _looks_compressed_ply(path):
         return load_ply(path, device=device, dtype=dtype)
+    if fmt == ".splat":
+        return load_splat(path, device=device, dtype=dtype)
     command = require_splat_transform(f"reading {path.name}")
     with tempfile.TemporaryDirectory(prefix="cylindersplat-") as work:
         source = Path(work) / ("in" + (".compressed.ply" if fmt == ".ply" else fmt))

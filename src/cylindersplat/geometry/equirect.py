@@ -1,4 +1,4 @@
-"""Equirectangular image <-> ray geometry (DESIGN.md section 2).
+"""Equirectangular image <-> ray geometry (docs/conventions.md).
 
 Conventions, shared by every module:
 
@@ -116,7 +116,7 @@ def equirect_jacobian(
 ) -> Float[Tensor, "*batch 2 3"]:
     """Jacobian d(u, v)/d(x, y, z) of the equirect projection at camera-frame points.
 
-    This is the *corrected* Jacobian (DESIGN.md section 3): the paper prints d v/d x with the
+    This is the *corrected* Jacobian (docs/conventions.md, "Rendering"): the paper prints d v/d x with the
     wrong sign (``+H/pi * x y / (r^2 rho)``); its d v/d z is right (``tests/test_geometry.py``
     checks every entry against autograd)::
 

@@ -94,7 +94,7 @@ def make_c2w(rotation: Tensor | None = None, translation: Tensor | None = None, 
 def look_at_c2w(eye: Tensor, target: Tensor, down: Tensor | None = None) -> Tensor:
     """OpenCV ``c2w`` at ``eye`` looking at ``target`` with camera +y as close to ``down`` as possible.
 
-    ``down`` defaults to world +y (gravity-down convention of DESIGN.md).
+    ``down`` defaults to world +y (gravity-down convention of docs/conventions.md).
     """
     if down is None:
         down = torch.tensor([0.0, 1.0, 0.0], dtype=eye.dtype, device=eye.device).expand_as(eye)

@@ -1,4 +1,4 @@
-"""Coordinate systems of a camera's local triplane volume (DESIGN.md section 2, paper Eq. 3-5).
+"""Coordinate systems of a camera's local triplane volume (docs/conventions.md, paper Eq. 3-5).
 
 Each system maps its own coordinates ``q = (q0, q1, q2)`` to camera-frame Cartesian points and
 back, gives the Jacobian ``d xyz / d q`` (3x3, column k = derivative w.r.t. ``q_k``), its bounds,

@@ -15,7 +15,7 @@ from .pipeline import (
     write_metric_depth,
     write_view,
 )
-from .pose_formats import (
+from ..data.pose_formats import (
     PoseRecord,
     read_kitti,
     read_opensfm,

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import math
-import sys
-import time
+import warnings
 from pathlib import Path
 from typing import Iterator
 
@@ -12,15 +11,17 @@ import numpy as np
 import torch
 from jaxtyping import Float
 from torch import Tensor
-from tqdm.auto import tqdm
 
 from ..data.io import DEPTH_PNG_SCALE, to_uint8, write_depth_png, write_rgb
 from ..gaussians import Gaussians
 from ..render import Equirect, render
 from ..render.api import RenderOutput
 from ..render.cameras import CameraModel
+from ..render.rasterize import RenderMemoryError
 from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
+from ..utils.notices import Notice
+from ..utils.progress import Progress
 from .camera_path import flythrough_path
 from .memory import check_forward_memory
 from .video import VideoWriter
@@ -59,30 +60,7 @@ def reconstruct_gaussians(
     return gaussians
 
 
-class _Progress:
-    """Progress over ``total`` items: a tqdm bar on a terminal; where stderr is not one (log files, pipes),
-    one line at each quarter instead of a bar's carriage returns; nothing when disabled."""
-
-    def __init__(self, total: int, desc: str, unit: str, enabled: bool = True) -> None:
-        self.total, self.desc, self.unit, self.done = total, desc, unit, 0
-        self.enabled = enabled and total > 0
-        self._bar = tqdm(total=total, desc=desc, unit=unit) if self.enabled and sys.stderr.isatty() else None
-        self._marks = sorted({max(1, round(total * q / 4)) for q in (1, 2, 3, 4)})
-        self._start = time.perf_counter()
-
-    def update(self, n: int) -> None:
-        before, self.done = self.done, self.done + n
-        if not self.enabled:
-            return
-        if self._bar is not None:
-            self._bar.update(n)
-        elif any(before < mark <= self.done for mark in self._marks):
-            print(f"{self.desc}: {self.done}/{self.total} {self.unit}s ({time.perf_counter() - self._start:.1f} s)",
-                  file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
+AUTO_VIEWS_AT_ONCE = 4  # the first batch size of automatic batching (halved while a batch does not fit)
 
 
 @torch.no_grad()
@@ -92,7 +70,7 @@ def iter_views(
     height: int,
     width: int,
     background=(0.0, 0.0, 0.0),
-    chunk: int = 4,
+    chunk: int | None = None,
     progress: bool = False,
     desc: str = "render",
     camera: CameraModel | None = None,
@@ -100,17 +78,31 @@ def iter_views(
 ) -> Iterator[RenderOutput]:
     """Render ``K`` views ``chunk`` cameras at a time, yielding each chunk (on the CPU) as soon as it is
     done: a caller that writes and drops them holds at most ``chunk`` views. ``camera``: any camera
-    model (default ``Equirect(height, width)``; e.g. ``Pinhole(K, height, width)``)."""
-    if chunk < 1:
+    model (default ``Equirect(height, width)``; e.g. ``Pinhole(K, height, width)``).
+
+    ``chunk=None`` batches automatically: :data:`AUTO_VIEWS_AT_ONCE` views at a time, halved (down to one, with
+    a :class:`~cylindersplat.utils.notices.Notice`) whenever the renderer refuses a batch for memory
+    (:class:`~cylindersplat.render.rasterize.RenderMemoryError`, raised before it allocates). A fixed ``chunk``
+    is kept: its refusal is raised."""
+    if chunk is not None and chunk < 1:
         raise ValueError(f"chunk must be >= 1, got {chunk}")
     camera = camera if camera is not None else Equirect(height, width)
     if (camera.height, camera.width) != (height, width):
         raise ValueError(f"camera is {camera.height}x{camera.width} but {height}x{width} was asked for")
     device = gaussians.device
-    bar = _Progress(len(c2w), desc, unit, progress)
+    bar = Progress(len(c2w), desc, unit, progress)
+    at_once, start = chunk or AUTO_VIEWS_AT_ONCE, 0
     try:
-        for start in range(0, len(c2w), chunk):
-            out = render(gaussians, c2w[start:start + chunk].to(device), camera, background=background)
+        while start < len(c2w):
+            try:
+                out = render(gaussians, c2w[start:start + at_once].to(device), camera, background=background)
+            except RenderMemoryError:
+                if chunk is not None or at_once == 1 or len(c2w) - start == 1:
+                    raise
+                at_once = min(at_once, len(c2w) - start) // 2
+                warnings.warn(f"{desc}: {at_once} {unit}(s) at a time to fit in free memory", Notice, stacklevel=2)
+                continue
+            start += len(out.rgb)
             bar.update(len(out.rgb))
             yield RenderOutput(out.rgb.cpu(), out.depth.cpu(), out.alpha.cpu())
     finally:
@@ -123,13 +115,13 @@ def render_views(
     height: int,
     width: int,
     background=(0.0, 0.0, 0.0),
-    chunk: int = 4,
+    chunk: int | None = None,
     progress: bool = False,
     desc: str = "render",
     camera: CameraModel | None = None,
 ) -> RenderOutput:
     """Render ``K`` views (default panoramas; ``camera`` any camera model) in chunks of ``chunk`` cameras
-    (bounded render memory); all results on the CPU, stacked."""
+    (bounded render memory; None: automatic, see :func:`iter_views`); all results on the CPU, stacked."""
     parts = list(iter_views(gaussians, c2w, height, width, background, chunk, progress, desc, camera))
     return RenderOutput(*(torch.cat([getattr(p, k) for p in parts]) for k in ("rgb", "depth", "alpha")))
 
@@ -193,8 +185,8 @@ def sampled_depth_limits(gaussians: Gaussians, c2w: Float[Tensor, "K 4 4"], samp
     """:func:`depth_limits` of small panoramas at up to ``samples`` poses spread over ``c2w``: a colormap
     range known before the views themselves are rendered (so they can be written as they come)."""
     index = torch.linspace(0, len(c2w) - 1, min(samples, len(c2w))).round().long().unique()
-    out = render(gaussians, c2w[index].to(gaussians.device), Equirect(*size))
-    return depth_limits(normalized_depth(out.depth, out.alpha).cpu())
+    out = render_views(gaussians, c2w[index], *size)  # batched to fit memory, as the views themselves
+    return depth_limits(normalized_depth(out.depth, out.alpha))
 
 
 def write_flythrough(
@@ -210,13 +202,13 @@ def write_flythrough(
     background=(0.0, 0.0, 0.0),
     camera: CameraModel | None = None,
     poses: Float[Tensor, "K 4 4"] | None = None,
-    chunk: int = 2,
+    chunk: int | None = 2,
     progress: bool = True,
 ) -> Path:
     """Render a looped path of ``frames`` poses through the cameras ``c2w`` (or exactly the poses ``poses``,
     one frame each) as RGB above depth and stream the frames into a video (``.gif``, or ``.mp4``/``.webm``
-    with ffmpeg): ``chunk`` frames are rendered at a time and written at once, so memory never holds the
-    whole video. ``camera``: default panoramas, or e.g. ``Pinhole(K, height, width)`` for a perspective
+    with ffmpeg): ``chunk`` frames are rendered at a time (None: automatic, see :func:`iter_views`) and written
+    at once, so memory never holds the whole video. ``camera``: default panoramas, or e.g. ``Pinhole(K, height, width)`` for a perspective
     fly-through. Returns the video's path; nothing is left at ``path`` if rendering or writing fails."""
     if poses is None:
         poses = flythrough_path(c2w, frames, loop=True)

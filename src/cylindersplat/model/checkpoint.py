@@ -12,10 +12,10 @@ import torch
 from safetensors.torch import load_file, save
 from safetensors import safe_open
 
-from .config import config_from_dict, config_to_dict
+from .config import ModelConfig, config_from_dict, config_to_dict
 from .cylindersplat import CylinderSplat
 
-__all__ = ["save_model", "load_model"]
+__all__ = ["save_model", "load_model", "read_model_config"]
 
 CONFIG_KEY = "cylindersplat_config"
 
@@ -51,9 +51,8 @@ def check_weights_file(path: str | Path) -> None:
         raise ValueError(f"{path} is not a .safetensors weights file ({path.stat().st_size} bytes): {WEIGHTS_HINT}")
 
 
-def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> CylinderSplat:
-    """The model saved by :func:`save_model`. A folder, a missing, truncated, foreign or diverged file, or
-    weights that do not fit their stored config raise ``ValueError``/``FileNotFoundError`` naming ``path``."""
+def read_model_config(path: str | Path) -> ModelConfig:
+    """The model config stored with the weights of :func:`save_model` (the header only: no tensor is read)."""
     path = Path(path)
     check_weights_file(path)
     try:
@@ -64,9 +63,19 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> Cy
     if CONFIG_KEY not in metadata:
         raise ValueError(f"{path} has no {CONFIG_KEY!r} metadata; was it written by save_model? ({WEIGHTS_HINT})")
     try:
-        config = config_from_dict(json.loads(metadata[CONFIG_KEY]))
-        model = CylinderSplat(config)
+        return config_from_dict(json.loads(metadata[CONFIG_KEY]))
     except (ValueError, TypeError, AttributeError) as exc:  # JSON errors are ValueErrors
+        raise ValueError(f"{path}: its model config cannot be read by this version of cylindersplat ({exc})") from None
+
+
+def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> CylinderSplat:
+    """The model saved by :func:`save_model`. A folder, a missing, truncated, foreign or diverged file, or
+    weights that do not fit their stored config raise ``ValueError``/``FileNotFoundError`` naming ``path``."""
+    path = Path(path)
+    config = read_model_config(path)
+    try:
+        model = CylinderSplat(config)
+    except (ValueError, TypeError, AttributeError) as exc:
         raise ValueError(f"{path}: its model config cannot be read by this version of cylindersplat ({exc})") from None
     try:
         state = load_file(str(path), device=str(map_location))

@@ -12,15 +12,18 @@ weights can be published the same way later.
 
 from __future__ import annotations
 
+import warnings
 from importlib import resources
 from pathlib import Path
 
 import torch
 
-from .checkpoint import check_weights_file, load_model
+from ..utils.notices import Notice
+from .checkpoint import check_weights_file, load_model, read_model_config
+from .config import ModelConfig
 from .cylindersplat import CylinderSplat
 
-__all__ = ["PRETRAINED", "DEFAULT_PRETRAINED", "pretrained_path", "resolve_weights", "from_pretrained"]
+__all__ = ["PRETRAINED", "DEFAULT_PRETRAINED", "pretrained_path", "resolve_weights", "weights_config", "from_pretrained"]
 
 # name -> (file inside cylindersplat/weights, what it is)
 PRETRAINED: dict[str, tuple[str, str]] = {
@@ -51,8 +54,28 @@ def resolve_weights(name_or_path: str | Path = DEFAULT_PRETRAINED) -> Path:
     path = Path(name_or_path)
     if path.is_dir() and (path / "model.safetensors").is_file():
         path = path / "model.safetensors"
+    else:
+        path = _checkpoint_weights(path) or path
     check_weights_file(path)
     return path
+
+
+def _checkpoint_weights(path: Path) -> Path | None:
+    """The weights a training run's ``checkpoints/latest`` pointer names, for ``path`` = that pointer file, the
+    ``checkpoints`` folder, or a run folder without final weights (an unfinished run); else None."""
+    for pointer in (path, path / "latest", path / "checkpoints" / "latest"):
+        if pointer.name == "latest" and pointer.is_file() and pointer.stat().st_size < 256:
+            target = pointer.parent / pointer.read_text().strip() / "model.safetensors"
+            if pointer != path:  # a folder was given: say which weights it stands for
+                warnings.warn(f"{path} has no final model.safetensors: using its latest checkpoint {target}", Notice,
+                              stacklevel=3)
+            return target
+    return None
+
+
+def weights_config(name_or_path: str | Path = DEFAULT_PRETRAINED) -> ModelConfig:
+    """The model config of :func:`resolve_weights`' file, without loading the weights."""
+    return read_model_config(resolve_weights(name_or_path))
 
 
 def from_pretrained(name_or_path: str | Path = DEFAULT_PRETRAINED, map_location: str | torch.device = "cpu") -> CylinderSplat:

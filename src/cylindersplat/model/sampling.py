@@ -2,7 +2,7 @@
 
 Used for everything that reads a panorama (wrap along ``u``) or a triplane plane (wrap along
 ``theta``). Coordinates are *continuous cell coordinates* with the pixel-centre convention of
-DESIGN.md: cell ``j`` covers ``[j, j + 1)`` and its centre is ``j + 0.5``. On a wrapped axis the
+docs/conventions.md: cell ``j`` covers ``[j, j + 1)`` and its centre is ``j + 0.5``. On a wrapped axis the
 coordinate is taken modulo the size, so ``x`` and ``x + size`` read the same value and sampling
 between the last and the first cell interpolates across the seam. On a clamped axis samples
 outside ``[0.5, size - 0.5]`` take the border value.

@@ -123,7 +123,26 @@ BYTES_PER_FRAGMENT = 400
 
 
 class RenderMemoryError(MemoryError):
-    """The reference rasterizer would need more memory than the device has free."""
+    """The reference rasterizer would need more memory than the device has free.
+
+    Attributes: ``need``/``free`` (bytes), ``cameras`` (rendered at once), ``fragments``, ``device``, and
+    ``facts`` (those in words); :meth:`advise` gives the same refusal with a caller's own advice (a command
+    names its options there).
+    """
+
+    GENERIC_ADVICE = ("render at a lower resolution or fewer cameras at once, prune transparent Gaussians, or use "
+                      "the Triton backend on a GPU")
+
+    def __init__(self, need: int, free: int, fragments: int, cameras: int, device, advice: str = GENERIC_ADVICE):
+        self.need, self.free, self.fragments, self.cameras, self.device = need, free, fragments, cameras, device
+        self.facts = (f"this render of {cameras} view(s) at once needs about {need / 2**30:.1f} GiB for {fragments:,} "
+                      f"fragments but {free / 2**30:.1f} GiB are free on {device}")
+        self.advice = advice
+        super().__init__(f"{self.facts}; {advice}")
+
+    def advise(self, advice: str) -> "RenderMemoryError":
+        """The same refusal, ending in ``advice`` instead."""
+        return RenderMemoryError(self.need, self.free, self.fragments, self.cameras, self.device, advice)
 
 
 def available_memory(device: torch.device) -> int | None:
@@ -140,16 +159,13 @@ def available_memory(device: torch.device) -> int | None:
     return None
 
 
-def check_fragment_memory(num_fragments: int, device: torch.device) -> None:
+def check_fragment_memory(num_fragments: int, device: torch.device, cameras: int = 1) -> None:
     """Refuse, with numbers and what to do, a render whose fragments would not fit in free memory
     (instead of swapping the machine to a halt or failing deep in the allocator)."""
     need = num_fragments * BYTES_PER_FRAGMENT
     free = available_memory(device)
     if free is not None and need > free:
-        raise RenderMemoryError(
-            f"this render needs about {need / 2**30:.1f} GiB for {num_fragments:,} fragments but {free / 2**30:.1f} GiB "
-            f"are free on {device}; render at a lower resolution or fewer cameras at once, prune transparent "
-            "Gaussians, or use the Triton backend on a GPU")
+        raise RenderMemoryError(need, free, num_fragments, cameras, device)
 
 
 def expand_fragments(proj: ProjectedGaussians, bins: TileBins, sigma_extent: float = 3.0) -> tuple[Tensor, Tensor]:
@@ -177,7 +193,7 @@ def expand_fragments(proj: ProjectedGaussians, bins: TileBins, sigma_extent: flo
     col0 = torch.maximum(torch.ceil(lo - 0.5).long() + shift, bins.cols[pair, 0])
     col1 = torch.minimum(torch.floor(hi - 0.5).long() + shift, bins.cols[pair, 1])
     nc = torch.where(disc >= 0, (col1 - col0 + 1).clamp_min(0), 0)
-    check_fragment_memory(int(nc.sum()), nc.device)
+    check_fragment_memory(int(nc.sum()), nc.device, proj.num_cameras)
     # Level 2: fragments.
     item, j = _expand(nc)
     col = col0[item] + j

@@ -31,6 +31,7 @@ __all__ = [
     "load_config",
     "parse_overrides",
     "config_as_dict",
+    "config_from_dict",
 ]
 
 # YAML presets ship inside the package (cylindersplat/configs/*.yaml).
@@ -80,7 +81,7 @@ class TrainConfig:
     checkpoint_every: int = 500  # steps; a checkpoint is also written at the end of every stage
     keep_checkpoints: int = 3  # older step checkpoints are deleted (0 keeps all)
     tensorboard: bool = True  # used only if the tensorboard package is importable
-    progress: bool = True  # tqdm bar
+    progress: bool = True  # a tqdm bar on a terminal; ten lines per stage in a log file or pipe
 
 
 @dataclass
@@ -272,6 +273,11 @@ def load_config(preset: str | Path | None = None, overrides: list[str] | tuple[s
     data = _read_preset(preset) if preset is not None else {}
     data = _merge(data, parse_overrides(overrides))
     return _from_dict(_merge(data, nest_changes(changes or {})))
+
+
+def config_from_dict(data: dict[str, Any], overrides: list[str] | tuple[str, ...] = ()) -> ExperimentConfig:
+    """A config saved with :func:`config_as_dict` (a run's ``config.yaml``), then ``key=value`` ``overrides``."""
+    return _from_dict(_merge(data, parse_overrides(overrides)))
 
 
 def config_as_dict(cfg: ExperimentConfig) -> dict[str, Any]:

@@ -7,6 +7,8 @@ import json
 import time
 from pathlib import Path
 
+from ..utils.notices import notice_once
+
 __all__ = ["MetricLogger"]
 
 
@@ -26,6 +28,9 @@ class MetricLogger:
                 from torch.utils.tensorboard import SummaryWriter  # needs the optional `tensorboard` package
             except ImportError:
                 SummaryWriter = None
+                notice_once("tensorboard", "TensorBoard logs are skipped: the tensorboard package is not installed "
+                            "(pip install -e '.[train]', or train.tensorboard=false to silence this); "
+                            "metrics.jsonl and images/ are written as always")
             if SummaryWriter is not None:
                 self.writer = SummaryWriter(str(self.folder / "tensorboard"))
 

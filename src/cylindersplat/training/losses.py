@@ -20,6 +20,8 @@ import torch
 from jaxtyping import Float
 from torch import Tensor, nn
 
+from ..utils.notices import Notice
+
 __all__ = ["LossConfig", "RenderLoss", "LossTerms", "reference_depths"]
 
 
@@ -97,7 +99,7 @@ class RenderLoss(nn.Module):
                 f"LPIPS loss term disabled: no weights (set loss.lpips_weights=... or ${LPIPS_WEIGHTS_ENV}, or install "
                 "the lpips package with torchvision's VGG16 weights cached; docs/evaluation.md); "
                 "training with L1 + depth only",
-                stacklevel=3,
+                Notice, stacklevel=3,
             )
             return None
         try:

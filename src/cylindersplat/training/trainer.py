@@ -25,12 +25,12 @@ from typing import Any
 import torch
 import yaml
 from torch import Tensor
-from tqdm.auto import tqdm
 
 from ..data import Sample
 from ..model import CylinderSplat, load_model, save_model
 from ..render import available_backends, render_equirect
 from ..utils.atomic import atomic_write_text
+from ..utils.progress import Progress
 from .checkpoint import capture_rng, prune_checkpoints, read_state, resolve_checkpoint, restore_rng, save_checkpoint
 from .config import ExperimentConfig, config_as_dict
 from .data import ResumableBatchSampler, build_dataset, build_loader
@@ -322,18 +322,16 @@ class Trainer:
                     len(self.dataset), self.config.data.batch_size, seed=tcfg.seed, stage=self.stage,
                     start_step=self.stage_step, num_steps=todo, rank=self.dist.rank, world_size=self.dist.world_size,
                 )
-                bar = tqdm(
-                    total=total, initial=self.stage_step, desc=f"stage {self.stage}", unit="step",
-                    disable=None if (tcfg.progress and self.dist.is_main) else True, dynamic_ncols=True,  # None: not in log files
-                )
+                # A bar on a terminal, ten plain lines per stage in a log file or pipe.
+                bar = Progress(total, f"stage {self.stage}", "step", tcfg.progress and self.dist.is_main,
+                               initial=self.stage_step, lines=10)
                 for batch in build_loader(self.dataset, sampler, self.config.data.num_workers):
                     start = time.perf_counter()
                     parts = self.train_step(batch)
                     step_times.append(time.perf_counter() - start)
                     parts["step_time"] = step_times[-1]
                     history.append({"stage": self.stage, **parts})
-                    bar.update(1)
-                    bar.set_postfix(loss=f"{parts['total']:.4f}")
+                    bar.update(1, note=f"loss {parts['total']:.4f}")
                     if self.global_step % tcfg.log_every == 0 or self.stage_step == total or parts["skipped"]:
                         self.logger.log(self.global_step, {f"train/{k}": v for k, v in parts.items()}, stage=self.stage)
                     if tcfg.image_every > 0 and self.global_step % tcfg.image_every == 0:

@@ -41,6 +41,7 @@ from torch import Tensor
 
 from ..io import resize_depth
 from .base import DepthPrior, PriorQuery
+from .hub import check_hub_id
 
 __all__ = ["NetworkDepthPrior", "FoundationDepthAdapter", "UniK3DAdapter", "DepthAnythingV2Adapter",
            "ExportedDepthPrior", "file_sha256"]
@@ -245,6 +246,7 @@ class FoundationDepthAdapter(NetworkDepthPrior):
         if path.exists():
             self.source, self.weights = str(path.resolve()), path
         elif _HUB_ID.fullmatch(text) and not text.startswith((".", "/", "~")):
+            check_hub_id(text, self.name)  # offline and not cached: say so now, not after the package's retries
             self.source, self.weights = text, None  # a hub id, fetched (or read from the cache) by the package
         else:
             raise FileNotFoundError(f"depth prior {self.name!r}: weights not found at {path} ({self.weights_hint})")

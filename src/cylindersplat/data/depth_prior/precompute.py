@@ -23,11 +23,12 @@ from tqdm.auto import tqdm
 from ...utils.atomic import atomic_path, atomic_write_text
 from ..io import DEPTH_PNG_SCALE, read_rgb, write_depth_png
 from .files import SIDECAR, prior_tree, read_sidecar, tree_file
+from ...dataset_layouts import DATASET_LAYOUTS, detect_layout, layout_name
 from .registry import parse_network_prior
 
 __all__ = ["LAYOUTS", "detect_layout", "prior_frames", "write_priors", "PriorRun"]
 
-LAYOUTS = ("synthetic", "pano_grf", "loc360", "input")
+LAYOUTS = DATASET_LAYOUTS  # the registry's names (dataset_layouts.py)
 _PNG_MAX_METRES = 65535 / DEPTH_PNG_SCALE
 
 
@@ -40,28 +41,6 @@ class PriorRun:
     seconds: float
 
 
-def detect_layout(path: str | Path) -> str:
-    """``synthetic`` (``meta.json``), ``pano_grf`` (a ``png_render_*`` folder), ``input`` (an input folder with
-    ``poses.json`` or ``transforms.json``, or a folder of them) or ``loc360`` (``<location>/mapping|query_360``)."""
-    from ..folder import is_input_folder
-
-    path = Path(path)
-    if not path.is_dir():
-        raise FileNotFoundError(f"missing dataset folder: {path}")
-    if (path / "meta.json").is_file():
-        return "synthetic"
-    if path.name.startswith("png_render_"):
-        return "pano_grf"
-    if is_input_folder(path):
-        return "input"
-    if any((d / "mapping").is_dir() or (d / "query_360").is_dir() for d in path.iterdir() if d.is_dir()):
-        return "loc360"
-    if any(is_input_folder(d) for d in path.iterdir() if d.is_dir()):
-        return "input"
-    raise ValueError(f"{path}: not a dataset folder cylindersplat knows (synthetic meta.json, a png_render_* folder, "
-                     "a 360Loc root or an input folder with poses.json); pass --layout")
-
-
 def prior_frames(data: str | Path, layout: str = "auto", split: str = "all") -> tuple[Path, list[tuple[Path, str]], str]:
     """``(dataset root, [(panorama path, key)], layout)``: every panorama of a dataset, once."""
     from ..loc360 import LOC360_SPLITS, Loc360Dataset
@@ -70,8 +49,8 @@ def prior_frames(data: str | Path, layout: str = "auto", split: str = "all") -> 
     from .base import NoPrior
 
     data = Path(data)
-    layout = detect_layout(data) if layout == "auto" else layout
-    if layout == "input":
+    layout = detect_layout(data) if layout == "auto" else layout_name(layout)
+    if layout == "folder":
         from ..folder import FolderDataset
 
         dataset = FolderDataset(data, depth_prior=NoPrior())
@@ -84,8 +63,6 @@ def prior_frames(data: str | Path, layout: str = "auto", split: str = "all") -> 
             dataset = Loc360Dataset(data, locations=tuple(x for s in LOC360_SPLITS.values() for x in s))
         else:
             dataset = Loc360Dataset(data, split=split)
-    else:
-        raise ValueError(f"unknown layout {layout!r}; expected auto or one of {', '.join(LAYOUTS)}")
     return Path(dataset.data_root), [(Path(f.rgb), key) for f, key in dataset.frames()], layout
 
 

@@ -1,6 +1,6 @@
 """Scene description of the procedural generator: solid primitives with materials.
 
-World frame follows DESIGN.md: metres, +y is gravity-down (the floor is the plane ``y = 0`` and the
+World frame follows docs/conventions.md: metres, +y is gravity-down (the floor is the plane ``y = 0`` and the
 ceiling is at ``y = -height``). Everything is a *solid* seen from outside: a room is the free space
 left between floor, ceiling and wall slabs, so occlusions, doorways and L-shapes come for free.
 
