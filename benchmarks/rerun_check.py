@@ -1,6 +1,6 @@
 """Is a study run reproducible? Train one ablation variant/seed several times on the same data and compare.
 
-    python benchmarks/rerun_check.py --data outputs/ablation/data --out outputs/rerun --threads 2 2 1
+    python benchmarks/rerun_check.py --data outputs/ablation/data --out outputs/rerun --threads 2 2 1 --steps 30 15 15
 
 Each run trains ``--variant`` (default ``full``) with ``--seed`` from scratch into its own folder, with the
 given torch intra-op thread count, exactly as ``cylindersplat ablate`` does (same schedule, same held-out
@@ -22,14 +22,15 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def one_run(data: str, out: str, variant: str, seed: int, threads: int) -> dict:
+def one_run(data: str, out: str, variant: str, seed: int, threads: int, steps: tuple[int, int, int]) -> dict:
     """Train and score one run in a fresh process (thread count and RNG state start clean)."""
     code = f"""
 import hashlib, json, torch
 torch.set_num_threads({threads})
-from cylindersplat.experiments.ablation import all_variants, run_study
+from cylindersplat.experiments.ablation import Schedule, all_variants, run_study
 variant = [v for v in all_variants() if v.name == {variant!r}]
-report = run_study({data!r}, {out!r}, variant, seeds=({seed},), fills=(), log=lambda *_: None)
+report = run_study({data!r}, {out!r}, variant, seeds=({seed},), schedule=Schedule(*{tuple(steps)!r}), fills=(),
+                   log=lambda *_: None)
 metrics = report["variants"][{variant!r}]["metrics"]
 weights = open({out!r} + "/runs/{variant}/seed{seed}/model.safetensors", "rb").read()
 print(json.dumps({{"sha256": hashlib.sha256(weights).hexdigest(),
@@ -48,16 +49,18 @@ def main() -> int:
     parser.add_argument("--variant", default="full")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, nargs="+", default=[2, 2, 1], help="torch threads of each run")
+    parser.add_argument("--steps", type=int, nargs=3, default=[300, 150, 150], metavar=("S1", "S2", "S3"),
+                        help="curriculum steps (default the study's 300 150 150)")
     parser.add_argument("--json", type=Path, default=ROOT / "benchmarks/results/rerun_check.json")
     args = parser.parse_args()
     runs = []
     for i, threads in enumerate(args.threads):
-        runs.append(one_run(args.data, str(args.out / f"run{i}"), args.variant, args.seed, threads))
+        runs.append(one_run(args.data, str(args.out / f"run{i}"), args.variant, args.seed, threads, tuple(args.steps)))
         print(json.dumps(runs[-1]), flush=True)
     groups: dict[str, list[int]] = {}
     for i, run in enumerate(runs):
         groups.setdefault(run["sha256"], []).append(i)
-    report = {"variant": args.variant, "seed": args.seed, "data": args.data, "machine": platform.processor() or
+    report = {"variant": args.variant, "seed": args.seed, "steps": args.steps, "data": args.data, "machine": platform.processor() or
               platform.machine(), "date": time.strftime("%Y-%m-%d"), "runs": runs,
               "identical_groups": list(groups.values())}
     args.json.parent.mkdir(parents=True, exist_ok=True)

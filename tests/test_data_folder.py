@@ -157,7 +157,9 @@ def test_eval_cli_on_a_folder(tmp_path, tiny_checkpoint, capsys):
                  *common]) == 0
     data = json.loads((out / "results.json").read_text())
     (key,) = data["means"]
-    assert "held_out (1 examples)" in key and set(data["means"][key]) == {"CylinderSplat", "Forward warp"}
+    assert "held_out (1 examples)" in key and set(data["means"][key]) == {
+        "CylinderSplat", "its pixel branch", "its pixel branch + mean fill", "its pixel branch + inpaint fill",
+        "Forward warp", "Forward warp + mean fill", "Forward warp + inpaint fill"}
     assert data["means"][key]["Forward warp"]["abs_rel"] is not None  # the held-out frame's depth file
     assert len(list((out / "examples" / "held_out").glob("*.png"))) == 1
     capsys.readouterr()

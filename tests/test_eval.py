@@ -28,7 +28,8 @@ def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
     out = tmp_path / "eval"
     assert main(["eval", "--format", "loc360", "--data", str(tmp_path / "loc"), "--protocols", "all_between",
                  "--views", "2,3", "--gap", "2", "--depth-prior", "constant:2", "--checkpoint", str(checkpoint),
-                 "--max-examples", "2", "--pictures", "1", "--lpips", "off", "--device", "cpu", "--out", str(out)]) == 0
+                 "--max-examples", "2", "--pictures", "1", "--lpips", "off", "--device", "cpu", "--fills", "none",
+                 "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "0.94 m between neighbouring contexts, 1.88 m first to last" in printed  # 3 views, frames 0.47 m apart
     data = json.loads((out / "results.json").read_text(), parse_constant=_refuse)  # strict JSON: no Infinity/NaN
@@ -55,7 +56,7 @@ def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
     # released layout, 4 views: contexts (s, s+1, s+3, s+4), targets s+1..s+3
     assert main(["eval", "--format", "loc360", "--data", str(tmp_path / "loc"), "--views", "4", "--gap", "2",
                  "--views-layout", "released", "--protocols", "all_between", "--depth-prior", "constant:2", "--no-model",
-                 "--max-examples", "1", "--pictures", "0", "--lpips", "off", "--out", str(tmp_path / "e4")]) == 0
+                 "--fills", "none", "--max-examples", "1", "--pictures", "0", "--lpips", "off", "--out", str(tmp_path / "e4")]) == 0
     data = json.loads((tmp_path / "e4" / "results.json").read_text())
     assert [r["view"] for r in data["views"]["all_between_4views_gap2_released"]] == [0, 1, 2]
     # errors: one line, exit 1
@@ -202,7 +203,7 @@ def test_eval_cli_writes_tables_and_pictures(synth_root, tiny_model, tmp_path, c
     save_model(tiny_model, checkpoint)
     out = tmp_path / "eval"
     assert main(["eval", "--data", str(synth_root), "--checkpoint", str(checkpoint), "--out", str(out),
-                 "--protocols", "two_view,one_view", "--pictures", "1", "--lpips", "off"]) == 0
+                 "--protocols", "two_view,one_view", "--pictures", "1", "--lpips", "off", "--fills", "none"]) == 0
     table = (out / "results.md").read_text()
     assert table.count("| CylinderSplat |") == 2 and table.count("| Forward warp |") == 2
     data = json.loads((out / "results.json").read_text())

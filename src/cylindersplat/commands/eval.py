@@ -14,7 +14,6 @@ from ._arguments import device, equirect_resolution, fill_list, memory_advice
 
 RELEASED_RESOLUTION = (256, 512)  # evaluate_mp3d_double_256.py of the authors' released code
 PROTOCOL_TITLES = {
-    "two_view": "two_view (inputs first+last, the middle frame scored)",
     "released": "released (inputs first+last, all three frames scored: the authors' released scoring, comparable "
                 "with the paper's Table 1)",
 }
