@@ -9,7 +9,7 @@ from ..dataset_layouts import DATASET_LAYOUTS, LAYOUT_ALIASES
 from ._arguments import device, equirect_resolution
 
 PROFILE_NAMES = ("default", "occlusion")  # cylindersplat.data.synth.PROFILES (not imported: keeps the CLI start fast)
-PROTOCOL_NAMES = ("two_view", "one_view", "n_view")  # cylindersplat.data.views.PROTOCOLS
+PROTOCOL_NAMES = ("two_view", "one_view", "n_view", "released")  # cylindersplat.data.views.PROTOCOLS
 
 
 def _spacing(text: str) -> tuple[float, float]:
