@@ -56,6 +56,7 @@ class ProjectedGaussians:
     """Visible (Gaussian, camera) pairs, flattened over cameras.
 
     camera:   (M,)   index of the camera (0 .. num_cameras - 1)
+    gaussian: (M,)   row of the Gaussian in the flattened ``(B * N)`` Gaussians
     uv:       (M, 2) projected mean in pixels
     conic:    (M, 3) inverse 2D covariance entries (A, B, C): power = -(A du^2 + 2 B du dv + C dv^2) / 2
     extent:   (M, 2) half-widths of the support's bounding box in u and v (pixels)
@@ -65,6 +66,7 @@ class ProjectedGaussians:
     """
 
     camera: Tensor
+    gaussian: Tensor
     uv: Tensor
     conic: Tensor
     extent: Tensor
@@ -174,6 +176,7 @@ def _compact(
     camera = index // num_n
     return ProjectedGaussians(
         camera=camera,
+        gaussian=gauss,
         uv=geo[:, 0:2],
         conic=geo[:, 2:5],
         extent=geo[:, 5:7],
