@@ -19,8 +19,8 @@ import time
 
 import torch
 
-from cylindersplat.render import render_cubemap, render_equirect
-from cylindersplat.render.projection import RasterSettings, project_equirect_gaussians
+from cylindersplat.render import Equirect, render_cubemap, render_equirect
+from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
 from cylindersplat.scenes import random_indoor
 from cylindersplat.utils.allocator import keep_freed_memory
@@ -116,7 +116,7 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
             _sync(device)
             marks.append(time.perf_counter())
 
-        proj, _ = project_equirect_gaussians(g, c2w, height, width, settings)
+        proj = Equirect(height, width).project(g, c2w, settings)
         mark()
         bins = bin_to_tiles(proj, settings.tile_size)
         mark()
