@@ -25,6 +25,7 @@ from .cameras import CameraModel, Equirect
 from .projection import DenseProjection, ProjectedGaussians, RasterSettings, UnsupportedSettings, flatten_cameras, project_gaussians
 from .rasterize import rasterize
 from .triton_backend import triton_available, triton_backend
+from .triton_projection import project_dense_triton
 
 __all__ = ["RenderOutput", "render", "render_equirect", "available_backends", "register_backend", "Backend"]
 
@@ -71,7 +72,7 @@ def register_backend(name: str, fn: Backend, auto: bool = False, projection: Den
 
 
 if triton_available():
-    register_backend("triton", triton_backend, auto=True)
+    register_backend("triton", triton_backend, auto=True, projection=project_dense_triton)
 
 
 def available_backends() -> list[str]:

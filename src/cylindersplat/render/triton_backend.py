@@ -1,10 +1,11 @@
 """The fast backend: tile binning in PyTorch, Triton per-tile compositing (fwd + bwd), any camera model.
 
 Needs no compile step from the user: Triton ships with CUDA builds of PyTorch and compiles the
-kernels (:mod:`.triton_kernels`) at first use. Projection (EWA, seam and pole safeguards) and the
-(tile, depth) sort are the reference's own code (:mod:`.projection`, :func:`.rasterize.bin_to_tiles`),
-so only compositing differs, and it follows the same rules; gradients reach the Gaussian
-parameters through the projection's autograd graph.
+kernels (:mod:`.triton_kernels`) at first use. The backend also brings its own projection, a fused
+float32 kernel with an analytic backward (:mod:`.triton_projection`, registered beside it in
+:mod:`.api`) for the equirect and pinhole camera models; other camera models are projected by the
+reference. Compositing follows the reference's rules; gradients reach the projected Gaussians
+through the compositing kernels' backward.
 
 On a CPU, ``TRITON_INTERPRET=1`` (set before the first render) runs the same kernels in Triton's
 interpreter; that is how the test suite checks them on machines without a GPU.
