@@ -53,8 +53,9 @@ class _FusedProjection(torch.autograd.Function):
                 MODEL=model, BLOCK=_BLOCK)
         ctx.save_for_backward(means, scales, quats, cams, valid)
         ctx.num_views, ctx.model, ctx.constants = num_views, model, constants
-        ctx.mark_non_differentiable(valid)
-        return geo, valid.bool()
+        visible = valid.bool()
+        ctx.mark_non_differentiable(visible)
+        return geo, visible
 
     @staticmethod
     def backward(ctx, grad_geo, _grad_valid):
