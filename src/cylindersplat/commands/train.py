@@ -77,7 +77,7 @@ def register(subparsers) -> None:
         ),
     )
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides (YAML values)")
-    parser.add_argument("--config", default="tiny", help="preset name (tiny, paper, finetune_360loc) or YAML path (default tiny)")
+    parser.add_argument("--config", default="tiny", help="preset name (tiny, base, paper, finetune_360loc) or YAML path (default tiny)")
     parser.add_argument("--data", help="dataset folder (same as data.root=...)")
     parser.add_argument("--out", help="run folder for checkpoints, logs, weights (same as output_dir=...)")
     parser.add_argument("--stages", help="comma list of curriculum stages to run, e.g. 1,2,3 or 3 (same as train.stages)")
