@@ -35,9 +35,10 @@ import math
 import triton
 import triton.language as tl
 
-PI = math.pi
-_AXIS_EPS = 1e-12  # as geometry.equirect.ray_to_uv: (angle from the vertical axis)^2 below which u is fixed
-_TAN_PI_8 = 0.41421356237309503
+# Globals read inside @triton.jit functions must be constexpr (the compiler refuses others).
+PI = tl.constexpr(math.pi)
+_AXIS_EPS = tl.constexpr(1e-12)  # as geometry.equirect.ray_to_uv: (angle from the vertical axis)^2 below which u is fixed
+_TAN_PI_8 = tl.constexpr(0.41421356237309503)
 
 
 # ---- scalar helpers ------------------------------------------------------------------------------
