@@ -106,7 +106,7 @@ if [ $smoke = 1 ]; then
   # Training through the Triton interpreter takes minutes per step: on a CPU the run uses the reference.
   run_backends=$([ "$device" = cuda ] && echo "triton torch" || echo torch)
 else
-  test_args=(tests/test_render_triton.py tests/test_render_triton_projection.py tests/test_render_binning.py
+  test_args=(tests/test_render_triton.py tests/test_render_triton_projection.py tests/test_render_binning.py tests/test_triton_compile.py
              tests/test_render_cameras.py tests/test_render.py tests/test_render_projection.py)
   render_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --cubemap --repeats 5)
   stages_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 5 --profile)
