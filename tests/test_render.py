@@ -205,3 +205,39 @@ def test_auto_backend_fallback_rules(monkeypatch):
     with pytest.raises(RuntimeError, match="no compiler"):
         render_equirect(g, torch.eye(4), 8, 16, backend="triton")
     assert len(calls) == 4
+
+
+def test_a_backends_own_projection_is_used_and_replaced_where_it_cannot_run(monkeypatch):
+    """A backend's projection (``register_backend(..., projection=)``): used when it can; one that
+    declines (UnsupportedSettings) leaves the call to the reference projection, named or under "auto";
+    one that fails under "auto" disables the backend with a warning."""
+    from cylindersplat.render import api
+    from cylindersplat.render.projection import UnsupportedSettings, project_dense
+
+    g = shell_scene(10, seed=2, dtype=torch.float32)
+    ref = render_equirect(g, torch.eye(4), 8, 16, backend="torch")
+    calls = []
+
+    def fast(proj, settings, background):
+        return rasterize(proj, settings, background)
+
+    def projection_that(outcome):
+        def dense(*args):
+            calls.append(outcome)
+            if outcome == "works":
+                return project_dense(*args)
+            raise UnsupportedSettings("no pixel map") if outcome == "declines" else RuntimeError("no compiler")
+        return dense
+
+    monkeypatch.setattr(api, "_pick_backend", lambda name, device: fast)
+    monkeypatch.setattr(api, "_AUTO_DISABLED", set())
+    for outcome, backend in (("works", "fast"), ("declines", "fast"), ("declines", "auto")):
+        monkeypatch.setitem(api._PROJECTIONS, fast, projection_that(outcome))
+        torch.testing.assert_close(render_equirect(g, torch.eye(4), 8, 16, backend=backend).rgb, ref.rgb)
+    monkeypatch.setitem(api._PROJECTIONS, fast, projection_that("fails"))
+    with pytest.raises(RuntimeError, match="no compiler"):
+        render_equirect(g, torch.eye(4), 8, 16, backend="fast")
+    with pytest.warns(RuntimeWarning, match="no compiler"):
+        torch.testing.assert_close(render_equirect(g, torch.eye(4), 8, 16, backend="auto").rgb, ref.rgb)
+    assert fast in api._AUTO_DISABLED
+    assert calls == ["works", "declines", "declines", "fails", "fails"]

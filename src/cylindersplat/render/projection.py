@@ -16,7 +16,8 @@ rasterizer (:mod:`.rasterize`) turns into pixels. The reference computes in floa
 per pair) because near the poles the entries span many orders of magnitude; the fast backend's
 fused kernel (:mod:`.triton_projection`) does the same steps in float32 with the safeguards below.
 
-Safeguards (equirect), documented so the fast backend can match them:
+Safeguards of the equirect camera model (:class:`.cameras.Equirect` applies the first two in its pixel
+map, :func:`ewa_footprint` the caps), documented so the fast backend can match them:
 
 * Gaussians with radial distance ``< near`` are culled (no contribution, zero gradient).
 * ``rho = sqrt(x^2 + z^2)`` is bounded below by ``pole_eps * r`` inside the Jacobian, so a
