@@ -20,6 +20,7 @@ from cylindersplat.render.triton_binning import bin_to_tiles_by_key  # noqa: E40
 from render_scenes import shell_scene, yaw_pose  # noqa: E402
 
 F32 = torch.float32
+DEVICE = "cuda" if torch.cuda.is_available() else "cpu"  # the kernel needs CUDA tensors unless interpreted
 FIELDS = ("gaussian", "tile", "rows", "cols", "col_shift")
 
 
@@ -42,6 +43,10 @@ def _brute_force_pairs(proj, tile_size):
     return pairs
 
 
+def _project(camera, g, poses):
+    return camera.project(g.to(DEVICE), poses.to(DEVICE), RasterSettings())
+
+
 def _assert_same(proj, tile_size):
     ref = bin_to_tiles(proj, tile_size)
     fast = bin_to_tiles_by_key(proj, tile_size)
@@ -59,7 +64,7 @@ def _assert_same(proj, tile_size):
 def test_equirect_bins_match_the_reference(tile_size):
     g = shell_scene(80, seed=31, scale=(0.05, 0.5), dtype=F32)
     poses = torch.stack((yaw_pose(0.0, dtype=F32), yaw_pose(1.1, (0.2, -0.1, 0.3), dtype=F32)))
-    proj = Equirect(16, 32).project(g, poses, RasterSettings())
+    proj = _project(Equirect(16, 32), g, poses)
     bins = _assert_same(proj, tile_size)
     assert (bins.col_shift != 0).any()  # some footprints cross the seam
 
@@ -68,7 +73,7 @@ def test_wide_footprints_that_meet_a_tile_twice_across_the_seam():
     # Close, big Gaussians: bounding boxes up to the whole width; a wrapped range can touch one tile
     # with both of its column intervals.
     g = shell_scene(30, seed=32, scale=(0.3, 0.8), radius=(0.4, 1.0), dtype=F32)
-    proj = Equirect(16, 32).project(g, yaw_pose(0.3, dtype=F32), RasterSettings())
+    proj = _project(Equirect(16, 32), g, yaw_pose(0.3, dtype=F32))
     bins = _assert_same(proj, 8)
     pair_keys = bins.gaussian * 10_000 + bins.tile
     assert len(pair_keys.unique()) < len(pair_keys)
@@ -78,9 +83,9 @@ def test_pinhole_and_cubemap_bins_match_the_reference():
     g = shell_scene(80, seed=33, scale=(0.05, 0.4), dtype=F32)
     k = torch.tensor([[14.0, 0.0, 12.3], [0.0, 15.0, 9.6], [0.0, 0.0, 1.0]])
     poses = torch.stack((yaw_pose(0.2, dtype=F32), yaw_pose(-1.9, (0.1, 0.1, 0.2), dtype=F32)))
-    _assert_same(Pinhole(k, 20, 24).project(g, poses, RasterSettings()), 8)
+    _assert_same(_project(Pinhole(k, 20, 24), g, poses), 8)
     faces = cubemap_face_c2w(yaw_pose(0.4, dtype=F32))
-    _assert_same(cubemap_face(12, dtype=F32).project(g, faces, RasterSettings()), 4)
+    _assert_same(_project(cubemap_face(12, dtype=F32), g, faces), 4)
 
 
 def test_equal_depths_keep_the_gaussian_order():
@@ -90,7 +95,7 @@ def test_equal_depths_keep_the_gaussian_order():
     g = Gaussians.from_rgb(means, torch.full((8, 3), 0.2), torch.tensor([[1.0, 0, 0, 0]]).expand(8, 4),
                            torch.full((8,), 0.5), torch.rand(8, 3))
     g = Gaussians(g.means.flip(0), g.scales, g.rotations, g.opacities, g.sh)
-    proj = Equirect(16, 32).project(g, torch.eye(4), RasterSettings())
+    proj = _project(Equirect(16, 32), g, torch.eye(4))
     assert len(proj.depth.unique()) == 1
     bins = _assert_same(proj, 8)
     for tile in bins.tile.unique():
@@ -102,7 +107,7 @@ def test_batched_cameras_and_empty_input():
     a, b = shell_scene(25, seed=34, dtype=F32), shell_scene(25, seed=35, dtype=F32)
     batched = Gaussians(**{k: torch.stack((getattr(a, k), getattr(b, k))) for k in a.tensors()})
     poses = torch.stack([torch.stack((yaw_pose(0.3 * i, dtype=F32), yaw_pose(2.0, (0.1, 0, 0), dtype=F32))) for i in range(2)])
-    _assert_same(Equirect(8, 16).project(batched, poses, RasterSettings()), 4)
-    empty = Equirect(8, 16).project(Gaussians.empty(), torch.eye(4), RasterSettings())
+    _assert_same(_project(Equirect(8, 16), batched, poses), 4)
+    empty = _project(Equirect(8, 16), Gaussians.empty(), torch.eye(4))
     bins = bin_to_tiles_by_key(empty, 4)
     assert all(getattr(bins, name).numel() == 0 for name in FIELDS)
