@@ -8,7 +8,8 @@ import torch
 from cylindersplat.gaussians import Gaussians
 from cylindersplat.render import render_cubemap, render_equirect, render_pinhole
 from cylindersplat.render.brute_force import composite_brute_force
-from cylindersplat.render.projection import RasterSettings, project_equirect_gaussians
+from cylindersplat.render import Equirect
+from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, rasterize
 
 from render_scenes import degenerate_scenes, shell_scene, yaw_pose
@@ -20,7 +21,7 @@ def test_tiled_rasterizer_matches_brute_force():
     g = shell_scene(40, sh_degree=3)
     c2w = torch.stack((yaw_pose(0.0), yaw_pose(0.7, (0.3, -0.1, 0.2))))
     settings = RasterSettings()
-    proj, _ = project_equirect_gaussians(g, c2w, 16, 32, settings)
+    proj = Equirect(16, 32).project(g, c2w, settings)
     bg = torch.tensor([0.1, 0.2, 0.3], dtype=F64)
     tiled = rasterize(proj, settings, bg)
     brute = composite_brute_force(proj, settings, bg)
@@ -146,7 +147,7 @@ def test_tile_binning_wraps_around_the_seam():
     g = Gaussians.from_rgb(
         torch.tensor([[0.0, 0.0, -2.0]]), torch.full((1, 3), 0.2), torch.tensor([[1.0, 0, 0, 0]]), torch.ones(1), torch.ones(1, 3)
     )
-    proj, _ = project_equirect_gaussians(g, torch.eye(4), 32, 64)
+    proj = Equirect(32, 64).project(g, torch.eye(4), RasterSettings())
     bins = bin_to_tiles(proj, tile_size=8)
     tiles_x = bins.tile % bins.tiles_x
     assert {0, bins.tiles_x - 1} <= set(tiles_x.tolist())  # both sides of the seam
@@ -204,3 +205,39 @@ def test_auto_backend_fallback_rules(monkeypatch):
     with pytest.raises(RuntimeError, match="no compiler"):
         render_equirect(g, torch.eye(4), 8, 16, backend="triton")
     assert len(calls) == 4
+
+
+def test_a_backends_own_projection_is_used_and_replaced_where_it_cannot_run(monkeypatch):
+    """A backend's projection (``register_backend(..., projection=)``): used when it can; one that
+    declines (UnsupportedSettings) leaves the call to the reference projection, named or under "auto";
+    one that fails under "auto" disables the backend with a warning."""
+    from cylindersplat.render import api
+    from cylindersplat.render.projection import UnsupportedSettings, project_dense
+
+    g = shell_scene(10, seed=2, dtype=torch.float32)
+    ref = render_equirect(g, torch.eye(4), 8, 16, backend="torch")
+    calls = []
+
+    def fast(proj, settings, background):
+        return rasterize(proj, settings, background)
+
+    def projection_that(outcome):
+        def dense(*args):
+            calls.append(outcome)
+            if outcome == "works":
+                return project_dense(*args)
+            raise UnsupportedSettings("no pixel map") if outcome == "declines" else RuntimeError("no compiler")
+        return dense
+
+    monkeypatch.setattr(api, "_pick_backend", lambda name, device: fast)
+    monkeypatch.setattr(api, "_AUTO_DISABLED", set())
+    for outcome, backend in (("works", "fast"), ("declines", "fast"), ("declines", "auto")):
+        monkeypatch.setitem(api._PROJECTIONS, fast, projection_that(outcome))
+        torch.testing.assert_close(render_equirect(g, torch.eye(4), 8, 16, backend=backend).rgb, ref.rgb)
+    monkeypatch.setitem(api._PROJECTIONS, fast, projection_that("fails"))
+    with pytest.raises(RuntimeError, match="no compiler"):
+        render_equirect(g, torch.eye(4), 8, 16, backend="fast")
+    with pytest.warns(RuntimeWarning, match="no compiler"):
+        torch.testing.assert_close(render_equirect(g, torch.eye(4), 8, 16, backend="auto").rgb, ref.rgb)
+    assert fast in api._AUTO_DISABLED
+    assert calls == ["works", "declines", "declines", "fails", "fails"]

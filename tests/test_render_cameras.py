@@ -30,6 +30,7 @@ from cylindersplat.render.brute_force import composite_brute_force
 from render_scenes import shell_scene, yaw_pose
 
 F32 = torch.float32
+F64 = torch.float64
 DEVICE = "cuda" if torch.cuda.is_available() else "cpu"
 BACKENDS = [b for b in ("torch", "triton") if b in available_backends()]
 
@@ -188,3 +189,39 @@ def test_renders_that_would_not_fit_in_memory_are_refused(monkeypatch):
         render(g, torch.eye(4, dtype=torch.float64), Equirect(8, 16), backend="torch")
     assert out.alpha.max() > 0
     assert rast.available_memory(torch.device("cpu")) is None or rast.available_memory(torch.device("cpu")) > 0
+
+
+def test_a_new_camera_model_is_one_pixel_map():
+    """A camera model implements only its pixel map (and std caps); world -> camera, the EWA footprint,
+    shape checks and every backend come with the seam. Here an orthographic camera looking along +z."""
+    from cylindersplat.render.cameras import CameraModel
+    from cylindersplat.render.projection import PixelMap
+
+    class Orthographic(CameraModel):
+        height, width, scale = 12, 16, 6.0  # pixels per metre
+        max_std = (64.0, 64.0)
+
+        def pixel_map(self, points, settings):
+            x, y, z = points.unbind(-1)
+            jac = torch.zeros(*points.shape[:-1], 2, 3, dtype=points.dtype)
+            jac[..., 0, 0] = jac[..., 1, 1] = self.scale
+            return PixelMap(self.scale * x + self.width / 2, self.scale * y + self.height / 2,
+                            torch.linalg.vector_norm(points, dim=-1), jac, z > settings.near)
+
+    g = shell_scene(30, seed=20)
+    poses = torch.stack((yaw_pose(0.0), yaw_pose(0.1, (0.1, 0.0, -2.0))))
+    camera = Orthographic()
+    proj = camera.project(g, poses, RasterSettings())
+    # The footprint of an orthographic camera is the 3D covariance's xy block, scaled (plus the dilation).
+    row = proj.camera == 0
+    from cylindersplat.render.covariance import covariance_3d
+
+    cov = covariance_3d(g.scales, g.rotations)[proj.gaussian[row], :2, :2] * camera.scale**2 + 0.3 * torch.eye(2, dtype=F64)
+    inv = torch.linalg.inv(cov)
+    torch.testing.assert_close(proj.conic[row], torch.stack((inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 1]), -1))
+    for backend in BACKENDS:
+        out = render(g.to(F32), poses.to(F32), camera, background=(0.1, 0.2, 0.3), backend=backend)
+        ref = composite_brute_force(camera.project(g.to(F32), poses.to(F32), RasterSettings()), RasterSettings(),
+                                    torch.tensor([0.1, 0.2, 0.3]))
+        torch.testing.assert_close(out.rgb, ref[0], atol=3e-5, rtol=0)
+        assert out.alpha.max() > 0.5

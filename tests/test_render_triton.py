@@ -103,17 +103,17 @@ def test_degenerate_inputs_stay_finite(name, g):
 
 def test_triton_compositing_matches_brute_force():
     from cylindersplat.render.brute_force import composite_brute_force
-    from cylindersplat.render.projection import project_equirect_gaussians
+    from cylindersplat.render import Equirect
     from cylindersplat.render.rasterize import bin_to_tiles
     from cylindersplat.render.triton_backend import composite_triton
 
     g = shell_scene(40, sh_degree=3, dtype=F32)
     c2w = torch.stack((yaw_pose(0.0, dtype=F32), yaw_pose(0.7, (0.3, -0.1, 0.2), dtype=F32)))
     settings = RasterSettings()
-    proj, _ = project_equirect_gaussians(g, c2w, 16, 32, settings)
+    proj = Equirect(16, 32).project(g, c2w, settings)
     bg = torch.tensor([0.1, 0.2, 0.3])
     brute = composite_brute_force(proj, settings, bg)
-    proj_dev, _ = project_equirect_gaussians(g.to(DEVICE), c2w.to(DEVICE), 16, 32, settings)
+    proj_dev = Equirect(16, 32).project(g.to(DEVICE), c2w.to(DEVICE), settings)
     fast = composite_triton(proj_dev, bin_to_tiles(proj_dev, settings.tile_size), settings, bg.to(DEVICE))
     for a, b in zip(fast, brute):
         assert (a.cpu() - b).abs().max() <= 2e-5

@@ -4,8 +4,10 @@
     cylindersplat bench render --num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --cubemap
 
 Scenes come from :func:`cylindersplat.scenes.random_indoor` (Gaussians on the walls of an 8 x 3 x 6 m
-room plus 20% scattered inside). ``--stages`` also prints where the time goes (projection, tile
-binning, fragment expansion + sort, compositing, backward) for the PyTorch reference.
+room plus 20% scattered inside). ``--stages`` also prints where the time goes: projection, tile
+binning, fragment expansion + sort, compositing, backward for the PyTorch reference; with
+``--backend triton`` the Triton backend's own stages (fused projection kernel, key binning,
+compositing kernels).
 """
 
 from __future__ import annotations
@@ -19,8 +21,8 @@ import time
 
 import torch
 
-from cylindersplat.render import render_cubemap, render_equirect
-from cylindersplat.render.projection import RasterSettings, project_equirect_gaussians
+from cylindersplat.render import Equirect, render_cubemap, render_equirect
+from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
 from cylindersplat.scenes import random_indoor
 from cylindersplat.utils.allocator import keep_freed_memory
@@ -104,7 +106,7 @@ def _free(params, device) -> None:
 
 
 def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = "torch") -> dict:
-    """Median time of each stage of one forward + backward (reference, or Triton compositing)."""
+    """Median time of each stage of one forward + backward (the reference's, or the Triton backend's)."""
     settings = RasterSettings()
     fast = backend == "triton"
     names = ("project", "bin", "composite", "backward") if fast else ("project", "bin", "fragments", "composite", "backward")
@@ -116,9 +118,18 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
             _sync(device)
             marks.append(time.perf_counter())
 
-        proj, _ = project_equirect_gaussians(g, c2w, height, width, settings)
-        mark()
-        bins = bin_to_tiles(proj, settings.tile_size)
+        if fast:  # the Triton backend's own stages: fused projection kernel, key binning
+            from cylindersplat.render.projection import flatten_cameras, project_gaussians
+            from cylindersplat.render.triton_binning import bin_to_tiles_by_key
+            from cylindersplat.render.triton_projection import project_dense_triton
+
+            proj = project_gaussians(*flatten_cameras(g, c2w)[:2], Equirect(height, width), settings, project_dense_triton)
+            mark()
+            bins = bin_to_tiles_by_key(proj, settings.tile_size)
+        else:
+            proj = Equirect(height, width).project(g, c2w, settings)
+            mark()
+            bins = bin_to_tiles(proj, settings.tile_size)
         mark()
         if fast:
             from cylindersplat.render.triton_backend import composite_triton

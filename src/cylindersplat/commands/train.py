@@ -114,7 +114,7 @@ def register(subparsers) -> None:
         ),
     )
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides (YAML values)")
-    parser.add_argument("--config", help="preset name (tiny, paper, finetune_360loc) or YAML path (default tiny; "
+    parser.add_argument("--config", help="preset name (tiny, base, paper, finetune_360loc) or YAML path (default tiny; "
                         "with --resume, the run's own config)")
     parser.add_argument("--data", help="dataset folder (same as data.root=...)")
     parser.add_argument("--out", help="run folder for checkpoints, logs, weights (same as output_dir=...)")

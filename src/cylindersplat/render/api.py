@@ -22,9 +22,10 @@ from torch import Tensor
 from ..gaussians import Gaussians
 from ..geometry.poses import validate_c2w
 from .cameras import CameraModel, Equirect
-from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings
+from .projection import DenseProjection, ProjectedGaussians, RasterSettings, UnsupportedSettings, flatten_cameras, project_gaussians
 from .rasterize import rasterize
 from .triton_backend import triton_available, triton_backend
+from .triton_projection import project_dense_triton
 
 __all__ = ["RenderOutput", "render", "render_equirect", "available_backends", "register_backend", "Backend"]
 
@@ -43,29 +44,35 @@ Backend = Callable[[ProjectedGaussians, RasterSettings, "Tensor | None"], tuple[
 
 _reference_backend: Backend = rasterize
 _BACKENDS: dict[str, Backend] = {"torch": _reference_backend}
+_PROJECTIONS: dict = {}  # backend -> its own dense projection (projection.project_dense's signature)
 _AUTO_ORDER: list[str] = []  # fast backends "auto" tries on CUDA, in order, before the reference
 _AUTO_DISABLED: set = set()  # fast backends that failed here; "auto" skips them
 
 
-def register_backend(name: str, fn: Backend, auto: bool = False) -> None:
+def register_backend(name: str, fn: Backend, auto: bool = False, projection: DenseProjection | None = None) -> None:
     """Make ``fn`` available as ``backend=name``.
 
     ``fn(projected, settings, background)`` gets :class:`ProjectedGaussians` of any camera model
     and returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``, differentiable w.r.t. the
     projected tensors. It may raise :class:`UnsupportedSettings` for inputs it cannot honour.
     ``auto=True`` lets ``backend="auto"`` pick it on CUDA (before those registered earlier).
+    ``projection`` (optional) replaces the reference's per-pair projection math for this backend
+    (:func:`.projection.project_dense`'s signature); it may raise :class:`UnsupportedSettings` for a
+    camera model or input it does not handle, and the reference's is used for that call.
     """
     if not isinstance(name, str) or not name or name == "auto":
         raise ValueError(f"backend name must be a non-empty string other than 'auto', got {name!r}")
     if not callable(fn):
         raise TypeError(f"backend {name!r} must be callable")
     _BACKENDS[name] = fn
+    if projection is not None:
+        _PROJECTIONS[fn] = projection
     if auto and name not in _AUTO_ORDER:
         _AUTO_ORDER.insert(0, name)
 
 
 if triton_available():
-    register_backend("triton", triton_backend, auto=True)
+    register_backend("triton", triton_backend, auto=True, projection=project_dense_triton)
 
 
 def available_backends() -> list[str]:
@@ -84,24 +91,44 @@ def _pick_backend(name: str, device: torch.device) -> Backend:
     return _BACKENDS[name]
 
 
-def _rasterize(fn: Backend, backend: str, proj: ProjectedGaussians, settings, background):
-    """Run a backend; under ``"auto"`` fall back to the reference where the fast one cannot run."""
+def _run_fast(fn: Backend, backend: str, fast: Callable, reference: Callable, unsupported_is_final: bool):
+    """Run ``fast()``; fall back to ``reference()`` where the fast backend cannot run.
+
+    :class:`UnsupportedSettings` falls back for this call only (under ``"auto"``, or always when
+    ``unsupported_is_final`` is False); another error under ``"auto"`` disables the fast backend
+    (it compiles at first use, which may fail on this machine) with a warning."""
     try:
-        return fn(proj, settings, background)
+        return fast()
     except torch.OutOfMemoryError:
         raise  # not a broken backend: the reference would need more memory still
     except UnsupportedSettings:
-        if backend != "auto" or fn is _reference_backend:
+        if unsupported_is_final and (backend != "auto" or fn is _reference_backend):
             raise
-        return _reference_backend(proj, settings, background)  # this call only
+        return reference()
     except Exception as exc:  # noqa: BLE001
         if backend != "auto" or fn is _reference_backend:
             raise
-        # The fast backend compiles at first use; if that fails on this machine, keep working.
         _AUTO_DISABLED.add(fn)
         warnings.warn(f"fast render backend failed ({type(exc).__name__}: {exc}); using the PyTorch reference from "
-                      "now on (pass backend='triton' to see the error)", RuntimeWarning, stacklevel=3)
-        return _reference_backend(proj, settings, background)
+                      "now on (pass backend='triton' to see the error)", RuntimeWarning, stacklevel=4)
+        return reference()
+
+
+def _project(fn: Backend, backend: str, gaussians: Gaussians, c2w: Tensor, camera: CameraModel, settings: RasterSettings):
+    """The backend's own projection where it has one and can take this input, else the reference's
+    (a backend's projection that cannot take a camera model or input leaves it to the reference)."""
+    dense = _PROJECTIONS.get(fn)
+    reference = lambda: project_gaussians(gaussians, c2w, camera, settings)  # noqa: E731
+    if dense is None or fn in _AUTO_DISABLED:
+        return reference()
+    return _run_fast(fn, backend, lambda: project_gaussians(gaussians, c2w, camera, settings, dense), reference,
+                     unsupported_is_final=False)
+
+
+def _rasterize(fn: Backend, backend: str, proj: ProjectedGaussians, settings, background):
+    """Run a backend; under ``"auto"`` fall back to the reference where the fast one cannot run."""
+    return _run_fast(fn, backend, lambda: fn(proj, settings, background),
+                     lambda: _reference_backend(proj, settings, background), unsupported_is_final=True)
 
 
 def render(
@@ -134,8 +161,7 @@ def render(
     gaussians.validate()
     validate_c2w(c2w)
     settings = settings or RasterSettings()
-    c2w = c2w.to(device=gaussians.device)
-    out_shape = _output_shape(gaussians, c2w)
+    flat_gaussians, flat_c2w, out_shape = flatten_cameras(gaussians, c2w.to(device=gaussians.device))
     num_cameras = math.prod(out_shape)
     if num_cameras == 0:
         raise ValueError(f"c2w holds no cameras (shape {tuple(c2w.shape)}); give at least one 4x4 camera-to-world pose")
@@ -149,8 +175,8 @@ def render(
         if not torch.isfinite(background).all():
             raise ValueError(f"background must be finite (RGB in [0, 1]), got {background.tolist() if background.numel() <= 12 else 'NaN/inf values'}")
     fn = _pick_backend(backend, gaussians.device)
-    proj = camera.project(gaussians, c2w, settings)
-    if proj.camera.numel() == 0 and gaussians.means.shape[-2] > 0 and isinstance(camera, Equirect):
+    proj = _project(fn, backend, flat_gaussians, flat_c2w, camera, settings)
+    if proj.camera.numel() == 0 and gaussians.means.shape[-2] > 0 and camera.sees_every_direction:
         # A panorama sees every direction: nothing visible means a unit or pose problem, not framing.
         warnings.warn(f"none of the {gaussians.means.shape[-2]:,} Gaussians is visible from these cameras (all closer "
                       f"than settings.near={settings.near} m or transparent); check the scene's scale and the poses",
@@ -196,14 +222,3 @@ def render_equirect(
     gradients stay finite. Differentiable w.r.t. every Gaussian parameter.
     """
     return render(gaussians, c2w, Equirect(height, width), background, backend, settings)
-
-
-def _output_shape(gaussians: Gaussians, c2w: Tensor) -> tuple[int, ...]:
-    if gaussians.batch_shape == ():
-        if c2w.ndim not in (2, 3):
-            raise ValueError(f"unbatched Gaussians need c2w of shape (4, 4) or (V, 4, 4), got {tuple(c2w.shape)}")
-        return tuple(c2w.shape[:-2])
-    b = gaussians.batch_shape
-    if len(b) != 1 or c2w.ndim != 4 or c2w.shape[0] != b[0]:
-        raise ValueError(f"Gaussians with batch shape {tuple(b)} need c2w of shape ({b[0] if b else 'B'}, V, 4, 4), got {tuple(c2w.shape)}")
-    return tuple(c2w.shape[:2])

@@ -15,7 +15,7 @@ from torch import Tensor
 from ..gaussians import Gaussians
 from ..geometry.cubemap import cubemap_face_c2w, cubemap_rotations
 from ..geometry.equirect import check_equirect_shape, equirect_rays
-from .api import RenderOutput, _output_shape, render
+from .api import RenderOutput, render
 from .cameras import cubemap_face
 from .projection import RasterSettings
 
@@ -70,7 +70,7 @@ def render_cubemap(
     """
     check_equirect_shape(height, width)
     face_size = face_size or max(height // 2, 1)
-    out_shape = _output_shape(gaussians, c2w)
+    out_shape = tuple(c2w.shape[:-2])  # (*B, V); render() checks it against the Gaussians
     face_c2w = cubemap_face_c2w(c2w.to(gaussians.device))  # (..., 6, 4, 4)
     if gaussians.batch_shape:
         face_c2w = face_c2w.flatten(1, 2)  # (B, V*6, 4, 4)

@@ -1,12 +1,23 @@
-"""EWA projection of 3D Gaussians into equirectangular and pinhole images.
+"""EWA projection of 3D Gaussians into the images of any camera model (the PyTorch reference).
 
-Both projections produce a :class:`ProjectedGaussians` (one row per visible Gaussian-camera
-pair), which the rasterizer (:mod:`.rasterize`) turns into pixels. The 2D covariance is the EWA
-linearisation ``Sigma_2d = J W Sigma_3d W^T J^T + dilation * I`` with ``J`` the projection's
-Jacobian at the mean. It is computed in float64 (cheap: one row per Gaussian) because near the
-poles its entries span many orders of magnitude.
+Three steps, the arrangement gsplat uses:
 
-Safeguards (equirect), documented so the fast backend can match them:
+1. **world -> camera**, shared by every camera model (:func:`to_camera_frame`): camera-frame means
+   ``p = W (mu - t)`` and the camera-frame covariance factor ``W M`` (``Sigma = M M^T``,
+   ``M = R(q) diag(s)``, ``W = R_c2w^T``);
+2. **the camera model's pixel map** (:mod:`.cameras`, ``camera.pixel_map``): pixel mean, radial
+   depth, the map's Jacobian ``J`` at the mean and which pairs are in view;
+3. **the EWA footprint**, shared again (:func:`ewa_footprint`): ``Sigma_2d = J W Sigma W^T J^T +
+   dilation * I`` with the camera model's standard-deviation caps, its inverse (the conic) and the
+   support's extent.
+
+The result is a :class:`ProjectedGaussians` (one row per visible Gaussian-camera pair), which the
+rasterizer (:mod:`.rasterize`) turns into pixels. The reference computes in float64 (cheap: one row
+per pair) because near the poles the entries span many orders of magnitude; the fast backend's
+fused kernel (:mod:`.triton_projection`) does the same steps in float32 with the safeguards below.
+
+Safeguards of the equirect camera model (:class:`.cameras.Equirect` applies the first two in its pixel
+map, :func:`ewa_footprint` the caps), documented so the fast backend can match them:
 
 * Gaussians with radial distance ``< near`` are culled (no contribution, zero gradient).
 * ``rho = sqrt(x^2 + z^2)`` is bounded below by ``pole_eps * r`` inside the Jacobian, so a
@@ -21,16 +32,17 @@ Safeguards (equirect), documented so the fast backend can match them:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Callable
 
 import torch
 from torch import Tensor
 
 from ..gaussians import Gaussians
-from ..geometry.equirect import equirect_jacobian, ray_to_uv
 from ..geometry.rotations import quaternion_to_matrix
 from .covariance import eval_sh
 
-__all__ = ["ProjectedGaussians", "RasterSettings", "UnsupportedSettings", "project_equirect_gaussians", "project_pinhole_gaussians"]
+__all__ = ["ProjectedGaussians", "RasterSettings", "UnsupportedSettings", "PixelMap", "flatten_cameras", "to_camera_frame",
+           "ewa_footprint", "project_dense", "project_gaussians", "compile_projection"]
 
 
 class UnsupportedSettings(ValueError):
@@ -56,6 +68,7 @@ class ProjectedGaussians:
     """Visible (Gaussian, camera) pairs, flattened over cameras.
 
     camera:   (M,)   index of the camera (0 .. num_cameras - 1)
+    gaussian: (M,)   row of the Gaussian in the flattened ``(B * N)`` Gaussians
     uv:       (M, 2) projected mean in pixels
     conic:    (M, 3) inverse 2D covariance entries (A, B, C): power = -(A du^2 + 2 B du dv + C dv^2) / 2
     extent:   (M, 2) half-widths of the support's bounding box in u and v (pixels)
@@ -65,6 +78,7 @@ class ProjectedGaussians:
     """
 
     camera: Tensor
+    gaussian: Tensor
     uv: Tensor
     conic: Tensor
     extent: Tensor
@@ -77,8 +91,26 @@ class ProjectedGaussians:
     wrap_u: bool
 
 
-def _flatten_cameras(gaussians: Gaussians, c2w: Tensor) -> tuple[Gaussians, Tensor, tuple[int, ...]]:
-    """Bring Gaussians to ``(B, N, ...)`` and cameras to ``(B, V, 4, 4)``; returns the output batch shape."""
+@dataclass
+class PixelMap:
+    """A camera model's pixel map at the camera-frame means of ``(B, V, N)`` pairs.
+
+    u, v:     (B, V, N) pixel coordinates of the mean
+    depth:    (B, V, N) radial distance of the mean (sort key and depth output)
+    jacobian: (B, V, N, 2, 3) d(u, v)/d(x, y, z) at the mean, finite everywhere
+    valid:    (B, V, N) bool: in front of the near plane and inside the model's view
+    """
+
+    u: Tensor
+    v: Tensor
+    depth: Tensor
+    jacobian: Tensor
+    valid: Tensor
+
+
+def flatten_cameras(gaussians: Gaussians, c2w: Tensor) -> tuple[Gaussians, Tensor, tuple[int, ...]]:
+    """Check the shapes once: Gaussians to ``(B, N, ...)``, cameras to ``(B, V, 4, 4)``, and the output
+    batch shape ``(*B, V)`` (``V`` omitted for a single ``(4, 4)`` pose)."""
     if gaussians.batch_shape == ():
         if c2w.ndim == 2:
             out_shape: tuple[int, ...] = ()
@@ -92,11 +124,67 @@ def _flatten_cameras(gaussians: Gaussians, c2w: Tensor) -> tuple[Gaussians, Tens
     elif len(gaussians.batch_shape) == 1:
         b = gaussians.batch_shape[0]
         if c2w.ndim != 4 or c2w.shape[0] != b:
-            raise ValueError(f"Gaussians with batch size {b} need c2w of shape ({b}, V, 4, 4), got {tuple(c2w.shape)}")
+            raise ValueError(f"Gaussians with batch shape ({b},) need c2w of shape ({b}, V, 4, 4), got {tuple(c2w.shape)}")
         out_shape = tuple(c2w.shape[:2])
     else:
         raise ValueError(f"Gaussians may have at most one batch dimension, got {tuple(gaussians.batch_shape)}")
     return gaussians, c2w, out_shape
+
+
+def to_camera_frame(means: Tensor, scales: Tensor, quats: Tensor, c2w: Tensor) -> tuple[Tensor, Tensor]:
+    """Step 1 (every camera model): camera-frame means ``p (B, V, N, 3)`` and covariance factors
+    ``W M (B, V, N, 3, 3)`` (``Sigma_cam = (W M)(W M)^T``, positive semi-definite by construction).
+
+    means, scales ``(B, N, 3)``; quats ``(B, N, 4)`` (any norm); c2w ``(B, V, 4, 4)``. Float64."""
+    f64 = torch.float64
+    rot = c2w[..., :3, :3].to(f64)  # (B, V, 3, 3); W = rot^T
+    points = (means.to(f64)[:, None] - c2w[:, :, None, :3, 3].to(f64)) @ rot
+    m = quaternion_to_matrix(quats.to(f64)) * scales.to(f64)[..., None, :]  # (B, N, 3, 3)
+    # (W M)[i, j] = sum_k rot[k, i] M[k, j]
+    factor = (rot.transpose(-1, -2)[:, :, None, :, :, None] * m[:, None, :, None, :, :]).sum(-2)
+    return points, factor
+
+
+def ewa_footprint(
+    pixels: PixelMap, factor: Tensor, opacities: Tensor, settings: RasterSettings, max_std: tuple[float, float],
+    height: int, width: int, wrap_u: bool,
+) -> tuple[Tensor, Tensor]:
+    """Step 3 (every camera model): ``Sigma_2d = (J W M)(J W M)^T + dilation * I`` with standard
+    deviations capped at ``max_std`` (by scaling rows/columns, which keeps it positive definite), its
+    inverse, the ``sigma_extent`` bounding box and the culling of pairs outside the image.
+
+    factor ``(B, V, N, 3, 3)``; opacities ``(B, N)``. Returns ``geo (B, V, N, 8)`` =
+    ``[u, v, conic A, B, C, extent u, extent v, depth]`` and ``valid (B, V, N)``."""
+    t = (pixels.jacobian[..., :, :, None] * factor[..., None, :, :]).sum(-2)  # J (W M): (B, V, N, 2, 3)
+    row_u, row_v = t[..., 0, :], t[..., 1, :]
+    a = (row_u * row_u).sum(-1) + settings.dilation
+    b = (row_u * row_v).sum(-1)
+    c = (row_v * row_v).sum(-1) + settings.dilation
+    fu = torch.clamp(max_std[0] ** 2 / a, max=1.0)
+    fv = torch.clamp(max_std[1] ** 2 / c, max=1.0)
+    a, b, c = a * fu, b * torch.sqrt(fu * fv), c * fv
+    det = (a * c - b * b).clamp_min(1e-30)
+    extent_u = settings.sigma_extent * torch.sqrt(a)
+    extent_v = settings.sigma_extent * torch.sqrt(c)
+    u, v = pixels.u, pixels.v
+    valid = pixels.valid & (opacities[:, None] >= settings.alpha_min)
+    valid = valid & (v - extent_v < height) & (v + extent_v > 0)
+    if not wrap_u:
+        valid = valid & (u - extent_u < width) & (u + extent_u > 0)
+    geo = torch.stack((u, v, c / det, -b / det, a / det, extent_u, extent_v, pixels.depth), dim=-1)
+    return geo, valid
+
+
+def project_dense(
+    means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, c2w: Tensor, camera, settings: RasterSettings
+) -> tuple[Tensor, Tensor]:
+    """Steps 1-3 for every (camera, Gaussian) pair: ``geo (B, V, N, 8)``, ``valid (B, V, N)`` (:func:`ewa_footprint`).
+
+    The reference's dense projection; a fast backend may bring its own with this signature."""
+    points, factor = to_camera_frame(means, scales, quats, c2w)
+    pixels = camera.pixel_map(points, settings)
+    return ewa_footprint(pixels, factor, opacities, settings, camera.max_std, camera.height, camera.width,
+                         camera.wrap_u)
 
 
 def _view_colors(gaussians: Gaussians, c2w: Tensor, camera: Tensor, gauss: Tensor) -> Tensor:
@@ -112,60 +200,7 @@ def _view_colors(gaussians: Gaussians, c2w: Tensor, camera: Tensor, gauss: Tenso
     return eval_sh(sh.index_select(0, gauss), dirs)
 
 
-def _cov2d_entries(jac_cam: Tensor, rot_c2w: Tensor, scales: Tensor, quats: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """Entries ``(a, b, c)`` of ``Sigma_2d = J W Sigma_3d W^T J^T`` (before dilation), ``(B, V, N)`` each.
-
-    With ``Sigma_3d = M M^T`` and ``M = R_q diag(s)``, ``Sigma_2d = (T M)(T M)^T`` where
-    ``T = J W`` (``W = R_c2w^T``, world -> camera): two 2x3 products per pair instead of 3x3 chains,
-    written elementwise so a GPU runs a few fused passes rather than batched tiny matrix products,
-    and positive semi-definite by construction.
-
-    jac_cam ``(B, V, N, 2, 3)``; rot_c2w ``(B, V, 3, 3)``; scales ``(B, N, 3)``; quats ``(B, N, 4)``.
-    """
-    # T[i, j] = sum_k J[i, k] W[k, j] = sum_k J[i, k] R[j, k]
-    t = (jac_cam[..., :, None, :] * rot_c2w[:, :, None, None, :, :]).sum(-1)  # (B, V, N, 2, 3)
-    m = quaternion_to_matrix(quats) * scales[..., None, :]  # (B, N, 3, 3)
-    tm = (t[..., :, :, None] * m[:, None, :, None, :, :]).sum(-2)  # (B, V, N, 2, 3)
-    row_u, row_v = tm[..., 0, :], tm[..., 1, :]
-    return (row_u * row_u).sum(-1), (row_u * row_v).sum(-1), (row_v * row_v).sum(-1)
-
-
-def _dense_tail(
-    cov2d: tuple[Tensor, Tensor, Tensor],
-    uv: Tensor,
-    depth: Tensor,
-    valid: Tensor,
-    opacities: Tensor,
-    settings: RasterSettings,
-    max_std: tuple[float, float],
-    height: int,
-    width: int,
-    wrap_u: bool,
-) -> tuple[Tensor, Tensor]:
-    """Shared tail: dilation, std caps, conic, extents, culling (all ``(B, V, N, ...)``).
-
-    Returns ``geo (B, V, N, 8)`` = ``[u, v, conic A, B, C, extent u, extent v, depth]`` and ``valid``."""
-    a, b, c = cov2d
-    a, c = a + settings.dilation, c + settings.dilation
-    # Cap the standard deviations by scaling rows/columns (keeps the matrix positive definite).
-    fu = torch.clamp(max_std[0] ** 2 / a, max=1.0)
-    fv = torch.clamp(max_std[1] ** 2 / c, max=1.0)
-    a, b, c = a * fu, b * torch.sqrt(fu * fv), c * fv
-    det = (a * c - b * b).clamp_min(1e-30)
-    extent_u = settings.sigma_extent * torch.sqrt(a)
-    extent_v = settings.sigma_extent * torch.sqrt(c)
-    u, v = uv
-    valid = valid & (opacities[:, None] >= settings.alpha_min)
-    valid = valid & (v - extent_v < height) & (v + extent_v > 0)
-    if not wrap_u:
-        valid = valid & (u - extent_u < width) & (u + extent_u > 0)
-    geo = torch.stack((u, v, c / det, -b / det, a / det, extent_u, extent_v, depth), dim=-1)
-    return geo, valid
-
-
-def _compact(
-    geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, height: int, width: int, wrap_u: bool
-) -> ProjectedGaussians:
+def _compact(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, camera_model) -> ProjectedGaussians:
     """Keep the visible pairs: one index computation and gathers (every ``x[mask]`` would synchronise again)."""
     num_b, num_v, num_n = valid.shape
     index = valid.reshape(-1).nonzero().squeeze(1)
@@ -174,6 +209,7 @@ def _compact(
     camera = index // num_n
     return ProjectedGaussians(
         camera=camera,
+        gaussian=gauss,
         uv=geo[:, 0:2],
         conic=geo[:, 2:5],
         extent=geo[:, 5:7],
@@ -181,61 +217,10 @@ def _compact(
         opacity=gaussians.opacities.reshape(-1).index_select(0, gauss),
         color=_view_colors(gaussians, c2w, camera, gauss),
         num_cameras=num_b * num_v,
-        height=height,
-        width=width,
-        wrap_u=wrap_u,
+        height=camera_model.height,
+        width=camera_model.width,
+        wrap_u=camera_model.wrap_u,
     )
-
-
-def _equirect_dense(
-    means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, c2w: Tensor, height: int, width: int,
-    settings: RasterSettings,
-) -> tuple[Tensor, Tensor]:
-    """Every (camera, Gaussian) pair of ``(B, N)`` Gaussians and ``(B, V)`` cameras -> ``geo, valid`` (:func:`_dense_tail`)."""
-    f64 = torch.float64
-    rot = c2w[..., :3, :3].to(f64)  # (B, V, 3, 3)
-    p = (means.to(f64)[:, None] - c2w[:, :, None, :3, 3].to(f64)) @ rot  # (B, V, N, 3) camera frame
-    x, y, z = p.unbind(-1)
-    rho2 = x * x + z * z
-    r = torch.sqrt((rho2 + y * y).clamp_min(1e-30))
-    valid = r > settings.near
-
-    u, v = ray_to_uv(p, height, width)  # finite gradients on the pole axis
-
-    r_safe = torch.where(valid, r, torch.ones_like(r))
-    p_safe = torch.where(valid[..., None], p, torch.ones_like(p))
-    jac = equirect_jacobian(p_safe, height, width, min_rho=settings.pole_eps * r_safe)  # (B, V, N, 2, 3)
-    cov2d = _cov2d_entries(jac, rot, scales.to(f64), quats.to(f64))
-    return _dense_tail(cov2d, (u, v), r, valid, opacities, settings, (width / 6.0, 2.0 * height), height, width, True)
-
-
-def _pinhole_dense(
-    means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, c2w: Tensor, intrinsics: Tensor, height: int,
-    width: int, settings: RasterSettings,
-) -> tuple[Tensor, Tensor]:
-    f64 = torch.float64
-    rot = c2w[..., :3, :3].to(f64)
-    p = (means.to(f64)[:, None] - c2w[:, :, None, :3, 3].to(f64)) @ rot
-    x, y, z = p.unbind(-1)
-    k = intrinsics.to(f64)
-    fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
-    valid = z > settings.near
-    z_safe = torch.where(valid, z, torch.ones_like(z))
-    tx, ty = x / z_safe, y / z_safe
-    lim_x, lim_y = 1.3 * (width / 2) / fx, 1.3 * (height / 2) / fy
-    valid = valid & ((tx - (cx - width / 2) / fx).abs() <= lim_x) & ((ty - (cy - height / 2) / fy).abs() <= lim_y)
-    zero = torch.zeros_like(z)
-    jac = torch.stack(
-        (
-            torch.stack((fx / z_safe, zero, -fx * x / z_safe**2), dim=-1),
-            torch.stack((zero, fy / z_safe, -fy * y / z_safe**2), dim=-1),
-        ),
-        dim=-2,
-    )
-    cov2d = _cov2d_entries(jac, rot, scales.to(f64), quats.to(f64))
-    r = torch.linalg.vector_norm(p, dim=-1)
-    uv = (fx * tx + cx, fy * ty + cy)
-    return _dense_tail(cov2d, uv, r, valid, opacities, settings, (4.0 * width, 4.0 * height), height, width, False)
 
 
 # torch.compile of the dense math (opt-in): fused kernels forward and backward on a GPU.
@@ -244,47 +229,32 @@ _USE_COMPILED = False
 
 
 def compile_projection(enabled: bool = True) -> None:
-    """Run the per-pair projection math through ``torch.compile`` (fewer, fused GPU kernels, forward and
-    backward). The first call per camera model and dtype compiles (seconds); results are identical
-    up to floating-point reassociation. Off by default."""
+    """Run the reference's per-pair projection math through ``torch.compile`` (fewer, fused GPU
+    kernels, forward and backward). The first call per camera model and dtype compiles (seconds);
+    results are identical up to floating-point reassociation. Off by default."""
     global _USE_COMPILED
     _USE_COMPILED = bool(enabled)
 
 
-def _dense(fn):
+def _reference_dense():
     if not _USE_COMPILED:
-        return fn
-    if fn not in _COMPILED:
-        _COMPILED[fn] = torch.compile(fn, dynamic=True)
-    return _COMPILED[fn]
+        return project_dense
+    if project_dense not in _COMPILED:
+        _COMPILED[project_dense] = torch.compile(project_dense, dynamic=True)
+    return _COMPILED[project_dense]
 
 
-def project_equirect_gaussians(
-    gaussians: Gaussians, c2w: Tensor, height: int, width: int, settings: RasterSettings = RasterSettings()
-) -> tuple[ProjectedGaussians, tuple[int, ...]]:
-    """Project into equirect cameras. Returns the projection and the output batch shape ``(*B, V)``."""
-    gaussians, c2w, out_shape = _flatten_cameras(gaussians, c2w)
-    g = gaussians
-    geo, valid = _dense(_equirect_dense)(g.means, g.scales, g.rotations, g.opacities, c2w, height, width, settings)
-    return _compact(geo, valid, gaussians, c2w, height, width, wrap_u=True), out_shape
+DenseProjection = Callable[[Tensor, Tensor, Tensor, Tensor, Tensor, Any, RasterSettings], tuple[Tensor, Tensor]]
 
 
-def project_pinhole_gaussians(
-    gaussians: Gaussians,
-    c2w: Tensor,
-    intrinsics: Tensor,
-    height: int,
-    width: int,
-    settings: RasterSettings = RasterSettings(),
-) -> tuple[ProjectedGaussians, tuple[int, ...]]:
-    """Project into pinhole cameras (``intrinsics`` 3x3, shared). Depth output is radial distance.
+def project_gaussians(
+    gaussians: Gaussians, c2w: Tensor, camera, settings: RasterSettings, dense: DenseProjection | None = None
+) -> ProjectedGaussians:
+    """Project flattened Gaussians ``(B, N, ...)`` into cameras ``(B, V, 4, 4)`` (:func:`flatten_cameras`)
+    with a camera model (:mod:`.cameras`); cameras are flattened to ``C = B * V`` in the result.
 
-    Gaussians are culled when ``z <= near`` or when their mean lies outside a guard band of 1.3x the
-    field of view (as 3DGS does, to keep the linearisation sane); the sort key is the radial
-    distance so that direct and cubemap renders composite in the same order.
+    ``dense`` replaces the reference's per-pair math (:func:`project_dense`), e.g. by a fused kernel.
     """
-    gaussians, c2w, out_shape = _flatten_cameras(gaussians, c2w)
     g = gaussians
-    geo, valid = _dense(_pinhole_dense)(g.means, g.scales, g.rotations, g.opacities, c2w, intrinsics, height, width,
-                                        settings)
-    return _compact(geo, valid, gaussians, c2w, height, width, wrap_u=False), out_shape
+    geo, valid = (dense or _reference_dense())(g.means, g.scales, g.rotations, g.opacities, c2w, camera, settings)
+    return _compact(geo, valid, gaussians, c2w, camera)

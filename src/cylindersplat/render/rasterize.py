@@ -31,7 +31,7 @@ from torch import Tensor
 
 from .projection import ProjectedGaussians, RasterSettings
 
-__all__ = ["TileBins", "bin_to_tiles", "expand_fragments", "composite", "rasterize", "pack_projected", "unpack_composited"]
+__all__ = ["TileBins", "TileSpans", "tile_spans", "bin_to_tiles", "expand_fragments", "composite", "rasterize", "pack_projected", "unpack_composited"]
 
 
 @dataclass
@@ -76,10 +76,37 @@ def _expand(counts: Tensor) -> tuple[Tensor, Tensor]:
     return item, rank
 
 
-def bin_to_tiles(proj: ProjectedGaussians, tile_size: int = 16) -> TileBins:
-    """Stage 2: pair Gaussians with the tiles their bounding boxes overlap, sorted by (tile, depth)."""
+@dataclass
+class TileSpans:
+    """Per projected Gaussian ``(M,)``: which tiles its bounding box overlaps.
+
+    Rows ``i0..i1`` (inclusive pixel range, tile rows ``i0 // T .. i1 // T``: ``ny`` of them); columns
+    as up to two intervals inside ``[0, W)``: ``a0..b0`` (``nx0`` tile columns) and, where the range
+    wraps past the seam, ``a1..b1`` (``nx1``); ``j0`` is the unwrapped first column. ``count = ny *
+    (nx0 + nx1)`` (Gaussian, tile) pairs.
+    """
+
+    i0: Tensor
+    i1: Tensor
+    j0: Tensor
+    a0: Tensor
+    b0: Tensor
+    a1: Tensor
+    b1: Tensor
+    ny: Tensor
+    nx0: Tensor
+    nx1: Tensor
+    tiles_x: int
+    tiles_y: int
+
+    @property
+    def count(self) -> Tensor:
+        return self.ny * (self.nx0 + self.nx1)
+
+
+def tile_spans(proj: ProjectedGaussians, tile_size: int) -> TileSpans:
+    """Per-Gaussian tile ranges and pair counts (stage 2's first step, shared by every binning)."""
     h, w, t = proj.height, proj.width, tile_size
-    tiles_x, tiles_y = math.ceil(w / t), math.ceil(h / t)
     i0, i1, j0, j1 = _pixel_ranges(proj)
     ok = (i1 >= i0) & (j1 >= j0)
     # Up to two column intervals in [0, W): the second exists when the range wraps past the seam.
@@ -96,25 +123,43 @@ def bin_to_tiles(proj: ProjectedGaussians, tile_size: int = 16) -> TileBins:
     ny = torch.where(ok, i1 // t - i0 // t + 1, 0)
     nx0 = torch.where(ok, b0 // t - a0 // t + 1, 0)
     nx1 = torch.where(ok & has_second, b1 // t - a1 // t + 1, 0)
-    nx = nx0 + nx1
-    g, k = _expand(ny * nx)
+    return TileSpans(i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1, math.ceil(w / t), math.ceil(h / t))
 
-    ty = k // nx[g] + i0[g] // t
+
+def _emit_pairs(proj: ProjectedGaussians, spans: TileSpans, tile_size: int) -> TileBins:
+    """Every (Gaussian, tile) pair, Gaussian-major, unsorted (the readable emission)."""
+    t, w, s = tile_size, proj.width, spans
+    nx = s.nx0 + s.nx1
+    g, k = _expand(s.count)
+    ty = k // nx[g] + s.i0[g] // t
     col = k % nx[g]
-    second = col >= nx0[g]
-    tx = torch.where(second, a1[g] // t + col - nx0[g], a0[g] // t + col)
-    lo = torch.where(second, a1[g], a0[g])
-    hi = torch.where(second, b1[g], b0[g])
-    rows = torch.stack((torch.maximum(i0[g], ty * t), torch.minimum(i1[g], ty * t + t - 1)), dim=-1)
+    second = col >= s.nx0[g]
+    tx = torch.where(second, s.a1[g] // t + col - s.nx0[g], s.a0[g] // t + col)
+    lo = torch.where(second, s.a1[g], s.a0[g])
+    hi = torch.where(second, s.b1[g], s.b0[g])
+    rows = torch.stack((torch.maximum(s.i0[g], ty * t), torch.minimum(s.i1[g], ty * t + t - 1)), dim=-1)
     cols = torch.stack((torch.maximum(lo, tx * t), torch.minimum(hi, tx * t + t - 1)), dim=-1)
-    tile = proj.camera[g] * (tiles_x * tiles_y) + ty * tiles_x + tx
-    shift = a0[g] - j0[g] - torch.where(second, w, 0)
+    tile = proj.camera[g] * (s.tiles_x * s.tiles_y) + ty * s.tiles_x + tx
+    shift = s.a0[g] - s.j0[g] - torch.where(second, w, 0)
+    return TileBins(g, tile, rows, cols, shift, s.tiles_x, s.tiles_y)
 
-    # Sort by (tile, depth): depth rank first, then one integer key.
+
+def _select(bins: TileBins, order: Tensor) -> TileBins:
+    return TileBins(bins.gaussian[order], bins.tile[order], bins.rows[order], bins.cols[order], bins.col_shift[order],
+                    bins.tiles_x, bins.tiles_y)
+
+
+def bin_to_tiles(proj: ProjectedGaussians, tile_size: int = 16) -> TileBins:
+    """Stage 2: pair Gaussians with the tiles their bounding boxes overlap, sorted by (tile, depth).
+
+    The readable definition: depth ranks (ties by Gaussian row), then one stable argsort of
+    ``tile * M + rank`` (a Gaussian whose columns wrap around the seam can meet one tile twice, with
+    disjoint columns: emission order). The fast backend's binning
+    (:func:`.triton_binning.bin_to_tiles_by_key`) gives the same order."""
+    pairs = _emit_pairs(proj, tile_spans(proj, tile_size), tile_size)
     depth_rank = torch.empty_like(proj.camera)
-    depth_rank[torch.argsort(proj.depth.detach(), stable=True)] = torch.arange(len(proj.depth), device=g.device)
-    order = torch.argsort(tile * max(len(proj.depth), 1) + depth_rank[g])
-    return TileBins(g[order], tile[order], rows[order], cols[order], shift[order], tiles_x, tiles_y)
+    depth_rank[torch.argsort(proj.depth.detach(), stable=True)] = torch.arange(len(proj.depth), device=depth_rank.device)
+    return _select(pairs, torch.argsort(pairs.tile * max(len(proj.depth), 1) + depth_rank[pairs.gaussian], stable=True))
 
 
 # Peak bytes per fragment of a forward + backward through this reference (measured: 6.3 M fragments

@@ -1,10 +1,12 @@
 """The fast backend: tile binning in PyTorch, Triton per-tile compositing (fwd + bwd), any camera model.
 
 Needs no compile step from the user: Triton ships with CUDA builds of PyTorch and compiles the
-kernels (:mod:`.triton_kernels`) at first use. Projection (EWA, seam and pole safeguards) and the
-(tile, depth) sort are the reference's own code (:mod:`.projection`, :func:`.rasterize.bin_to_tiles`),
-so only compositing differs, and it follows the same rules; gradients reach the Gaussian
-parameters through the projection's autograd graph.
+kernels (:mod:`.triton_kernels`) at first use. The backend also brings its own projection, a fused
+float32 kernel with an analytic backward (:mod:`.triton_projection`, registered beside it in
+:mod:`.api`) for the equirect and pinhole camera models; other camera models are projected by the
+reference. Tile binning is the reference's by counts, prefix sum, key emission and one sort
+(:mod:`.triton_binning`). Compositing follows the reference's rules; gradients reach the projected Gaussians
+through the compositing kernels' backward.
 
 On a CPU, ``TRITON_INTERPRET=1`` (set before the first render) runs the same kernels in Triton's
 interpreter; that is how the test suite checks them on machines without a GPU.
@@ -18,7 +20,8 @@ import torch
 from torch import Tensor
 
 from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings
-from .rasterize import TileBins, bin_to_tiles, pack_projected, unpack_composited
+from .rasterize import TileBins, pack_projected, unpack_composited
+from .triton_binning import bin_to_tiles_by_key
 
 __all__ = ["triton_available", "triton_backend", "composite_triton"]
 
@@ -83,5 +86,5 @@ def triton_backend(proj: ProjectedGaussians, settings: RasterSettings, backgroun
     any camera model -> ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
     if settings.tile_size & (settings.tile_size - 1):
         raise UnsupportedSettings(f"the Triton backend needs a power-of-two tile size, got {settings.tile_size}")
-    bins = bin_to_tiles(proj, settings.tile_size)
+    bins = bin_to_tiles_by_key(proj, settings.tile_size)
     return composite_triton(proj, bins, settings, background)

@@ -1,0 +1,137 @@
+"""Our pinhole renderer against gsplat's rasterizer: speed (forward, forward + backward) and agreement.
+
+    cylindersplat bench gsplat_compare --num 100000 500000 1300000 --height 512 --device cuda
+    cylindersplat bench gsplat_compare --num 2000 --height 16 --device cpu --backend torch   # smoke: our side only
+
+Same scene (:func:`cylindersplat.scenes.random_indoor`, SH degree 0 colours), one pinhole camera at
+the room's centre, ``H x 2H`` pixels, 90-degree horizontal field of view. gsplat follows the same 3DGS
+conventions (0.3 px^2 dilation, alpha cap 0.99 and threshold 1/255, transmittance floor 1e-4), but
+sorts by z-depth where we sort by radial distance, and culls at the image border differently, so the
+images agree closely but not bit for bit: the agreement is printed (mean |difference|, PSNR of ours
+against gsplat's), not asserted.
+
+gsplat is an optional comparison, not a dependency: without it (or without CUDA, which its
+kernels need) only our side is timed and the row says why. On a machine without a package index,
+carry its wheel (``pip download --no-deps gsplat==1.5.3``: pure Python, its CUDA code is compiled at
+first use with the machine's nvcc) and install it with ``pip install --no-index``; ``benchmarks/
+gpu_check.sh`` does this from ``$CHECK_WHEELS`` (default ``.whl``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+import torch
+from torch import Tensor
+
+from cylindersplat.render import Pinhole, render
+from cylindersplat.render.covariance import eval_sh
+from cylindersplat.scenes import random_indoor
+
+from .render import _forward_and_backward_ms, _peak_mb, _sync
+
+__all__ = ["main"]
+
+
+def _camera(height: int, device) -> tuple[Tensor, int, int]:
+    width = 2 * height
+    f = width / 2.0  # 90 degrees horizontally
+    k = torch.tensor([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]], device=device)
+    return k, height, width
+
+
+def _gsplat_render(gsplat, g, colours, k, height, width):
+    """gsplat's RGB + expected depth for the identity pose (world-to-camera = identity)."""
+    colors, alphas, _ = gsplat.rasterization(
+        g.means, g.rotations, g.scales, g.opacities, colours, torch.eye(4, device=g.means.device)[None], k[None],
+        width, height, near_plane=0.01, eps2d=0.3, render_mode="RGB+ED", packed=True)
+    return colors[0, ..., :3].permute(2, 0, 1), colors[0, ..., 3], alphas[0, ..., 0]
+
+
+def _import_gsplat(device: torch.device):
+    if device.type != "cuda":
+        return None, "gsplat needs CUDA"
+    try:
+        import gsplat
+
+        return gsplat, None
+    except ImportError as exc:
+        return None, f"gsplat not installed ({exc}); carry its wheel (see this module's docstring)"
+
+
+def compare(num: int, height: int, device: torch.device, backends: list[str], repeats: int) -> list[dict]:
+    g = random_indoor(num).to(device)
+    g = type(g).from_rgb(g.means, g.scales, g.rotations, g.opacities, eval_sh(g.sh[..., :1, :], None))
+    params = [t.requires_grad_() for t in g.tensors().values()]
+    k, h, w = _camera(height, device)
+    c2w = torch.eye(4, device=device)
+    camera = Pinhole(k.cpu(), h, w)
+    rows, images = [], {}
+
+    class _Out:  # gsplat's images in the shape _forward_and_backward_ms expects
+        def __init__(self, rgb, depth):
+            self.rgb, self.depth = rgb, depth
+
+    renders = {f"cylindersplat-{b}": (lambda b=b: render(g, c2w, camera, backend=b)) for b in backends}
+    gsplat, why_not = _import_gsplat(device)
+    if gsplat is not None:
+
+        def gsplat_render():
+            colours = eval_sh(g.sh, None)  # SH degree 0 -> RGB, in the graph like ours
+            rgb, depth, _ = _gsplat_render(gsplat, g, colours, k, h, w)
+            return _Out(rgb, depth)
+
+        renders["gsplat"] = gsplat_render
+    for name, fn in renders.items():
+        row = {"num": num, "size": f"{h}x{w}", "device": str(device), "renderer": name}
+        if device.type == "cuda":
+            torch.cuda.reset_peak_memory_stats()
+        try:
+            row["forward_ms"], row["fwd_bwd_ms"] = _forward_and_backward_ms(fn, params, device, repeats)
+            row["peak_mb"] = _peak_mb(device)
+            with torch.no_grad():
+                images[name] = fn().rgb.float()
+        except (torch.OutOfMemoryError, MemoryError):
+            row["error"] = "out of memory"
+        _sync(device)
+        rows.append(row)
+    if gsplat is None:
+        rows.append({"num": num, "renderer": "gsplat", "skipped": why_not})
+    elif "gsplat" in images:
+        for name, image in images.items():
+            if name == "gsplat":
+                continue
+            mse = float(((image - images["gsplat"]) ** 2).mean())
+            rows.append({"num": num, "agreement": f"{name} vs gsplat", "mean_abs": float((image - images["gsplat"]).abs().mean()),
+                         "psnr_db": 10 * math.log10(1.0 / max(mse, 1e-20))})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="cylindersplat bench gsplat_compare", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--num", type=int, nargs="+", default=[100_000], help="numbers of Gaussians")
+    parser.add_argument("--height", type=int, default=512, help="image height (width = 2 x height)")
+    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--backend", nargs="+", default=["triton"], help="our backends to time (triton, torch)")
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args(argv)
+    device = torch.device(args.device)
+    print(f"# pinhole {args.height}x{2 * args.height}, 90 deg horizontal FOV; torch {torch.__version__}"
+          + (f"; GPU: {torch.cuda.get_device_name()}" if device.type == "cuda" else "; CPU"))
+    for num in args.num:
+        rows = compare(num, args.height, device, args.backend, args.repeats)
+        for row in rows:
+            print(row)
+        timed = {r["renderer"]: r for r in rows if "forward_ms" in r}
+        if "gsplat" in timed:
+            for name, row in timed.items():
+                if name != "gsplat":
+                    ref = timed["gsplat"]
+                    print(f"# {name} vs gsplat ({num} Gaussians): forward {row['forward_ms'] / ref['forward_ms']:.2f}x "
+                          f"gsplat's time, fwd+bwd {row['fwd_bwd_ms'] / ref['fwd_bwd_ms']:.2f}x")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,59 @@
+"""Triton kernel of the fast backend's tile binning: (Gaussian, tile) pair emission with sort keys.
+
+Imported lazily by :mod:`.triton_binning` (``TRITON_INTERPRET=1`` must be set before the first import
+to select Triton's CPU interpreter). One lane per projected Gaussian writes its pairs at its offset
+(the exclusive prefix sum of the per-Gaussian counts), Gaussian-major like the reference emission
+(:func:`.rasterize._emit_pairs`), with the rules of :class:`.rasterize.TileSpans`; the key of a pair
+is ``tile << 32 | bits(float32 depth)`` (radial depths are positive, so their bit patterns sort like
+the numbers).
+"""
+
+from __future__ import annotations
+
+import triton
+import triton.language as tl
+
+
+@triton.jit
+def emit_pairs_kernel(
+    camera_ptr, depth_bits_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr,
+    offset_ptr, key_ptr, gaussian_ptr, rows_ptr, cols_ptr, shift_ptr,
+    num_gaussians, width, tiles_x, tiles_per_camera,
+    TILE: tl.constexpr, BLOCK: tl.constexpr,
+):
+    g = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    mask = g < num_gaussians
+    camera = tl.load(camera_ptr + g, mask=mask, other=0)
+    depth_bits = tl.load(depth_bits_ptr + g, mask=mask, other=0).to(tl.int64)
+    i0 = tl.load(i0_ptr + g, mask=mask, other=0)
+    i1 = tl.load(i1_ptr + g, mask=mask, other=0)
+    j0 = tl.load(j0_ptr + g, mask=mask, other=0)
+    a0 = tl.load(a0_ptr + g, mask=mask, other=0)
+    b0 = tl.load(b0_ptr + g, mask=mask, other=0)
+    a1 = tl.load(a1_ptr + g, mask=mask, other=0)
+    b1 = tl.load(b1_ptr + g, mask=mask, other=0)
+    ny = tl.load(ny_ptr + g, mask=mask, other=0)
+    nx0 = tl.load(nx0_ptr + g, mask=mask, other=0)
+    nx1 = tl.load(nx1_ptr + g, mask=mask, other=0)
+    start = tl.load(offset_ptr + g, mask=mask, other=0)
+    nx = nx0 + nx1
+    count = ny * nx
+    nx_safe = tl.where(nx > 0, nx, 1)
+    # Every value divided below is >= 0 (Triton's // truncates, torch's floors: they agree there).
+    for k in range(0, tl.max(count, axis=0)):
+        on = mask & (k < count)
+        ty = k // nx_safe + i0 // TILE
+        col = k % nx_safe
+        second = col >= nx0
+        tx = tl.where(second, a1 // TILE + col - nx0, a0 // TILE + col)
+        lo = tl.where(second, a1, a0)
+        hi = tl.where(second, b1, b0)
+        tile = camera * tiles_per_camera + ty * tiles_x + tx
+        at = start + k
+        tl.store(key_ptr + at, (tile.to(tl.int64) << 32) | depth_bits, mask=on)
+        tl.store(gaussian_ptr + at, g.to(tl.int64), mask=on)
+        tl.store(rows_ptr + 2 * at, tl.maximum(i0, ty * TILE), mask=on)
+        tl.store(rows_ptr + 2 * at + 1, tl.minimum(i1, ty * TILE + TILE - 1), mask=on)
+        tl.store(cols_ptr + 2 * at, tl.maximum(lo, tx * TILE), mask=on)
+        tl.store(cols_ptr + 2 * at + 1, tl.minimum(hi, tx * TILE + TILE - 1), mask=on)
+        tl.store(shift_ptr + at, a0 - j0 - tl.where(second, width, 0), mask=on)

@@ -1,0 +1,96 @@
+"""The Triton backend's projection: the reference's three steps (world -> camera, pixel map, EWA
+footprint) fused into one float32 kernel per direction (:mod:`.triton_projection_kernels`).
+
+:func:`project_dense_triton` has the signature of :func:`.projection.project_dense` and is registered
+as the ``"triton"`` backend's projection (:func:`.api.register_backend`). It handles the
+:class:`.cameras.Equirect` and :class:`.cameras.Pinhole` camera models (cube-map faces included);
+for any other camera model, or poses that require gradients (the kernel treats poses as
+constants), it raises :class:`.projection.UnsupportedSettings` and the reference projects.
+Gradients reach means, scales and quaternions (analytic backward, per pair, summed over cameras);
+opacities and colours are gathered outside the kernel as in the reference.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from .cameras import Equirect, Pinhole
+from .projection import RasterSettings, UnsupportedSettings
+
+__all__ = ["project_dense_triton"]
+
+_BLOCK = 128
+_MODELS = {Equirect: 0, Pinhole: 1}  # the kernel's MODEL constant per camera model
+
+
+def _camera_constants(camera) -> tuple[int, tuple[float, float, float, float]]:
+    model = _MODELS.get(type(camera))
+    if model is None:
+        raise UnsupportedSettings(f"the fused projection kernel has no pixel map for {type(camera).__name__}")
+    return model, (camera.focal_and_centre if model == 1 else (0.0, 0.0, 0.0, 0.0))
+
+
+class _FusedProjection(torch.autograd.Function):
+    """means, scales ``(B, N, 3)``, quats ``(B, N, 4)``, opacities ``(B, N)`` (float32, contiguous),
+    cams ``(B * V, 12)`` (c2w rotation row-major, then translation) -> ``geo (B, V, N, 8)``,
+    ``valid (B, V, N)`` bool."""
+
+    @staticmethod
+    def forward(ctx, means, scales, quats, opacities, cams, num_views, model, constants):
+        from . import triton_projection_kernels as kernels
+
+        num_b, num_n = means.shape[:2]
+        num_pairs = num_b * num_views * num_n
+        geo = torch.empty(num_b, num_views, num_n, 8, dtype=torch.float32, device=means.device)
+        valid = torch.empty(num_b, num_views, num_n, dtype=torch.int8, device=means.device)
+        (height, width, fx, fy, cx, cy, near, pole_eps, dilation, sigma_extent, alpha_min, max_u2, max_v2) = constants
+        if num_pairs > 0:
+            grid = ((num_pairs + _BLOCK - 1) // _BLOCK,)
+            kernels.project_forward_kernel[grid](
+                means, scales, quats, opacities, cams, geo, valid, num_pairs, num_views, num_n, height, width,
+                fx, fy, cx, cy, near, pole_eps, dilation, sigma_extent, alpha_min, max_u2, max_v2,
+                MODEL=model, BLOCK=_BLOCK)
+        ctx.save_for_backward(means, scales, quats, cams, valid)
+        ctx.num_views, ctx.model, ctx.constants = num_views, model, constants
+        visible = valid.bool()
+        ctx.mark_non_differentiable(visible)
+        return geo, visible
+
+    @staticmethod
+    def backward(ctx, grad_geo, _grad_valid):
+        from . import triton_projection_kernels as kernels
+
+        means, scales, quats, cams, valid = ctx.saved_tensors
+        num_b, num_n = means.shape[:2]
+        num_views = ctx.num_views
+        num_pairs = num_b * num_views * num_n
+        (height, width, fx, fy, cx, cy, near, pole_eps, dilation, sigma_extent, _, max_u2, max_v2) = ctx.constants
+        grad_pairs = torch.empty(num_b, num_views, num_n, 10, dtype=torch.float32, device=means.device)
+        if num_pairs > 0:
+            grid = ((num_pairs + _BLOCK - 1) // _BLOCK,)
+            kernels.project_backward_kernel[grid](
+                means, scales, quats, cams, valid, grad_geo.float().contiguous(), grad_pairs, num_pairs, num_views,
+                num_n, height, width, fx, fy, cx, cy, near, pole_eps, dilation, sigma_extent, max_u2, max_v2,
+                MODEL=ctx.model, BLOCK=_BLOCK)
+        grad = grad_pairs.sum(1)  # over cameras: (B, N, 10)
+        return grad[..., 0:3], grad[..., 3:6], grad[..., 6:10], None, None, None, None, None
+
+
+def project_dense_triton(
+    means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, c2w: Tensor, camera, settings: RasterSettings
+) -> tuple[Tensor, Tensor]:
+    """:func:`.projection.project_dense` on the fused kernel: ``geo (B, V, N, 8)`` float32, ``valid (B, V, N)``."""
+    if c2w.requires_grad:
+        raise UnsupportedSettings("the fused projection kernel treats poses as constants; poses that require "
+                                  "gradients are projected by the reference")
+    model, (fx, fy, cx, cy) = _camera_constants(camera)
+    max_u, max_v = camera.max_std
+    constants = (camera.height, camera.width, fx, fy, cx, cy, settings.near, settings.pole_eps, settings.dilation,
+                 settings.sigma_extent, settings.alpha_min, max_u * max_u, max_v * max_v)
+    num_b, num_v = c2w.shape[:2]
+    cams = torch.cat((c2w[..., :3, :3].reshape(num_b * num_v, 9), c2w[..., :3, 3].reshape(num_b * num_v, 3)), -1)
+    f32 = torch.float32
+    return _FusedProjection.apply(means.to(f32).contiguous(), scales.to(f32).contiguous(), quats.to(f32).contiguous(),
+                                  opacities.to(f32).contiguous(), cams.to(f32).contiguous(), num_v, model, constants)
+

@@ -1,0 +1,47 @@
+"""The pieces of ``benchmarks/gpu_check.sh`` that run without a GPU: the gsplat comparison's own side
+(gsplat itself needs CUDA) and the training-run verdict."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import torch
+
+from cylindersplat.benchmarks.gsplat_compare import compare
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_gsplat_comparison_times_our_side_and_says_why_gsplat_is_missing():
+    rows = compare(200, 8, torch.device("cpu"), ["torch"], repeats=1)
+    ours = [r for r in rows if r.get("renderer") == "cylindersplat-torch"]
+    assert len(ours) == 1 and ours[0]["forward_ms"] > 0 and ours[0]["fwd_bwd_ms"] > 0
+    assert any(r.get("renderer") == "gsplat" and "CUDA" in r["skipped"] for r in rows)
+
+
+def _summary_module():
+    spec = importlib.util.spec_from_file_location("train_run_summary", ROOT / "benchmarks/train_run_summary.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _metrics(path, losses_per_stage):
+    with open(path, "w") as f:
+        step = 0
+        for stage, losses in losses_per_stage.items():
+            for loss in losses:
+                step += 1
+                f.write(json.dumps({"stage": stage, "step": step, "train/total": loss, "train/step_time": 0.1}) + "\n")
+    return str(path)
+
+
+def test_training_run_verdict(tmp_path, capsys):
+    summary = _summary_module()
+    falling = _metrics(tmp_path / "a.jsonl", {1: [1.0, 0.9, 0.8, 0.6, 0.5, 0.4], 3: [0.5, 0.5]})
+    assert summary.main(falling, require_fall=True) == 0
+    assert "loss falls (stage 1: fell; stage 3: too short to tell)" in capsys.readouterr().out
+    rising = _metrics(tmp_path / "b.jsonl", {1: [0.4, 0.5, 0.6, 0.8, 0.9, 1.0]})
+    assert summary.main(rising, require_fall=True) == 1
+    assert summary.main(rising) == 0  # without --require-fall the verdict is only printed
+    assert "NOT converging" in capsys.readouterr().out
