@@ -97,3 +97,28 @@ def test_a_variant_is_scored_with_the_depth_prior_it_trains_with(tmp_path, monke
                   resolution=(32, 64), log=lambda *_: None)
     with pytest.raises(ValueError, match="unknown depth prior"):
         run_study(data, tmp_path / "u", [plain], seeds=(0,), held_out=1, depth_prior="sharp")
+
+
+def test_study_reruns_are_bit_identical_at_a_fixed_thread_count(tmp_path):
+    """The thread count is part of the recipe (it orders float sums): two runs with the same one give the same bytes."""
+    import hashlib
+
+    import torch
+
+    data = tmp_path / "data"
+    write_synthetic_dataset(data, 2, (32, 64), SequenceConfig(frames=3), seed=4, progress=False)
+    before = torch.get_num_threads()
+    digests, reports = [], []
+    for name in ("a", "b"):
+        reports.append(run_study(data, tmp_path / name, [Variant("full", "both branches")], seeds=(0,),
+                                 schedule=Schedule(2, 1, 1), held_out=1, resolution=(32, 64), log=lambda *_: None,
+                                 fills=(), threads=1))
+        weights = tmp_path / name / "runs" / "full" / "seed0" / "model.safetensors"
+        digests.append(hashlib.sha256(weights.read_bytes()).hexdigest())
+        assert json.loads((weights.parent / "study_run.json").read_text())["threads"] == 1
+    assert digests[0] == digests[1]
+    assert reports[0]["threads"] == 1 and torch.get_num_threads() == before  # restored afterwards
+    ws = [r["variants"]["full"]["metrics"]["ws_psnr"]["seeds"] for r in reports]
+    assert ws[0] == ws[1]
+    with pytest.raises(ValueError, match="threads must be an integer >= 1"):
+        run_study(data, tmp_path / "c", [Variant("full", "x")], seeds=(0,), held_out=1, threads=0)

@@ -53,6 +53,8 @@ def register(subparsers) -> None:
                    help="fill rows of the pixel-only variants and the forward warp: mean (the inputs' mean colour) or "
                    "inpaint (a 2-D inpaint) behind the pixels a render leaves uncovered; none for no fill rows "
                    "(default mean,inpaint)")
+    p.add_argument("--threads", type=int, default=2, help="torch threads of every run (default 2): part of the recipe, "
+                   "as the thread count sets the order of float sums; the same count gives bit-identical reruns")
     p.add_argument("--json", type=Path, help="also copy ablation.json here (e.g. benchmarks/results/ablation.json)")
     p.set_defaults(func=run)
 
@@ -68,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
     data = args.data or _generate(args)
     schedule = Schedule(*args.steps, lr=args.lr)
     report = run_study(data, args.out, [known[n] for n in names], tuple(args.seeds), schedule, args.held_out,
-                       args.resolution, args.device, depth_prior=args.depth_prior, fills=tuple(args.fills))
+                       args.resolution, args.device, depth_prior=args.depth_prior, fills=tuple(args.fills),
+                       threads=args.threads)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(args.json, json_text(report))

@@ -13,6 +13,7 @@ training time, skipped steps and Gaussian counts) and ``ablation.md`` (a paper-s
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import statistics
@@ -69,6 +70,10 @@ class Variant:
         chosen = [o.split("=", 1)[1] for o in self.overrides if o.startswith("data.depth_prior=")]
         return chosen[-1] if chosen else "default"
 
+
+# torch intra-op threads of the study's runs (run_study's default): fixed, so that reruns are bit-identical
+# whatever OMP_NUM_THREADS the shell has (benchmarks/rerun_check.py)
+STUDY_THREADS = 2
 
 # The paper's volume-only rows: the volume branch alone renders every pixel (no fusion, no pruning).
 VOLUME_ONLY = ("model.fusion.strategy=concat", "train.stage2_render=volume")
@@ -162,6 +167,8 @@ class RunResult:
 
 def _train(variant: Variant, seed: int, schedule: Schedule, data_root: Path, train_ids: list[str], run_dir: Path,
            resolution: tuple[int, int], device: str) -> tuple[Path, float, int]:
+    import torch
+
     from ..training import Trainer, load_config
 
     weights = run_dir / "model.safetensors"
@@ -186,7 +193,8 @@ def _train(variant: Variant, seed: int, schedule: Schedule, data_root: Path, tra
     summary = Trainer(config, resume=resume).fit()
     train_s = time.perf_counter() - start
     atomic_write_text(meta, json.dumps({"train_s": train_s, "skipped_steps": summary.get("skipped_steps", 0),
-                                "stages": stages, "steps": steps, "seed": seed, "overrides": list(variant.overrides)}))
+                                "stages": stages, "steps": steps, "seed": seed, "overrides": list(variant.overrides),
+                                "threads": torch.get_num_threads()}))
     return Path(summary["weights"]), train_s, int(summary.get("skipped_steps", 0))
 
 
@@ -236,11 +244,42 @@ def run_study(
     log=None,
     depth_prior: str = "default",
     fills: tuple[str, ...] = ("mean", "inpaint"),
+    threads: int | None = STUDY_THREADS,
 ) -> dict:
     """Train and score every variant x seed; write ``ablation.json`` / ``ablation.md`` to ``out_dir``.
     ``depth_prior`` (a ``data.depth_prior`` spec) is every variant's input prior unless the variant sets its own.
     ``fills``: the fill rows (:mod:`cylindersplat.evaluation.fills`) of every pixel-only variant and of the forward
-    warp, which the study scores too (the cheapest alternatives any completion must beat); ``()`` for none."""
+    warp, which the study scores too (the cheapest alternatives any completion must beat); ``()`` for none.
+    ``threads``: torch's intra-op threads during the study (``None``: leave them as they are). The thread count
+    sets the order of float sums, so it is part of a run's recipe: with the same count, a rerun on the same
+    machine kind is bit-identical; with another, 600 steps drift by about the seed spread."""
+    with torch_threads(threads):
+        return _run_study(data_root, out_dir, variants, seeds, schedule, held_out, resolution, device, log,
+                          depth_prior, fills)
+
+
+@contextlib.contextmanager
+def torch_threads(threads: int | None):
+    """Within the block torch uses ``threads`` intra-op threads (``None``: unchanged)."""
+    import torch
+
+    if threads is None:
+        yield
+        return
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise ValueError(f"threads must be an integer >= 1 (torch intra-op threads), got {threads!r}")
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _run_study(data_root, out_dir, variants, seeds, schedule, held_out, resolution, device, log, depth_prior,
+               fills) -> dict:
+    import torch
+
     from ..data import SyntheticDataset
 
     log = log or (lambda text: print(text, flush=True))  # progress lines reach a log file as they happen
@@ -258,7 +297,7 @@ def run_study(
     _check_variants(variants)
     report: dict = {"schedule": asdict(schedule), "seeds": list(seeds), "resolution": list(resolution),
                     "data": str(data_root), "train_scenes": len(train_ids), "held_out_scenes": test_ids,
-                    "depth_prior": depth_prior, "variants": {}}
+                    "depth_prior": depth_prior, "threads": torch.get_num_threads(), "variants": {}}
     report["fills"] = list(fills)
     start = time.perf_counter()
     for vi, variant in enumerate(variants):
