@@ -15,6 +15,9 @@ def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) 
     parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train / demo), a run folder (or its checkpoints/latest), or a shipped "
                         "model name (default: the shipped tiny-synth weights, trained on procedural scenes)")
     parser.add_argument("--poses-file", type=Path, help="poses file (default INPUT/poses.json)")
+    parser.add_argument("--allow-outside-paths", action="store_true",
+                        help="read image/depth files the poses file names outside the input folder (absolute or ../ "
+                        "paths, symlinks leading out); refused by default")
     parser.add_argument("--resolution", type=model_resolution,
                         help="HxW the model runs at (default: the model's nominal input height x 2)")
     parser.add_argument("--depth-prior",
@@ -53,7 +56,8 @@ def reconstruct_from_args(args: argparse.Namespace):
         raise ValueError(f"--resolution {size[0]}x{size[1]}: this model needs a height divisible by {stride}, "
                          f"e.g. {low}x{2 * low} or {low + stride}x{2 * (low + stride)}")
     prior = parse_depth_prior(args.depth_prior) if args.depth_prior else None
-    inputs = load_panorama_folder(args.input, size, depth_prior=prior, poses_file=args.poses_file)
+    inputs = load_panorama_folder(args.input, size, depth_prior=prior, poses_file=args.poses_file,
+                                  allow_outside_paths=args.allow_outside_paths)
     start = time.perf_counter()
     gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, args.min_opacity)
     print(f"reconstructed {len(gaussians):,} Gaussians from {len(inputs.names)} panoramas at "

@@ -44,6 +44,7 @@ def load_panorama_folder(
     resolution: tuple[int, int],
     depth_prior: DepthPrior | None = None,
     poses_file: str | Path | None = None,
+    allow_outside_paths: bool = False,
 ) -> PanoramaInputs:
     """Read the panoramas, poses and depth priors of ``folder`` at ``resolution`` ``(H, W)``.
 
@@ -52,13 +53,15 @@ def load_panorama_folder(
     given (e.g. a depth foundation model, or ``file:NAME`` for ``FOLDER/priors/NAME/<stem>.png`` from
     ``cylindersplat data priors``) and are an error otherwise. A depth without a single positive
     pixel is an error unless ``depth_prior`` is :class:`~cylindersplat.data.depth_prior.NoPrior` (asked for
-    by name). This is :class:`~cylindersplat.data.FolderDataset` (``views="all_inputs"``), its one example.
+    by name). This is :class:`~cylindersplat.data.FolderDataset` (``views="all_inputs"``), its one example;
+    files named by the poses file must lie inside ``folder`` unless ``allow_outside_paths``.
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"input folder not found: {folder}")
     poses_path(folder, poses_file)  # one folder of panoramas, not a folder of them: its poses file must be there
-    dataset = FolderDataset(folder, resolution=resolution, depth_prior=depth_prior, poses_file=poses_file)
+    dataset = FolderDataset(folder, resolution=resolution, depth_prior=depth_prior, poses_file=poses_file,
+                            allow_outside_paths=allow_outside_paths)
     dataset.check_depth("--depth-prior")
     sample = dataset[0]
     names = [dataset.example(0).frames[i].name for i in sample.metadata["context_indices"]]
