@@ -12,6 +12,7 @@ adds others.
 from __future__ import annotations
 
 import math
+import os
 import warnings
 from dataclasses import dataclass
 from typing import Callable
@@ -19,6 +20,7 @@ from typing import Callable
 import torch
 from torch import Tensor
 
+from ..errors import InputError
 from ..gaussians import Gaussians
 from ..geometry.poses import validate_c2w
 from .cameras import CameraModel, Equirect
@@ -73,6 +75,10 @@ def available_backends() -> list[str]:
 
 
 def _pick_backend(name: str, device: torch.device) -> Backend:
+    if name == "triton" and device.type != "cuda" and os.environ.get("TRITON_INTERPRET") != "1":
+        # Triton compiles for GPUs only (its CPU interpreter, TRITON_INTERPRET=1, is for tests)
+        raise InputError(f"backend='triton' needs a CUDA GPU, but the Gaussians are on {device.type}; use "
+                         "backend='torch' (or 'auto'), or move the Gaussians to CUDA")
     if name == "auto":
         if device.type == "cuda":
             for cand in _AUTO_ORDER:
@@ -80,7 +86,8 @@ def _pick_backend(name: str, device: torch.device) -> Backend:
                     return _BACKENDS[cand]
         return _reference_backend
     if name not in _BACKENDS:
-        raise ValueError(f"unknown render backend {name!r}; available: {available_backends()} or 'auto'")
+        needs = " (needs the triton package: pip install triton)" if name == "triton" else ""
+        raise InputError(f"unknown render backend {name!r}{needs}; available: {', '.join(available_backends())} or auto")
     return _BACKENDS[name]
 
 
@@ -134,6 +141,8 @@ def render(
     gaussians.validate()
     validate_c2w(c2w)
     settings = settings or RasterSettings()
+    if not isinstance(settings, RasterSettings):
+        raise TypeError(f"settings must be a RasterSettings, got {type(settings).__name__}")
     c2w = c2w.to(device=gaussians.device)
     out_shape = _output_shape(gaussians, c2w)
     num_cameras = math.prod(out_shape)

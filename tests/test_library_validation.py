@@ -1,0 +1,136 @@
+"""Issue 27, item 1 (library API) and item 3 (plausibility): reconstruct_gaussians and render refuse bad
+inputs with one-line InputErrors instead of returning Gaussians or raising raw errors."""
+
+import pytest
+import torch
+
+from cylindersplat.errors import ImplausibleInputError, InputError
+from cylindersplat.gaussians import Gaussians
+from cylindersplat.inference import reconstruct_gaussians
+from cylindersplat.render import render_equirect
+from cylindersplat.render.projection import RasterSettings
+from model_inputs import make_inputs
+
+
+def _inputs(height=16):
+    images, depths, c2w = make_inputs(views=2, height=height, width=2 * height)
+    return images[0], depths[0], c2w[0]
+
+
+def _broken(change):
+    images, depths, c2w = _inputs()
+    change(images, depths, c2w)
+    return images, depths, c2w
+
+
+def _nan_pixel(t):
+    t.view(-1)[7] = float("nan")
+
+
+def _reflect(c2w):
+    c2w[1, :3, 0] *= -1
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda i, d, c: i.mul_(255), "images must be RGB in [0, 1], got values in [0.0203213, 254.959]; divide 8-bit images by 255"),
+    (lambda i, d, c: _nan_pixel(i), "images hold NaN or Inf values (view 0); give finite RGB in [0, 1]"),
+    (lambda i, d, c: i.sub_(0.5), "images must be RGB in [0, 1], got values in [-0.49"),
+    (lambda i, d, c: _nan_pixel(d), "depths hold NaN or Inf values (view 0); use 0 for unknown depth"),
+    (lambda i, d, c: d[1].mul_(-1), "depths hold negative values (view 1, min -3"),
+    (lambda i, d, c: _nan_pixel(c), "c2w contains non-finite values (NaN or Inf); give OpenCV camera-to-world "
+                                    "matrices [R | t] with R a rotation (det +1)"),
+    (lambda i, d, c: _reflect(c), "c2w rotation part is a reflection (determinant -1), not a rotation; check the "
+                                  "handedness of the pose convention; give OpenCV camera-to-world matrices"),
+])
+def test_reconstruct_refuses_bad_tensors(tiny_model, change, message):
+    with pytest.raises(InputError) as info:
+        reconstruct_gaussians(tiny_model, *_broken(change))
+    assert str(info.value).startswith(message) and "\n" not in str(info.value)
+
+
+def test_reconstruct_refuses_a_height_the_model_cannot_tile(tiny_model):
+    with pytest.raises(InputError) as info:
+        reconstruct_gaussians(tiny_model, *_inputs(height=24))
+    assert str(info.value) == ("images are 24x48, but this model needs a height divisible by 16; resize them, e.g. "
+                               "to 16x32")
+
+
+def test_reconstruct_refuses_depth_of_another_size(tiny_model):
+    images, depths, c2w = _inputs()
+    with pytest.raises(InputError) as info:
+        reconstruct_gaussians(tiny_model, images, depths[:, ::2, ::2], c2w)
+    assert str(info.value) == ("depths must have shape (V, H, W) = (2, 16, 32) to match the images, got (2, 8, 16); "
+                               "resize the depth maps to the images' size")
+
+
+@pytest.mark.parametrize("scale,message", [
+    (1000.0, "depths[0]: median depth 2.41e+03 m is above 1000 m (millimetres read as metres? check depth_scale or "
+             "the .npy units); depth is radial metres (check_plausibility=False to use it anyway)"),
+    (1e-30, "depths[0]: median depth 2.41e-30 m is below 0.01 m (check depth_scale or the .npy units); depth is radial "
+            "metres (check_plausibility=False to use it anyway)"),
+])
+def test_reconstruct_refuses_implausible_depth_unless_told(tiny_model, scale, message):
+    images, depths, c2w = _inputs()
+    with pytest.raises(ImplausibleInputError) as info:
+        reconstruct_gaussians(tiny_model, images, depths * scale, c2w)
+    assert str(info.value) == message
+    assert len(reconstruct_gaussians(tiny_model, images, depths * scale, c2w, check_plausibility=False)) > 0
+
+
+def test_reconstruct_refuses_far_cameras(tiny_model):
+    images, depths, c2w = _inputs()
+    c2w[1, 0, 3] = 1e30
+    with pytest.raises(ImplausibleInputError) as info:
+        reconstruct_gaussians(tiny_model, images, depths, c2w)
+    assert str(info.value) == ("c2w: a camera lies 1e+30 m from the origin, beyond 10000 m; recentre the poses "
+                               "(subtract a common origin) and give them in metres")
+
+
+@pytest.mark.parametrize("value,message", [
+    (1.0, "min_opacity must be a number in [0, 1) (Gaussians at or below it are dropped), got 1.0"),
+    (float("nan"), "min_opacity must be a number in [0, 1) (Gaussians at or below it are dropped), got nan"),
+])
+def test_reconstruct_refuses_a_min_opacity_outside_0_1(tiny_model, value, message):
+    with pytest.raises(InputError) as info:
+        reconstruct_gaussians(tiny_model, *_inputs(), min_opacity=value)
+    assert str(info.value) == message
+
+
+def test_a_min_opacity_that_empties_the_scene_is_an_error(tiny_model):
+    with pytest.raises(InputError, match=r"^min_opacity \(--min-opacity\) 0.9999 leaves 0 of [\d,]+ Gaussians \(the "
+                                         r"most opaque has [\d.e-]+\); choose a lower value$"):
+        reconstruct_gaussians(tiny_model, *_inputs(), min_opacity=0.9999)
+
+
+def _one_gaussian():
+    return Gaussians.from_rgb(torch.tensor([[0.0, 0.0, 2.0]]), torch.full((1, 3), 0.1), torch.tensor([[1.0, 0, 0, 0]]),
+                              torch.tensor([0.9]), torch.tensor([[1.0, 0.5, 0.2]]))
+
+
+@pytest.mark.parametrize("kwargs,message", [
+    ({"near": -1}, "RasterSettings.near must be > 0 metres (e.g. 0.01), got -1"),
+    ({"near": float("nan")}, "RasterSettings.near must be > 0 metres (e.g. 0.01), got nan"),
+    ({"tile_size": 0}, "RasterSettings.tile_size must be an integer >= 1 (e.g. 16), got 0"),
+])
+def test_raster_settings_are_checked(kwargs, message):
+    with pytest.raises(InputError) as info:
+        RasterSettings(**kwargs)
+    assert str(info.value) == message
+
+
+def test_backends_are_checked(monkeypatch):
+    gaussians = _one_gaussian()
+    with pytest.raises(InputError) as info:
+        render_equirect(gaussians, torch.eye(4), 8, 16, backend="cuda")
+    assert str(info.value).startswith("unknown render backend 'cuda'; available: torch")
+    monkeypatch.delenv("TRITON_INTERPRET", raising=False)
+    with pytest.raises(InputError) as info:
+        render_equirect(gaussians, torch.eye(4), 8, 16, backend="triton")
+    assert str(info.value) == ("backend='triton' needs a CUDA GPU, but the Gaussians are on cpu; use backend='torch' "
+                               "(or 'auto'), or move the Gaussians to CUDA")
+
+
+def test_valid_inputs_still_reconstruct_and_render(tiny_model):
+    gaussians = reconstruct_gaussians(tiny_model, *_inputs(), min_opacity=0.005)
+    out = render_equirect(gaussians, torch.eye(4), 8, 16, backend="torch")
+    assert out.rgb.shape == (3, 8, 16) and torch.isfinite(out.rgb).all()
