@@ -65,9 +65,9 @@ def test_reconstruct_refuses_depth_of_another_size(tiny_model):
 
 @pytest.mark.parametrize("scale,message", [
     (1000.0, "depths[0]: median depth 2.41e+03 m is above 1000 m (millimetres read as metres? check depth_scale or "
-             "the .npy units); depth is radial metres (check_plausibility=False to use it anyway)"),
+             "the .npy units); depth is radial metres (--skip-plausibility-checks, or check_plausibility=False in Python, to use it anyway)"),
     (1e-30, "depths[0]: median depth 2.41e-30 m is below 0.01 m (check depth_scale or the .npy units); depth is radial "
-            "metres (check_plausibility=False to use it anyway)"),
+            "metres (--skip-plausibility-checks, or check_plausibility=False in Python, to use it anyway)"),
 ])
 def test_reconstruct_refuses_implausible_depth_unless_told(tiny_model, scale, message):
     images, depths, c2w = _inputs()
@@ -134,3 +134,62 @@ def test_valid_inputs_still_reconstruct_and_render(tiny_model):
     gaussians = reconstruct_gaussians(tiny_model, *_inputs(), min_opacity=0.005)
     out = render_equirect(gaussians, torch.eye(4), 8, 16, backend="torch")
     assert out.rgb.shape == (3, 8, 16) and torch.isfinite(out.rgb).all()
+
+
+# --- the same bounds through the CLI: one line naming the file or option ---------------------------------
+
+
+def _export(folder, checkpoint, out, *extra):
+    from cylindersplat.cli import main
+
+    return main(["export", "--input", str(folder), "--checkpoint", str(checkpoint), "--resolution", "16x32",
+                 "--out", str(out), "--device", "cpu", *extra])
+
+
+def test_millimetre_npy_depth_is_refused_naming_the_file(panorama_folder, tiny_checkpoint, tmp_path, capsys):
+    import numpy as np
+
+    folder, _, depths, _ = panorama_folder
+    (folder / "pano_00_depth.png").unlink()
+    np.save(folder / "pano_00_depth.npy", (depths[0] * 1000).numpy())  # millimetres where metres belong
+    poses = folder / "poses.json"
+    poses.write_text(poses.read_text().replace("pano_00_depth.png", "pano_00_depth.npy"))
+    assert _export(folder, tiny_checkpoint, tmp_path / "g.ply") == 1
+    median = float(depths[0].flatten().median() * 1000)
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"cylindersplat export: error: {folder / 'pano_00_depth.npy'}: median depth {median:.3g} m is above 1000 m "
+        "(millimetres read as metres? check depth_scale or the .npy units); depth is radial metres "
+        "(--skip-plausibility-checks, or check_plausibility=False in Python, to use it anyway)"]
+    assert _export(folder, tiny_checkpoint, tmp_path / "g.ply", "--skip-plausibility-checks") == 0
+
+
+@pytest.mark.parametrize("extra,message", [
+    (["--min-opacity", "1"], "cylindersplat export: error: argument --min-opacity: expected a number in [0, 1) "
+                             "(Gaussians at or below it are dropped), got '1' (see cylindersplat export --help)"),
+    (["--min-opacity", "nan"], "cylindersplat export: error: argument --min-opacity: expected a number in [0, 1) "
+                               "(Gaussians at or below it are dropped), got 'nan' (see cylindersplat export --help)"),
+    (["--depth-prior", "constant:1e30"], "cylindersplat export: error: constant:1e+30: 1e+30 m is outside the "
+                                         "plausible 0.01 to 1000 m; give the scene's typical distance in metres, e.g. "
+                                         "constant:2.5"),
+])
+def test_absurd_options_are_one_line(panorama_folder, tiny_checkpoint, tmp_path, capsys, extra, message):
+    try:
+        code = _export(panorama_folder[0], tiny_checkpoint, tmp_path / "g.ply", *extra)
+    except SystemExit as exit:  # argparse refuses before the command runs
+        code = exit.code
+    assert code in (1, 2)
+    assert capsys.readouterr().err.strip().splitlines()[-1] == message
+    assert not (tmp_path / "g.ply").exists()
+
+
+def test_a_pose_10_km_away_is_refused_naming_the_frame(panorama_folder, tiny_checkpoint, tmp_path, capsys):
+    import json
+
+    folder = panorama_folder[0]
+    poses = json.loads((folder / "poses.json").read_text())
+    poses["frames"][1]["c2w"][0][3] = 1e30
+    (folder / "poses.json").write_text(json.dumps(poses))
+    assert _export(folder, tiny_checkpoint, tmp_path / "g.ply") == 1
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"cylindersplat export: error: {folder / 'poses.json'} frame 1: a camera lies 1e+30 m from the origin, beyond "
+        "10000 m; recentre the poses (subtract a common origin) and give them in metres"]

@@ -24,7 +24,7 @@ from torch import Tensor
 from .errors import ImplausibleInputError, InputError
 
 __all__ = ["check_images", "check_depths", "check_c2w", "check_depth_plausible", "check_translation_plausible",
-           "check_opacity_threshold", "MIN_DEPTH_M", "MAX_DEPTH_M", "MAX_TRANSLATION_M"]
+           "check_opacity_threshold", "check_constant_depth", "PLAUSIBILITY_OVERRIDE", "MIN_DEPTH_M", "MAX_DEPTH_M", "MAX_TRANSLATION_M"]
 
 MIN_DEPTH_M = 0.01
 MAX_DEPTH_M = 1000.0
@@ -95,9 +95,13 @@ def check_c2w(c2w, count: int, name: str = "c2w") -> None:
     check_translation_plausible(c2w, name)
 
 
-def check_depth_plausible(depth: Tensor, where: str, override: str) -> None:
+PLAUSIBILITY_OVERRIDE = "--skip-plausibility-checks, or check_plausibility=False in Python"
+
+
+def check_depth_plausible(depth: Tensor, where: str) -> None:
     """The median positive depth of ``depth`` within [:data:`MIN_DEPTH_M`, :data:`MAX_DEPTH_M`] metres, else
-    :class:`ImplausibleInputError` naming ``where``, the bound and ``override`` (how to skip the check)."""
+    :class:`ImplausibleInputError` naming ``where``, the bound and how to skip the check
+    (:data:`PLAUSIBILITY_OVERRIDE`: a real scene beyond the bounds is possible, if rare)."""
     valid = depth[depth > 0]
     if valid.numel() == 0:
         return  # all unknown: refused (or accepted for NoPrior) by the readers, which know why
@@ -109,7 +113,7 @@ def check_depth_plausible(depth: Tensor, where: str, override: str) -> None:
     else:
         bound, units = f"below {MIN_DEPTH_M:g} m", " (check depth_scale or the .npy units)"
     raise ImplausibleInputError(f"{where}: median depth {median:.3g} m is {bound}{units}; depth is radial metres "
-                                f"({override} to use it anyway)")
+                                f"({PLAUSIBILITY_OVERRIDE}, to use it anyway)")
 
 
 def check_translation_plausible(c2w: Tensor, where: str) -> None:
@@ -125,3 +129,14 @@ def check_opacity_threshold(value, name: str = "min_opacity") -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or not 0 <= value < 1:
         raise InputError(f"{name} must be a number in [0, 1) (Gaussians at or below it are dropped), got {value!r}")
     return float(value)
+
+
+def check_constant_depth(depth, spec: str = "constant") -> float:
+    """A constant depth prior's metres: finite, within [:data:`MIN_DEPTH_M`, :data:`MAX_DEPTH_M`]."""
+    if isinstance(depth, bool) or not isinstance(depth, (int, float)) or not math.isfinite(depth) or depth <= 0:
+        raise InputError(f"{spec}:{depth!r}: a constant depth prior needs a positive finite depth in metres, e.g. "
+                         f"{spec}:2.5")
+    if not MIN_DEPTH_M <= depth <= MAX_DEPTH_M:
+        raise ImplausibleInputError(f"{spec}:{depth:g}: {depth:g} m is outside the plausible {MIN_DEPTH_M:g} to "
+                                    f"{MAX_DEPTH_M:g} m; give the scene's typical distance in metres, e.g. {spec}:2.5")
+    return float(depth)

@@ -42,6 +42,17 @@ def positive_int(text: str) -> int:
     return value
 
 
+def opacity_threshold(text: str) -> float:
+    """A minimum opacity in [0, 1) (``--min-opacity``: 1 or more would drop every Gaussian); an argparse type."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 <= value < 1:  # also false for nan
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1) (Gaussians at or below it are dropped), got {text!r}")
+    return value
+
+
 def model_resolution(text: str) -> tuple[int, int]:
     """An equirect resolution the model can run at (the backbone downsamples: H >= 8)."""
     return equirect_resolution(text, min_height=8)

@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from ._arguments import device, model_resolution
+from ._arguments import device, model_resolution, opacity_threshold
 
 
 def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
@@ -25,7 +25,10 @@ def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) 
                              "`cylindersplat data priors`), exported:NET.pt2 (any exported depth network), "
                              "unik3d:WEIGHTS, depth_anything_v2:MODEL, constant:METRES, none (zeros, on request only) "
                              "(default: every frame needs <stem>_depth.png/.npy)")
-    parser.add_argument("--min-opacity", type=float, default=0.005, help="drop Gaussians at or below this opacity (default 0.005)")
+    parser.add_argument("--min-opacity", type=opacity_threshold, default=0.005,
+                        help="drop Gaussians at or below this opacity, in [0, 1) (default 0.005)")
+    parser.add_argument("--skip-plausibility-checks", action="store_true",
+                        help="accept depths whose median is outside 1 cm to 1 km (refused by default as a unit mistake)")
     parser.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
 
 
@@ -57,9 +60,11 @@ def reconstruct_from_args(args: argparse.Namespace):
                          f"e.g. {low}x{2 * low} or {low + stride}x{2 * (low + stride)}")
     prior = parse_depth_prior(args.depth_prior) if args.depth_prior else None
     inputs = load_panorama_folder(args.input, size, depth_prior=prior, poses_file=args.poses_file,
-                                  allow_outside_paths=args.allow_outside_paths)
+                                  allow_outside_paths=args.allow_outside_paths,
+                                  check_plausibility=not args.skip_plausibility_checks)
     start = time.perf_counter()
-    gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, args.min_opacity)
+    gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, args.min_opacity,
+                                      check_plausibility=not args.skip_plausibility_checks)
     print(f"reconstructed {len(gaussians):,} Gaussians from {len(inputs.names)} panoramas at "
           f"{size[0]}x{size[1]} in {time.perf_counter() - start:.2f} s on {args.device}")
     return inputs, gaussians, model

@@ -52,6 +52,7 @@ from .io import DEPTH_PNG_SCALE
 from .pose_formats import (POSE_CONVENTIONS, is_transforms_json, parse_pose_matrix, read_transforms_json,
                            to_opencv_c2w)
 from .views import ViewSplit, select_views
+from ..validation import check_translation_plausible
 
 __all__ = ["FolderDataset", "FOLDER_VIEWS", "IMAGE_SUFFIXES", "POSES_FILE", "TRANSFORMS_FILE", "POSE_CONVENTIONS",
            "read_poses_file", "list_panoramas", "is_input_folder", "poses_path"]
@@ -96,7 +97,9 @@ def _read_poses(path: str | Path) -> tuple[list[tuple[str | None, Tensor, str | 
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
     if is_transforms_json(data):  # nerfstudio: OpenGL c2w of EQUIRECTANGULAR frames
         records = read_transforms_json(path, data=data)
-        return [(r.image, r.c2w.float(), r.depth) for r in records], True, _depth_scale(data, path)
+        entries = [(r.image, r.c2w.float(), r.depth) for r in records]
+        _check_positions(entries, path)
+        return entries, True, _depth_scale(data, path)
     if isinstance(data, list):
         data = {"poses": data}
     if not isinstance(data, dict) or not ({"frames", "poses"} & set(data)):
@@ -121,7 +124,14 @@ def _read_poses(path: str | Path) -> tuple[list[tuple[str | None, Tensor, str | 
         entries = [(None, _parse_pose(p, f"{path} pose {i}", convention), None) for i, p in enumerate(data["poses"])]
     if not entries:
         raise ValueError(f"{path}: no poses")
+    _check_positions(entries, path)
     return entries, False, _depth_scale(data, path)
+
+
+def _check_positions(entries, path: Path) -> None:
+    """Camera positions within 10 km of the origin (:mod:`cylindersplat.validation`), named by frame."""
+    for i, (_, c2w, _) in enumerate(entries):
+        check_translation_plausible(c2w, f"{path} frame {i}")
 
 
 def _depth_scale(data, path: Path) -> float:

@@ -64,7 +64,7 @@ def reconstruct_gaussians(
     check_c2w(c2w, images.shape[0])
     if check_plausibility:
         for i, depth in enumerate(depths):
-            check_depth_plausible(depth, f"depths[{i}]", "check_plausibility=False")
+            check_depth_plausible(depth, f"depths[{i}]")
     model.eval()
     device = torch.device(device)
     check_forward_memory(model.config, images.shape[0], images.shape[-2], images.shape[-1], device, model.mode)
