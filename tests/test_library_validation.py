@@ -1,6 +1,7 @@
 """Issue 27, item 1 (library API) and item 3 (plausibility): reconstruct_gaussians and render refuse bad
 inputs with one-line InputErrors instead of returning Gaussians or raising raw errors."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -193,3 +194,31 @@ def test_a_pose_10_km_away_is_refused_naming_the_frame(panorama_folder, tiny_che
     assert capsys.readouterr().err.strip().splitlines() == [
         f"cylindersplat export: error: {folder / 'poses.json'} frame 1: a camera lies 1e+30 m from the origin, beyond "
         "10000 m; recentre the poses (subtract a common origin) and give them in metres"]
+
+
+@pytest.mark.parametrize("size", [(8, 16), (32, 64)])
+def test_a_depth_file_of_another_size_than_its_panorama_is_refused(panorama_folder, size):
+    from cylindersplat.data.io import write_depth_png
+    from cylindersplat.inference import load_panorama_folder
+
+    folder = panorama_folder[0]
+    write_depth_png(folder / "pano_01_depth.png", torch.full(size, 2.0))
+    with pytest.raises(ValueError) as info:
+        load_panorama_folder(folder, (16, 32))
+    assert str(info.value) == f"{folder / 'pano_01_depth.png'}: expected 32x16 (WxH), got {size[1]}x{size[0]}"
+
+
+@pytest.mark.parametrize("array,message", [
+    (np.ones((16, 32), bool), "depth must be a float array of metres, got dtype bool"),
+    (np.zeros((16, 32), [("a", "f4"), ("b", "f4")]), "depth must be a float array of metres, got dtype [('a', '<f4'), "
+                                                     "('b', '<f4')]"),
+])
+def test_npy_depth_of_the_wrong_kind_is_refused(panorama_folder, array, message):
+    from cylindersplat.inference import load_panorama_folder
+
+    folder = panorama_folder[0]
+    np.save(folder / "pano_01_depth.npy", array)
+    (folder / "poses.json").write_text((folder / "poses.json").read_text().replace("pano_01_depth.png", "pano_01_depth.npy"))
+    with pytest.raises(ValueError) as info:
+        load_panorama_folder(folder, (16, 32))
+    assert str(info.value) == f"{folder / 'pano_01_depth.npy'}: {message}"

@@ -339,6 +339,14 @@ class FolderDataset(PanoramaDataset):
             raise ValueError(f"{where}: every frame is held out as a target; keep at least one as an input")
         return ViewSplit(context, tuple(sorted(set(held))))
 
+    def stored_depth_size(self, frame: FrameRef) -> tuple[int, int] | None:
+        """A depth file must have its panorama's stored size (a half- or double-size map is a mix-up, not a
+        depth of this image)."""
+        from PIL import Image
+
+        with Image.open(frame.rgb) as image:  # reads the header only
+            return image.height, image.width
+
     def __len__(self) -> int:
         return len(self.scenes)
 
