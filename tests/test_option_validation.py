@@ -24,7 +24,6 @@ def _error_line(argv, capsys) -> str:
     ("train.amp=banana", "train.amp must be one of auto, bf16, off; got 'banana'"),
     ("loss.rgb_l1=-1", "loss.rgb_l1 must be >= 0, got -1"),
     ("model.attention.dim=-48", "invalid model config: attention.dim must be >= 1, got -48"),
-    ("train.render_backend=cuda", "train.render_backend must be one of auto, torch, triton; got 'cuda'"),
     ("train.epochs_per_stage=-1", "train.epochs_per_stage must be a number > 0 (or null to use steps_per_stage), got -1"),
     ("train.lr=nan", "train.lr must be a finite number, got 'nan'"),
     ("train.steps_per_stage=[abc]", "train.steps_per_stage must be a list of numbers like [1000, 1000, 1000], got ['abc']"),
@@ -58,3 +57,18 @@ def test_config_overrides_are_checked_when_parsed(tmp_path, capsys, override, me
 def test_command_options_are_checked_when_parsed(capsys, argv, message):
     command = " ".join(a for a in argv[:2] if not a.startswith("-") and a not in ("x",))
     assert _error_line(argv, capsys) == f"cylindersplat {command}: error: {message} (see cylindersplat {command} --help)"
+
+
+def test_triton_rendering_without_cuda_is_refused_before_training(tmp_path, monkeypatch, capsys):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA: triton is a valid choice here")
+    monkeypatch.delenv("TRITON_INTERPRET", raising=False)
+    argv = ["train", "--data", str(tmp_path), "--out", str(tmp_path / "run"), "--device", "cpu",
+            "train.render_backend=triton"]
+    monkeypatch.setattr("cylindersplat.render.api.available_backends", lambda: ["torch", "triton"])
+    monkeypatch.setattr("cylindersplat.training.trainer.available_backends", lambda: ["torch", "triton"])
+    assert _error_line(argv, capsys) == ("cylindersplat train: error: train.render_backend=triton needs a CUDA GPU, but "
+                                         "training runs on cpu; use train.render_backend=auto (or torch), or "
+                                         "train.device=cuda")

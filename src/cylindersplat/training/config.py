@@ -301,11 +301,9 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     return cfg
 
 
-RENDER_BACKENDS = ("auto", "torch", "triton")
-
 
 def _check_ranges(cfg: ExperimentConfig) -> None:
-    """Ranges the types alone do not give: loss weights >= 0, epochs > 0, known backends, a 2:1 resolution,
+    """Ranges the types alone do not give: loss weights >= 0, epochs > 0, a 2:1 resolution,
     a model whose sizes are positive (:meth:`ModelConfig.validate`)."""
     for f in dataclasses.fields(cfg.loss):
         value = getattr(cfg.loss, f.name)
@@ -314,8 +312,6 @@ def _check_ranges(cfg: ExperimentConfig) -> None:
     epochs = cfg.train.epochs_per_stage
     if epochs is not None and (isinstance(epochs, bool) or not isinstance(epochs, (int, float)) or not epochs > 0):
         raise ValueError(f"train.epochs_per_stage must be a number > 0 (or null to use steps_per_stage), got {epochs!r}")
-    if cfg.train.render_backend not in RENDER_BACKENDS:
-        raise ValueError(f"train.render_backend must be one of {', '.join(RENDER_BACKENDS)}; got {cfg.train.render_backend!r}")
     size = cfg.data.resolution
     if size is not None and (len(size) != 2 or size[1] != 2 * size[0] or size[0] < 8):
         raise ValueError(f"data.resolution must be [H, W] with W == 2H and H >= 8, e.g. [128, 256]; got {list(size)}")
