@@ -35,7 +35,6 @@ prior (``--depth-prior``), and with no prior chosen they are an error.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -52,6 +51,7 @@ from .io import DEPTH_PNG_SCALE
 from .pose_formats import (POSE_CONVENTIONS, is_transforms_json, parse_pose_matrix, read_transforms_json,
                            to_opencv_c2w)
 from .views import ViewSplit, select_views
+from ..utils.jsonfile import read_json_file
 from ..validation import check_translation_plausible
 
 __all__ = ["FolderDataset", "FOLDER_VIEWS", "IMAGE_SUFFIXES", "POSES_FILE", "TRANSFORMS_FILE", "POSE_CONVENTIONS",
@@ -89,12 +89,7 @@ def _read_poses(path: str | Path) -> tuple[list[tuple[str | None, Tensor, str | 
     names are relative to its own folder and whose ``.npy`` depths are in ``depth_scale`` units too), and
     its ``depth_scale`` (depth file units per metre)."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"missing poses file: {path}")
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    data = read_json_file(path, "poses file")
     if is_transforms_json(data):  # nerfstudio: OpenGL c2w of EQUIRECTANGULAR frames
         records = read_transforms_json(path, data=data)
         entries = [(r.image, r.c2w.float(), r.depth) for r in records]
