@@ -276,9 +276,36 @@ def config_from_dict(data: dict[str, Any]) -> ModelConfig:
         "volume": VolumeBranchConfig,
         "fusion": FusionConfig,
     }
+    if not isinstance(data, dict):
+        raise TypeError(f"a model config is a mapping, got {type(data).__name__}")
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
         if key in sub:
+            if not isinstance(value, dict):
+                raise TypeError(f"{key} must be a mapping, got {value!r:.60}")
             value = sub[key](**{k: tuple(v) if isinstance(v, list) else v for k, v in value.items()})
+            _check_types(value, f"{key}.")
         kwargs[key] = value
-    return ModelConfig(**kwargs)
+    config = ModelConfig(**kwargs)
+    _check_types(config, "")
+    return config
+
+
+def _check_types(section: Any, prefix: str) -> None:
+    """Each field of the kind its default has (a stored ``image_height: "abc"`` fails here, by name, not deep
+    inside a layer); ints are accepted for floats, booleans only for booleans."""
+    def same_kind(value: Any, default: Any) -> bool:
+        if isinstance(value, bool) != isinstance(default, bool):
+            return False
+        return isinstance(value, (int, float) if isinstance(default, float) else type(default))
+
+    for f in dataclasses.fields(section):
+        value, default = getattr(section, f.name), f.default
+        if default is dataclasses.MISSING or default is None or dataclasses.is_dataclass(value):
+            continue
+        if isinstance(default, tuple):
+            ok = isinstance(value, tuple) and all(same_kind(v, default[0]) for v in value) if default else True
+        else:
+            ok = same_kind(value, default)
+        if not ok:
+            raise TypeError(f"{prefix}{f.name} must be like {default!r}, got {value!r:.60}")
