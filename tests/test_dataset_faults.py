@@ -90,3 +90,24 @@ def test_a_poses_file_nested_100000_deep_is_one_line(panorama_folder, tiny_check
                    "--out", str(tmp_path / "g.ply"), "--device", "cpu"], capsys) == (
         f"cylindersplat export: error: {folder / 'poses.json'}: JSON nested too deeply to read (thousands of levels); "
         "is it the right file?")
+
+
+def test_a_pickle_given_as_lpips_weights_is_refused_unrun(tmp_path):
+    import pickle
+
+    from cylindersplat.metrics.lpips import load_lpips
+
+    class Payload:  # would run `touch` if it were ever unpickled
+        def __reduce__(self):
+            import os
+
+            return os.system, (f"touch {tmp_path / 'ran'}",)
+
+    weights = tmp_path / "lpips.pth"
+    weights.write_bytes(pickle.dumps(Payload()))
+    with pytest.raises(ValueError) as info:
+        load_lpips(weights)
+    assert str(info.value) == (f"{weights}: not a weights file that loads without running code (a pickle of more than "
+                               "tensors: refused, never run); give the LPIPS weights as a .pth state_dict or "
+                               ".safetensors")
+    assert not (tmp_path / "ran").exists()
