@@ -85,3 +85,13 @@ def test_prior_names_stay_in_the_priors_folder(panorama_folder, name, message):
     with pytest.raises(InputError) as info:
         write_priors(panorama_folder[0], "exported:missing.pt2", name=name, progress=False)
     assert str(info.value) == message
+
+
+def test_data_info_refuses_then_reads_with_the_option(panorama_folder, capsys):
+    folder = panorama_folder[0]
+    _move_out(folder, "pano_01.png")
+    _retarget(folder, 1, "image", "../outside/pano_01.png")
+    assert main(["data", "info", "--data", str(folder), "--occlusion", "0"]) == 1
+    assert capsys.readouterr().err.strip().endswith("(or pass --allow-outside-paths to read it anyway)")
+    assert main(["data", "info", "--data", str(folder), "--occlusion", "0", "--targets", "pano_00",
+                 "--allow-outside-paths"]) == 0

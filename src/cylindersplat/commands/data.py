@@ -10,6 +10,8 @@ from ._arguments import device, equirect_resolution, fraction, nonnegative_int, 
 
 PROFILE_NAMES = ("default", "occlusion")  # cylindersplat.data.synth.PROFILES (not imported: keeps the CLI start fast)
 PROTOCOL_NAMES = ("two_view", "one_view", "n_view")  # cylindersplat.data.views.PROTOCOLS
+OUTSIDE_HELP = ("folders of posed panoramas: read image/depth files their poses files name outside their folder "
+                "(absolute or ../ paths); refused by default")
 
 
 def _spacing(text: str) -> tuple[float, float]:
@@ -74,7 +76,8 @@ def _synth(args) -> int:
 def _preview(args) -> int:
     from ..data.preview import write_contact_sheet
 
-    out = write_contact_sheet(args.data, args.out, count=args.count, height=args.height)
+    out = write_contact_sheet(args.data, args.out, count=args.count, height=args.height,
+                              allow_outside_paths=args.allow_outside_paths)
     print(f"wrote {out}")
     return 0
 
@@ -87,7 +90,7 @@ def _info(args) -> int:
     from ..data.preview import example_occlusion, occlusion_summary, open_dataset
 
     targets = [name for name in args.targets.split(",") if name] if args.targets else None
-    ds = open_dataset(args.data, views=args.views, targets=targets)
+    ds = open_dataset(args.data, views=args.views, targets=targets, allow_outside_paths=args.allow_outside_paths)
     size, which = ds.stored_size, ""
     if size is None and len(ds):  # a folder of panoramas fixes no size: show its first panorama's
         from PIL import Image
@@ -188,6 +191,7 @@ def register(subparsers) -> None:
     preview.add_argument("--out", required=True, help="output PNG path")
     preview.add_argument("--count", type=positive_int, default=4, help="number of examples (rows, default 4)")
     preview.add_argument("--height", type=int, default=128, help="tile height in pixels (width = 2x, default 128)")
+    preview.add_argument("--allow-outside-paths", action="store_true", help=OUTSIDE_HELP)
     preview.set_defaults(func=_preview)
 
     info = sub.add_parser(
@@ -205,6 +209,7 @@ def register(subparsers) -> None:
                       "targets, the other frames being the inputs (instead of --views), as in eval --targets")
     info.add_argument("--occlusion", type=nonnegative_int, default=64, metavar="N",
                       help="average the occluded share over N evenly spaced examples (default 64; 0: skip it)")
+    info.add_argument("--allow-outside-paths", action="store_true", help=OUTSIDE_HELP)
     info.set_defaults(func=_info)
 
     from ._import_poses import register as register_import_poses

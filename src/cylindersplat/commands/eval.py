@@ -83,6 +83,8 @@ def open_eval_dataset(args, protocol: str, loader_options: dict | None = None):
     options = {"scenes": args.scenes.split(",")} if args.format == "synthetic" and args.scenes else {}
     if args.format == "folder" and getattr(args, "targets", None):
         options["targets"] = [name for name in args.targets.split(",") if name]
+    if args.format == "folder" and getattr(args, "allow_outside_paths", False):
+        options["allow_outside_paths"] = True
     options.update(loader_options or {})
     # The PCC reference: gt is Sample.target_depths; file:NAME arrives as Sample.target_reference_depths.
     reference = "none" if args.pcc_reference == "gt" else args.pcc_reference
@@ -277,6 +279,9 @@ def register(subparsers) -> None:
     parser.add_argument("--pcc-reference", help="reference depth of the PCC column: gt (default) or file:NAME, e.g. "
                         "file:depth_anywhere as in the paper (files from `cylindersplat data priors`)")
     parser.add_argument("--depth-range", nargs=2, action=NearFar, metavar=("NEAR", "FAR"), help="valid reference depth (default 0.45 10 for pano_grf, else 0.05 1000)")
+    parser.add_argument("--allow-outside-paths", action="store_true",
+                        help="--format folder: read image/depth files its poses files name outside their folder "
+                        "(absolute or ../ paths); refused by default")
     parser.add_argument("--max-examples", type=positive_int, help="score only the first N examples")
     parser.add_argument("--pictures", type=nonnegative_int, default=4, help="comparison pictures per protocol (default 4)")
     parser.add_argument("--lpips", default="auto", choices=["auto", "on", "off"], help="LPIPS column: auto uses local weights when found")
