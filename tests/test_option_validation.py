@@ -53,6 +53,8 @@ def test_config_overrides_are_checked_when_parsed(tmp_path, capsys, override, me
     (["data", "synth", "--out", "x", "--outdoor-fraction", "2"], "argument --outdoor-fraction: expected a share in "
                                                                  "[0, 1], got '2'"),
     (["data", "info", "--data", "x", "--occlusion", "-1"], "argument --occlusion: expected an integer >= 0, got '-1'"),
+    (["bench", "render", "--num", "-5"], "argument --num: expected an integer >= 1, got '-5'"),
+    (["bench", "synth", "--threads", "0"], "argument --threads: expected an integer >= 1, got '0'"),
 ])
 def test_command_options_are_checked_when_parsed(capsys, argv, message):
     command = " ".join(a for a in argv[:2] if not a.startswith("-") and a not in ("x",))
