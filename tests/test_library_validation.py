@@ -222,3 +222,11 @@ def test_npy_depth_of_the_wrong_kind_is_refused(panorama_folder, array, message)
     with pytest.raises(ValueError) as info:
         load_panorama_folder(folder, (16, 32))
     assert str(info.value) == f"{folder / 'pano_01_depth.npy'}: {message}"
+
+
+def test_rendering_far_from_the_origin_warns():
+    far = torch.eye(4)
+    far[0, 3] = 1e7
+    with pytest.warns(RuntimeWarning, match=r"cameras up to 1e\+07 m from the origin \(beyond 10000 m\): float32 loses "
+                                            r"centimetres there and the render is wrong; recentre the scene"):
+        render_equirect(_one_gaussian(), far, 8, 16, backend="torch")

@@ -24,7 +24,7 @@ from torch import Tensor
 from .errors import ImplausibleInputError, InputError
 
 __all__ = ["check_images", "check_depths", "check_c2w", "check_depth_plausible", "check_translation_plausible",
-           "check_opacity_threshold", "check_constant_depth", "PLAUSIBILITY_OVERRIDE", "MIN_DEPTH_M", "MAX_DEPTH_M", "MAX_TRANSLATION_M"]
+           "check_opacity_threshold", "check_constant_depth", "farthest_camera", "PLAUSIBILITY_OVERRIDE", "MIN_DEPTH_M", "MAX_DEPTH_M", "MAX_TRANSLATION_M"]
 
 MIN_DEPTH_M = 0.01
 MAX_DEPTH_M = 1000.0
@@ -116,9 +116,14 @@ def check_depth_plausible(depth: Tensor, where: str) -> None:
                                 f"({PLAUSIBILITY_OVERRIDE}, to use it anyway)")
 
 
+def farthest_camera(c2w: Tensor) -> float:
+    """The largest distance (m) of a camera of ``c2w`` from the origin."""
+    return float(c2w[..., :3, 3].double().norm(dim=-1).max()) if c2w.numel() else 0.0
+
+
 def check_translation_plausible(c2w: Tensor, where: str) -> None:
     """Camera positions within :data:`MAX_TRANSLATION_M` of the origin (float32 has centimetres to spare there)."""
-    far = float(c2w[..., :3, 3].double().norm(dim=-1).max()) if c2w.numel() else 0.0
+    far = farthest_camera(c2w)
     if far > MAX_TRANSLATION_M:
         raise ImplausibleInputError(f"{where}: a camera lies {far:.3g} m from the origin, beyond {MAX_TRANSLATION_M:g} m; "
                                     "recentre the poses (subtract a common origin) and give them in metres")

@@ -27,6 +27,7 @@ from .cameras import CameraModel, Equirect
 from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings
 from .rasterize import rasterize
 from .triton_backend import triton_available, triton_backend
+from ..validation import MAX_TRANSLATION_M, farthest_camera
 
 __all__ = ["RenderOutput", "render", "render_equirect", "available_backends", "register_backend", "Backend"]
 
@@ -140,6 +141,11 @@ def render(
         raise TypeError(f"camera must be a camera model (cylindersplat.render.cameras), got {type(camera).__name__}")
     gaussians.validate()
     validate_c2w(c2w)
+    far = farthest_camera(c2w)
+    if far > MAX_TRANSLATION_M:  # float32 positions keep ~1 m / 2^24 of relative precision: splats smear and jitter
+        warnings.warn(f"cameras up to {far:.3g} m from the origin (beyond {MAX_TRANSLATION_M:g} m): float32 loses "
+                      "centimetres there and the render is wrong; recentre the scene (subtract a common origin)",
+                      RuntimeWarning, stacklevel=2)
     settings = settings or RasterSettings()
     if not isinstance(settings, RasterSettings):
         raise TypeError(f"settings must be a RasterSettings, got {type(settings).__name__}")
