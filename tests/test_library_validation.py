@@ -230,3 +230,18 @@ def test_rendering_far_from_the_origin_warns():
     with pytest.warns(RuntimeWarning, match=r"cameras up to 1e\+07 m from the origin \(beyond 10000 m\): float32 loses "
                                             r"centimetres there and the render is wrong; recentre the scene"):
         render_equirect(_one_gaussian(), far, 8, 16, backend="torch")
+
+
+def test_panorama_sized_gaussians_are_refused_for_memory_before_allocating(monkeypatch):
+    """Gaussians covering the whole panorama: their row spans alone exceed free memory (here 1 MiB)."""
+    from cylindersplat.render import rasterize
+
+    monkeypatch.setattr(rasterize, "available_memory", lambda device: 2**20)
+    n = 50
+    means = torch.nn.functional.normalize(torch.randn(n, 3, generator=torch.Generator().manual_seed(0)), dim=1) * 2
+    big = Gaussians.from_rgb(means, torch.full((n, 3), 5.0), torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4),
+                             torch.full((n,), 0.9), torch.rand(n, 3))
+    with pytest.raises(rasterize.RenderMemoryError, match=r"^this render of 1 view\(s\) at once needs about [\d.]+ GiB "
+                                                          r"for [\d,]+ row spans but 0.0 GiB are free on cpu; render at "
+                                                          r"a lower resolution"):
+        render_equirect(big, torch.eye(4), 32, 64, backend="torch")
