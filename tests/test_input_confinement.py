@@ -95,3 +95,14 @@ def test_data_info_refuses_then_reads_with_the_option(panorama_folder, capsys):
     assert capsys.readouterr().err.strip().endswith("(or pass --allow-outside-paths to read it anyway)")
     assert main(["data", "info", "--data", str(folder), "--occlusion", "0", "--targets", "pano_00",
                  "--allow-outside-paths"]) == 0
+
+
+def test_data_priors_refuses_an_escaping_frame_without_offering_the_override(panorama_folder):
+    folder = panorama_folder[0]
+    _move_out(folder, "pano_01.png")
+    _retarget(folder, 1, "image", "../outside/pano_01.png")
+    with pytest.raises(OutsideFolderError) as info:
+        write_priors(folder, "exported:missing.pt2", name="mono", progress=False)
+    assert str(info.value) == (f'{folder / "poses.json"} frame 1 "image": ../outside/pano_01.png is outside the input '
+                               f"folder {folder}; move the file into it (prior files mirror the panoramas' paths "
+                               "inside the dataset)")

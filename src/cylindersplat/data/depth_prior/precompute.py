@@ -51,9 +51,15 @@ def prior_frames(data: str | Path, layout: str = "auto", split: str = "all") -> 
     data = Path(data)
     layout = detect_layout(data) if layout == "auto" else layout_name(layout)
     if layout == "folder":
+        from ...data.confine import ALLOW_OUTSIDE_OPTION
+        from ...errors import OutsideFolderError
         from ..folder import FolderDataset
 
-        dataset = FolderDataset(data, depth_prior=NoPrior())
+        try:
+            dataset = FolderDataset(data, depth_prior=NoPrior())
+        except OutsideFolderError as exc:  # no way round here: the tree mirrors paths inside the dataset
+            text = str(exc).replace(f" (or pass {ALLOW_OUTSIDE_OPTION} to read it anyway)", "")
+            raise OutsideFolderError(f"{text} (prior files mirror the panoramas' paths inside the dataset)") from None
     elif layout == "synthetic":
         dataset = SyntheticDataset(data, depth_prior=NoPrior())
     elif layout == "pano_grf":
