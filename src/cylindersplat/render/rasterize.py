@@ -161,19 +161,27 @@ def available_memory(device: torch.device) -> int | None:
     return None
 
 
-def check_fragment_memory(num_fragments: int, device: torch.device, cameras: int = 1,
-                          per_item: int = BYTES_PER_FRAGMENT, what: str = "fragments") -> None:
-    """Refuse, with numbers and what to do, a render whose fragments (or, ``what``, the row spans they are cut
-    from, ``per_item`` bytes each) would not fit in free memory (instead of swapping the machine to a halt or
-    failing deep in the allocator)."""
-    need = num_fragments * per_item
-    free = available_memory(device)
-    if free is not None and need > free:
-        raise RenderMemoryError(need, free, num_fragments, cameras, device, what=what)
+def check_fragment_memory(num_fragments: int, device: torch.device, cameras: int = 1) -> None:
+    """Refuse, with numbers and what to do, a render whose fragments would not fit in free memory
+    (instead of swapping the machine to a halt or failing deep in the allocator)."""
+    _check_memory(num_fragments, BYTES_PER_FRAGMENT, "fragments", device, cameras)
 
 
 # Bytes per (Gaussian, tile, row) span of expand_fragments' first level: about twenty int64/float tensors.
 BYTES_PER_ROW_SPAN = 200
+
+
+def check_span_memory(num_spans: int, device: torch.device, cameras: int = 1) -> None:
+    """:func:`check_fragment_memory` for the row spans fragments are cut from: Gaussians as large as the panorama
+    make billions of them before a single fragment is counted."""
+    _check_memory(num_spans, BYTES_PER_ROW_SPAN, "row spans", device, cameras)
+
+
+def _check_memory(count: int, per_item: int, what: str, device: torch.device, cameras: int) -> None:
+    need = count * per_item
+    free = available_memory(device)
+    if free is not None and need > free:
+        raise RenderMemoryError(need, free, count, cameras, device, what=what)
 
 
 def expand_fragments(proj: ProjectedGaussians, bins: TileBins, sigma_extent: float = 3.0) -> tuple[Tensor, Tensor]:
@@ -187,7 +195,7 @@ def expand_fragments(proj: ProjectedGaussians, bins: TileBins, sigma_extent: flo
     # Level 1: (pair, row) items.
     nr = bins.rows[:, 1] - bins.rows[:, 0] + 1
     # Large footprints make many spans before a fragment is counted: refuse those first, by the same rule.
-    check_fragment_memory(int(nr.sum()), nr.device, proj.num_cameras, BYTES_PER_ROW_SPAN, "row spans")
+    check_span_memory(int(nr.sum()), nr.device, proj.num_cameras)
     pair, k = _expand(nr)
     row = bins.rows[pair, 0] + k
     g = bins.gaussian[pair]
