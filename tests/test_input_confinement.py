@@ -106,3 +106,25 @@ def test_data_priors_refuses_an_escaping_frame_without_offering_the_override(pan
     assert str(info.value) == (f'{folder / "poses.json"} frame 1 "image": ../outside/pano_01.png is outside the input '
                                f"folder {folder}; move the file into it (prior files mirror the panoramas' paths "
                                "inside the dataset)")
+
+
+def test_view_shows_no_panorama_from_outside_the_poses_folder(panorama_folder, tmp_path, capsys):
+    import torch
+
+    from cylindersplat.gaussians import Gaussians, save_ply
+
+    folder = panorama_folder[0]
+    _move_out(folder, "pano_01.png")
+    _retarget(folder, 1, "image", "../outside/pano_01.png")
+    splats = save_ply(Gaussians.from_rgb(torch.tensor([[0.0, 0.0, 2.0]]), torch.full((1, 3), 0.1),
+                                         torch.tensor([[1.0, 0, 0, 0]]), torch.tensor([0.9]),
+                                         torch.tensor([[1.0, 0.5, 0.2]])), tmp_path / "scene.ply")
+    shot = tmp_path / "shot.png"
+    argv = ["view", str(splats), "--poses-file", str(folder / "poses.json"), "--screenshot", str(shot),
+            "--screenshot-size", "8x16", "--device", "cpu"]
+    assert main(argv) == 1
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f'cylindersplat view: error: {folder / "poses.json"} frame 1 "image": ../outside/pano_01.png is outside the '
+        f"input folder {folder}; move the file into it (or pass --allow-outside-paths to read it anyway)"]
+    assert not shot.exists()
+    assert main(argv + ["--allow-outside-paths"]) == 0 and shot.is_file()
