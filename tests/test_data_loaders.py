@@ -55,7 +55,7 @@ def test_loc360_errors(tmp_path):
     with pytest.raises(ValueError, match="camera_pose.json.*00001.jpg"):
         Loc360Dataset(tmp_path)
     (d / "camera_pose.json").write_text("{not json")
-    with pytest.raises(ValueError, match="invalid JSON"):
+    with pytest.raises(ValueError, match="not valid JSON"):
         Loc360Dataset(tmp_path)
 
 

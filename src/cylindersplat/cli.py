@@ -49,6 +49,37 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; process faults end in one line (or none) instead of a traceback: Ctrl-C at any
+    moment, the start-up imports included, prints ``interrupted`` and exits 130 (files are written atomically,
+    so none is left half-written); a reader that stops early (``| head``) ends the output quietly (141)."""
+    try:
+        code = _run_command(argv)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's own flush at exit
+        return code
+    except KeyboardInterrupt:
+        print(f"{_command_name(argv)}: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        _silence_stdout()
+        return 141  # as if killed by SIGPIPE, what `| head` expects of a producer
+
+
+def _command_name(argv: list[str] | None) -> str:
+    """``cylindersplat train``: the program and its first word, known before (or without) parsing."""
+    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
+    return f"cylindersplat {words[0]}" if words else "cylindersplat"
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's last flush does not raise a second BrokenPipeError."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # stdout is no real file (captured in tests)
+        pass
+
+
+def _run_command(argv: list[str] | None) -> int:
     from .utils.allocator import keep_freed_memory
     from .utils.notices import one_line_warnings
 
@@ -61,9 +92,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with one_line_warnings(f"cylindersplat {args.command}"):  # notices, not tracebacks-like source lines
             result = args.func(args)
-    except KeyboardInterrupt:
-        print(f"cylindersplat {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except (KeyboardInterrupt, BrokenPipeError):
+        raise  # main's: one line, or a quiet end
     except Exception as exc:  # noqa: BLE001 - sorted into expected failures and bugs below
         message = None if args.debug else expected_failure(exc)
         if message is None:

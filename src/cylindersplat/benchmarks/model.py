@@ -24,6 +24,8 @@ import sys
 import time
 
 import torch
+from cylindersplat.cli import OneLineErrorParser
+from cylindersplat.commands._arguments import nonnegative_int, positive_int
 
 
 def synthetic_inputs(views: int, height: int, device: torch.device, seed: int = 0):
@@ -96,18 +98,18 @@ def describe_device(device: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="cylindersplat bench model", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = OneLineErrorParser(prog="cylindersplat bench model", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", default="tiny", help="model preset (tiny, paper)")
-    parser.add_argument("--height", type=int, default=None, help="input panorama height (width = 2 x height)")
-    parser.add_argument("--views", type=int, nargs="+", default=[1, 2, 3, 4])
+    parser.add_argument("--height", type=positive_int, default=None, help="input panorama height (width = 2 x height)")
+    parser.add_argument("--views", type=positive_int, nargs="+", default=[1, 2, 3, 4])
     parser.add_argument("--mode", default="both", choices=["pixel", "volume", "both"])
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     parser.add_argument("--render", action="store_true", help="include one render_equirect per forward")
     parser.add_argument("--amp", choices=["bf16", "off"], default="bf16",
                         help="network forward under bf16 autocast on CUDA (as inference and training do)")
-    parser.add_argument("--warmup", type=int, default=1)
+    parser.add_argument("--warmup", type=nonnegative_int, default=1)
     parser.add_argument("--compile", action="store_true", help="projection through torch.compile (render.projection.compile_projection)")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=positive_int, default=3)
     parser.add_argument("--single", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.compile:

@@ -26,6 +26,8 @@ from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
 from cylindersplat.scenes import random_indoor
 from cylindersplat.utils.allocator import keep_freed_memory
+from cylindersplat.cli import OneLineErrorParser
+from cylindersplat.commands._arguments import positive_int
 
 
 def _sync(device: torch.device) -> None:
@@ -179,16 +181,16 @@ def profile(num: int, height: int, device: torch.device, backend: str, rows: int
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="cylindersplat bench render", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--num", type=int, nargs="+", default=[100_000], help="numbers of Gaussians")
-    parser.add_argument("--height", type=int, default=256)
+    parser = OneLineErrorParser(prog="cylindersplat bench render", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--num", type=positive_int, nargs="+", default=[100_000], help="numbers of Gaussians")
+    parser.add_argument("--height", type=positive_int, default=256)
     parser.add_argument("--device", nargs="+", default=None, help="devices (default: cpu, and cuda when present)")
     parser.add_argument("--backend", nargs="+", default=["torch"],
                         help="render backends, timed in one run; ratios are printed against the first (torch, triton, auto)")
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=positive_int, default=5)
     parser.add_argument("--cubemap", action="store_true", help="also time the cubemap route")
     parser.add_argument("--stages", action="store_true", help="print the per-stage breakdown")
-    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
+    parser.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads")
     parser.add_argument("--default-malloc", action="store_true", help="skip the glibc allocator tuning")
     parser.add_argument("--profile", action="store_true", help="print torch.profiler's top kernels of one forward+backward")
     parser.add_argument("--compile", action="store_true", help="projection through torch.compile (render.projection.compile_projection)")

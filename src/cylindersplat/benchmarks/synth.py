@@ -15,17 +15,18 @@ import time
 
 import torch
 
-from cylindersplat.commands._arguments import equirect_resolution
+from cylindersplat.cli import OneLineErrorParser
+from cylindersplat.commands._arguments import equirect_resolution, positive_int
 from cylindersplat.data.synth import SequenceConfig, write_synthetic_dataset
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="cylindersplat bench synth", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scenes", type=int, default=12)
-    parser.add_argument("--frames", type=int, default=3)
+    parser = OneLineErrorParser(prog="cylindersplat bench synth", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scenes", type=positive_int, default=12)
+    parser.add_argument("--frames", type=positive_int, default=3)
     parser.add_argument("--resolution", type=equirect_resolution, default=(256, 512), help="HxW (default 256x512)")
-    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
-    parser.add_argument("--repeats", type=int, default=2, help="best of N runs (the machine is shared)")
+    parser.add_argument("--threads", type=positive_int, nargs="+", default=[1, 2])
+    parser.add_argument("--repeats", type=positive_int, default=2, help="best of N runs (the machine is shared)")
     args = parser.parse_args(argv)
     h, w = args.resolution
     print(f"{platform.processor() or platform.machine()}, torch {torch.__version__}, {args.scenes} scenes x {args.frames} frames at {h}x{w}")

@@ -21,6 +21,8 @@ import time
 import warnings
 
 import torch
+from cylindersplat.cli import OneLineErrorParser
+from cylindersplat.commands._arguments import nonnegative_int, positive_int
 
 
 def _sync(device: torch.device) -> None:
@@ -92,13 +94,13 @@ def _num_gaussians(trainer, batch) -> int:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="cylindersplat bench train", description=__doc__,
+    parser = OneLineErrorParser(prog="cylindersplat bench train", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", default="paper", help="model preset (paper, tiny, ...)")
-    parser.add_argument("--height", type=int, default=512, help="panorama height (width = 2 x height)")
+    parser.add_argument("--height", type=positive_int, default=512, help="panorama height (width = 2 x height)")
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    parser.add_argument("--steps", type=int, default=5, help="timed steps per stage")
-    parser.add_argument("--warmup", type=int, default=2)
+    parser.add_argument("--steps", type=positive_int, default=5, help="timed steps per stage")
+    parser.add_argument("--warmup", type=nonnegative_int, default=2)
     parser.add_argument("--lpips", choices=["random", "off"], default="random")
     parser.add_argument("--compile", action="store_true", help="projection through torch.compile (render.projection.compile_projection)")
     args = parser.parse_args(argv)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 from typing import Any, Callable, Iterator
 
 
@@ -39,6 +40,70 @@ def positive_int(text: str) -> int:
         value = 0
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
+def nonnegative_int(text: str) -> int:
+    """An integer >= 0 (a count where 0 means none); an argparse type."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
+def fraction(text: str) -> float:
+    """A share in [0, 1]; an argparse type."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 <= value <= 1:  # also false for nan
+        raise argparse.ArgumentTypeError(f"expected a share in [0, 1], got {text!r}")
+    return value
+
+
+class NearFar(argparse.Action):
+    """``--OPTION NEAR FAR``: two finite numbers with 0 <= NEAR < FAR (metres), checked together."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        try:
+            near, far = (float(v) for v in values)
+        except ValueError:
+            near = far = float("nan")
+        if not (math.isfinite(near) and math.isfinite(far) and 0 <= near < far):
+            parser.error(f"argument {option_string}: expected NEAR FAR in metres with 0 <= NEAR < FAR (e.g. 0.05 1000), "
+                         f"got {' '.join(values)}")
+        setattr(namespace, self.dest, (near, far))
+
+
+def count_list(text: str) -> str:
+    """``"100"`` or ``"100,200,50"``: integers >= 0 (``--steps``); an argparse type, kept as the text."""
+    parts = [part.strip() for part in text.split(",")]
+    if not all(part.isdigit() for part in parts):
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0 or a comma list of them (e.g. 100 or "
+                                         f"100,200,50), got {text!r}")
+    return ",".join(parts)
+
+
+def stage_list(text: str) -> str:
+    """``"1,2,3"``, ``"3"``: curriculum stages (``--stages``); an argparse type, kept as the text."""
+    parts = [part.strip() for part in text.split(",")]
+    if not all(part in ("1", "2", "3") for part in parts):
+        raise argparse.ArgumentTypeError(f"expected a comma list of the stages 1, 2, 3 (e.g. 1,2,3 or 3), got {text!r}")
+    return ",".join(parts)
+
+
+def opacity_threshold(text: str) -> float:
+    """A minimum opacity in [0, 1) (``--min-opacity``: 1 or more would drop every Gaussian); an argparse type."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 <= value < 1:  # also false for nan
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1) (Gaussians at or below it are dropped), got {text!r}")
     return value
 
 

@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from ._arguments import device, model_resolution
+from ._arguments import device, model_resolution, opacity_threshold
 
 
 def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
@@ -15,6 +15,9 @@ def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) 
     parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train / demo), a run folder (or its checkpoints/latest), or a shipped "
                         "model name (default: the shipped tiny-synth weights, trained on procedural scenes)")
     parser.add_argument("--poses-file", type=Path, help="poses file (default INPUT/poses.json)")
+    parser.add_argument("--allow-outside-paths", action="store_true",
+                        help="read image/depth files the poses file names outside the input folder (absolute or ../ "
+                        "paths, symlinks leading out); refused by default")
     parser.add_argument("--resolution", type=model_resolution,
                         help="HxW the model runs at (default: the model's nominal input height x 2)")
     parser.add_argument("--depth-prior",
@@ -22,7 +25,10 @@ def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) 
                              "`cylindersplat data priors`), exported:NET.pt2 (any exported depth network), "
                              "unik3d:WEIGHTS, depth_anything_v2:MODEL, constant:METRES, none (zeros, on request only) "
                              "(default: every frame needs <stem>_depth.png/.npy)")
-    parser.add_argument("--min-opacity", type=float, default=0.005, help="drop Gaussians at or below this opacity (default 0.005)")
+    parser.add_argument("--min-opacity", type=opacity_threshold, default=0.005,
+                        help="drop Gaussians at or below this opacity, in [0, 1) (default 0.005)")
+    parser.add_argument("--skip-plausibility-checks", action="store_true",
+                        help="accept depths whose median is outside 1 cm to 1 km (refused by default as a unit mistake)")
     parser.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
 
 
@@ -53,9 +59,12 @@ def reconstruct_from_args(args: argparse.Namespace):
         raise ValueError(f"--resolution {size[0]}x{size[1]}: this model needs a height divisible by {stride}, "
                          f"e.g. {low}x{2 * low} or {low + stride}x{2 * (low + stride)}")
     prior = parse_depth_prior(args.depth_prior) if args.depth_prior else None
-    inputs = load_panorama_folder(args.input, size, depth_prior=prior, poses_file=args.poses_file)
+    inputs = load_panorama_folder(args.input, size, depth_prior=prior, poses_file=args.poses_file,
+                                  allow_outside_paths=args.allow_outside_paths,
+                                  check_plausibility=not args.skip_plausibility_checks)
     start = time.perf_counter()
-    gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, args.min_opacity)
+    gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, args.min_opacity,
+                                      check_plausibility=not args.skip_plausibility_checks)
     print(f"reconstructed {len(gaussians):,} Gaussians from {len(inputs.names)} panoramas at "
           f"{size[0]}x{size[1]} in {time.perf_counter() - start:.2f} s on {args.device}")
     return inputs, gaussians, model

@@ -6,10 +6,12 @@ import argparse
 import time
 
 from ..dataset_layouts import DATASET_LAYOUTS, LAYOUT_ALIASES
-from ._arguments import device, equirect_resolution
+from ._arguments import device, equirect_resolution, fraction, nonnegative_int, positive_int
 
 PROFILE_NAMES = ("default", "occlusion")  # cylindersplat.data.synth.PROFILES (not imported: keeps the CLI start fast)
 PROTOCOL_NAMES = ("two_view", "one_view", "n_view", "released")  # cylindersplat.data.views.PROTOCOLS
+OUTSIDE_HELP = ("folders of posed panoramas: read image/depth files their poses files name outside their folder "
+                "(absolute or ../ paths); refused by default")
 
 
 def _spacing(text: str) -> tuple[float, float]:
@@ -74,7 +76,8 @@ def _synth(args) -> int:
 def _preview(args) -> int:
     from ..data.preview import write_contact_sheet
 
-    out = write_contact_sheet(args.data, args.out, count=args.count, height=args.height)
+    out = write_contact_sheet(args.data, args.out, count=args.count, height=args.height,
+                              allow_outside_paths=args.allow_outside_paths)
     print(f"wrote {out}")
     return 0
 
@@ -87,7 +90,7 @@ def _info(args) -> int:
     from ..data.preview import example_occlusion, occlusion_summary, open_dataset
 
     targets = [name for name in args.targets.split(",") if name] if args.targets else None
-    ds = open_dataset(args.data, views=args.views, targets=targets)
+    ds = open_dataset(args.data, views=args.views, targets=targets, allow_outside_paths=args.allow_outside_paths)
     size, which = ds.stored_size, ""
     if size is None and len(ds):  # a folder of panoramas fixes no size: show its first panorama's
         from PIL import Image
@@ -150,16 +153,16 @@ def register(subparsers) -> None:
         "DIR/<scene>/NN/{rgb.png,depth.png (16-bit mm)}, poses.json, meta.json. Re-running resumes.",
     )
     synth.add_argument("--out", required=True, help="output folder")
-    synth.add_argument("--scenes", type=int, default=10, help="number of scenes (default 10)")
+    synth.add_argument("--scenes", type=positive_int, default=10, help="number of scenes (default 10)")
     synth.add_argument("--resolution", type=equirect_resolution, default=(256, 512), help="HxW with W = 2H (default 256x512)")
-    synth.add_argument("--frames", type=int, default=3, help="frames per sequence, on a line (default 3)")
+    synth.add_argument("--frames", type=positive_int, default=3, help="frames per sequence, on a line (default 3)")
     synth.add_argument("--spacing", type=_spacing, default=None,
                        help="metres between consecutive frames, or MIN:MAX drawn per scene (default 0.5; occlusion profile 0.5:1.0)")
     synth.add_argument("--seed", type=int, default=0, help="dataset seed; scene i is fully determined by (seed, i)")
     synth.add_argument("--layouts", type=_layouts, default=None,
                        help="comma list of room,l_shape,two_rooms,outdoor (default all), optionally weighted: "
                        "room:1,two_rooms:3,outdoor (outdoor's share is --outdoor-fraction)")
-    synth.add_argument("--outdoor-fraction", type=float, default=None,
+    synth.add_argument("--outdoor-fraction", type=fraction, default=None,
                        help="share of outdoor scenes (default 0.2; occlusion profile 0.15)")
     synth.add_argument("--no-yaw", action="store_true", help="identity camera rotations (PanoGRF-like) instead of a random yaw")
     disocclusion = synth.add_argument_group(
@@ -171,9 +174,9 @@ def register(subparsers) -> None:
     disocclusion.add_argument("--target-offset", type=_offset, default=None, metavar="METRES|MIN:MAX",
                               help="move the middle frame (the two_view target) this far off the line, mostly sideways "
                               "(occlusion profile 0.4:1.0)")
-    disocclusion.add_argument("--occluders", type=int, default=None, metavar="N",
+    disocclusion.add_argument("--occluders", type=nonnegative_int, default=None, metavar="N",
                               help="extra objects (pillars, cabinets, screens, ...) standing near the camera path (occlusion profile 6)")
-    disocclusion.add_argument("--through-doorways", type=float, default=None, metavar="SHARE",
+    disocclusion.add_argument("--through-doorways", type=fraction, default=None, metavar="SHARE",
                               help="share of doorway scenes whose camera line walks through the doorway (occlusion profile 0.7)")
     synth.set_defaults(func=_synth)
 
@@ -186,8 +189,9 @@ def register(subparsers) -> None:
     preview.add_argument("--data", required=True,
                          help="dataset folder (synthetic output, png_render_* folder, or a folder of posed panoramas or of such folders)")
     preview.add_argument("--out", required=True, help="output PNG path")
-    preview.add_argument("--count", type=int, default=4, help="number of examples (rows, default 4)")
+    preview.add_argument("--count", type=positive_int, default=4, help="number of examples (rows, default 4)")
     preview.add_argument("--height", type=int, default=128, help="tile height in pixels (width = 2x, default 128)")
+    preview.add_argument("--allow-outside-paths", action="store_true", help=OUTSIDE_HELP)
     preview.set_defaults(func=_preview)
 
     info = sub.add_parser(
@@ -198,13 +202,14 @@ def register(subparsers) -> None:
         "panoramas (poses.json or transforms.json, docs/inference.md; frames without a depth file: n/a).")
     info.add_argument("--data", required=True,
                       help="dataset folder (synthetic output, png_render_* folder, or a folder of posed panoramas or of such folders)")
-    info.add_argument("--count", type=int, default=5, help="examples to list (default 5)")
+    info.add_argument("--count", type=nonnegative_int, default=5, help="examples to list (default 5)")
     info.add_argument("--views", default="two_view", choices=PROTOCOL_NAMES,
                       help="view protocol (default two_view; a folder of panoramas: over its frames in poses-file order)")
     info.add_argument("--targets", help="folder of panoramas: comma list of frames (image names or stems) held out as "
                       "targets, the other frames being the inputs (instead of --views), as in eval --targets")
-    info.add_argument("--occlusion", type=int, default=64, metavar="N",
+    info.add_argument("--occlusion", type=nonnegative_int, default=64, metavar="N",
                       help="average the occluded share over N evenly spaced examples (default 64; 0: skip it)")
+    info.add_argument("--allow-outside-paths", action="store_true", help=OUTSIDE_HELP)
     info.set_defaults(func=_info)
 
     from ._import_poses import register as register_import_poses
@@ -236,7 +241,7 @@ def register(subparsers) -> None:
     priors.add_argument("--layout", type=_dataset_layout, choices=["auto", *DATASET_LAYOUTS], default="auto",
                         help="dataset layout, as train and eval name it (default: detected; 'input' is folder's older name)")
     priors.add_argument("--split", default="all", help="360Loc: train, test or all locations (default all)")
-    priors.add_argument("--batch-size", type=int, default=4, help="panoramas per network call (default 4)")
+    priors.add_argument("--batch-size", type=positive_int, default=4, help="panoramas per network call (default 4)")
     priors.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
     priors.add_argument("--overwrite", action="store_true", help="recompute every frame, replacing an existing tree")
     priors.set_defaults(func=_priors)

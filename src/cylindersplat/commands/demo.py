@@ -24,7 +24,7 @@ import torch
 from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
-from ._arguments import device, model_resolution
+from ._arguments import device, model_resolution, positive_int
 
 
 DEFAULT_STEPS = "400,100,100"
@@ -40,7 +40,7 @@ def register(subparsers) -> None:
         "and a metrics table to --out. Needs no download.",
     )
     p.add_argument("--out", type=Path, default=Path("outputs/demo"), help="output folder (default outputs/demo)")
-    p.add_argument("--scenes", type=int, default=28, help="procedural scenes to generate (default 28)")
+    p.add_argument("--scenes", type=positive_int, default=28, help="procedural scenes to generate (default 28)")
     p.add_argument("--held-out", type=int, default=8, help="last N scenes are not trained on and are scored (default 8)")
     p.add_argument("--resolution", type=model_resolution, default=(64, 128), help="panorama HxW (default 64x128)")
     p.add_argument("--steps", default=DEFAULT_STEPS,

@@ -9,7 +9,7 @@ from ..dataset_layouts import DATASET_LAYOUTS
 from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
-from ._arguments import device, equirect_resolution, fill_list, memory_advice
+from ._arguments import NearFar, device, equirect_resolution, fill_list, memory_advice, nonnegative_int, positive_int
 
 
 RELEASED_RESOLUTION = (256, 512)  # evaluate_mp3d_double_256.py of the authors' released code
@@ -83,6 +83,8 @@ def open_eval_dataset(args, protocol: str, loader_options: dict | None = None):
     options = {"scenes": args.scenes.split(",")} if args.format == "synthetic" and args.scenes else {}
     if args.format == "folder" and getattr(args, "targets", None):
         options["targets"] = [name for name in args.targets.split(",") if name]
+    if args.format == "folder" and getattr(args, "allow_outside_paths", False):
+        options["allow_outside_paths"] = True
     options.update(loader_options or {})
     # The PCC reference: gt is Sample.target_depths; file:NAME arrives as Sample.target_reference_depths.
     reference = "none" if args.pcc_reference == "gt" else args.pcc_reference
@@ -276,9 +278,12 @@ def register(subparsers) -> None:
                         "exported:NET.pt2, unik3d:WEIGHTS, depth_anything_v2:MODEL, or none (zeros, on request only)")
     parser.add_argument("--pcc-reference", help="reference depth of the PCC column: gt (default) or file:NAME, e.g. "
                         "file:depth_anywhere as in the paper (files from `cylindersplat data priors`)")
-    parser.add_argument("--depth-range", type=float, nargs=2, metavar=("NEAR", "FAR"), help="valid reference depth (default 0.45 10 for pano_grf, else 0.05 1000)")
-    parser.add_argument("--max-examples", type=int, help="score only the first N examples")
-    parser.add_argument("--pictures", type=int, default=4, help="comparison pictures per protocol (default 4)")
+    parser.add_argument("--depth-range", nargs=2, action=NearFar, metavar=("NEAR", "FAR"), help="valid reference depth (default 0.45 10 for pano_grf, else 0.05 1000)")
+    parser.add_argument("--allow-outside-paths", action="store_true",
+                        help="--format folder: read image/depth files its poses files name outside their folder "
+                        "(absolute or ../ paths); refused by default")
+    parser.add_argument("--max-examples", type=positive_int, help="score only the first N examples")
+    parser.add_argument("--pictures", type=nonnegative_int, default=4, help="comparison pictures per protocol (default 4)")
     parser.add_argument("--lpips", default="auto", choices=["auto", "on", "off"], help="LPIPS column: auto uses local weights when found")
     parser.add_argument("--lpips-weights", help="LPIPS-VGG weights file (else $CYLINDERSPLAT_LPIPS_WEIGHTS)")
     parser.add_argument("--no-baseline", action="store_true", help="do not score the forward-warp baseline")

@@ -10,6 +10,7 @@ from ._arguments import check_output, image_resolution, memory_advice, positive_
 from ._inference import add_input_arguments, reconstruct_from_args
 
 VIEW_PATTERNS = ("view_*_rgb.png", "view_*_depth.png", "view_*_depth.npy", "view_*_depth_mm.png", "poses.json")
+RENDER_PATTERNS = ("gaussians.ply", "flythrough.gif", "flythrough.mp4", "flythrough.webm", "flythrough_poses.json")
 PLY_DEFAULT_HEIGHT = 512  # --ply without --output-resolution: 512x1024 panoramas, 512x682 pinhole views
 
 
@@ -57,6 +58,21 @@ def _memory_advice(refusal) -> str:
     """What fixes a render refused for memory, in this command's options."""
     fewer = "" if refusal.cameras == 1 else f"--view-batch {max(1, refusal.cameras // 2)} (views rendered at once), "
     return f"use {fewer}a smaller --output-resolution, or a GPU (--device cuda)"
+
+
+def _remove_earlier_render(out: Path, keep) -> None:
+    """Delete what an earlier render wrote into ``out`` (views, their poses.json, gaussians.ply, a fly-through):
+    this render's files must never stand beside another's, whatever subset of them it writes. ``keep``: paths
+    not to touch (the --ply being rendered, which may lie there)."""
+    kept = {Path(p).resolve() for p in keep if p is not None}
+    view_dir = out / "views"
+    stale = [p for pattern in VIEW_PATTERNS for p in view_dir.glob(pattern)] if view_dir.is_dir() else []
+    stale += [out / name for name in RENDER_PATTERNS if (out / name).is_file()]
+    stale = [p for p in stale if p.resolve() not in kept]
+    for path in stale:
+        path.unlink()
+    if stale:
+        print(f"removed {len(stale)} files of an earlier render in {out}")
 
 
 @memory_advice(_memory_advice)
@@ -123,11 +139,7 @@ def run(args: argparse.Namespace) -> int:
     else:  # colours fixed before rendering, so views and frames are written as they come
         near, far = sampled_depth_limits(gaussians, (view_poses if view_poses is not None else path_poses) @ turn)
     view_dir = args.out / "views"
-    stale = [p for pattern in VIEW_PATTERNS for p in view_dir.glob(pattern)] if view_dir.is_dir() else []
-    for path in stale:  # views of an earlier render into this folder: never mix them with this one's
-        path.unlink()
-    if stale:
-        print(f"removed {len(stale)} files of an earlier render in {view_dir}")
+    _remove_earlier_render(args.out, keep=[args.ply])
     if view_poses is not None:
         view_poses = view_poses @ turn
         view_dir.mkdir(exist_ok=True)

@@ -6,7 +6,7 @@ import argparse
 import shutil
 from pathlib import Path
 
-from ._arguments import check_output
+from ._arguments import check_output, count_list, positive_int, stage_list
 
 
 def run(args: argparse.Namespace) -> int:
@@ -118,15 +118,16 @@ def register(subparsers) -> None:
                         "with --resume, the run's own config)")
     parser.add_argument("--data", help="dataset folder (same as data.root=...)")
     parser.add_argument("--out", help="run folder for checkpoints, logs, weights (same as output_dir=...)")
-    parser.add_argument("--stages", help="comma list of curriculum stages to run, e.g. 1,2,3 or 3 (same as train.stages)")
-    parser.add_argument("--steps", help="optimizer steps per stage: one number or a comma list per stage")
+    parser.add_argument("--stages", type=stage_list,
+                        help="comma list of curriculum stages to run, e.g. 1,2,3 or 3 (same as train.stages)")
+    parser.add_argument("--steps", type=count_list, help="optimizer steps per stage: one number or a comma list per stage")
     parser.add_argument("--init", help="model.safetensors to start from (fine-tuning)")
     parser.add_argument("--resume", metavar="RUN",
                         help="run folder or checkpoint to continue, with the run's own config and schedule; "
                              "KEY=VALUE settings given with it change that config (and are reported)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the run already in the output folder (its checkpoints, logs and weights)")
-    parser.add_argument("--max-steps", type=int, help="stop (with a checkpoint) after this many steps of this call")
+    parser.add_argument("--max-steps", type=positive_int, help="stop (with a checkpoint) after this many steps of this call")
     parser.add_argument("--device", help="cpu, cuda, cuda:1 ... (default: cuda when available)")
     parser.add_argument("--print-config", action="store_true", help="print the resolved config as YAML and exit")
     parser.set_defaults(func=run)

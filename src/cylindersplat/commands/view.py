@@ -9,19 +9,22 @@ from ._arguments import image_resolution
 from ._inference import add_input_arguments, reconstruct_from_args
 
 
-def _cameras_from_poses(path: Path):
-    """Cameras of a poses file; panoramas named in its frames are shown when they lie beside it."""
+def _cameras_from_poses(path: Path, allow_outside: bool = False):
+    """Cameras of a poses file; panoramas named in its frames are shown when they lie beside it (inside its
+    folder unless ``allow_outside``)."""
     import numpy as np
     from PIL import Image
 
+    from ..data.confine import confined_path
     from ..inference import read_poses_file
     from ..viewer import ViewCamera
 
     cameras = []
     for i, (name, c2w, _) in enumerate(read_poses_file(path)):
         image = None
-        if name and (path.parent / name).is_file():
-            with Image.open(path.parent / name) as im:
+        file = name and confined_path(path.parent, name, f'{path} frame {i} "image"', allow_outside)
+        if file and file.is_file():
+            with Image.open(file) as im:
                 image = np.asarray(im.convert("RGB"))
         cameras.append(ViewCamera(c2w, name or f"camera {i}", image))
     return cameras
@@ -44,7 +47,7 @@ def load_scene(args: argparse.Namespace):
         from ..gaussians import load_gaussians
 
         gaussians = load_gaussians(args.splats)
-        cameras = _cameras_from_poses(args.poses_file) if args.poses_file else []
+        cameras = _cameras_from_poses(args.poses_file, args.allow_outside_paths) if args.poses_file else []
         print(f"loaded {len(gaussians):,} Gaussians from {args.splats}")
         return gaussians, cameras
     from ..data.io import to_uint8

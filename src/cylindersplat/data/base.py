@@ -105,11 +105,16 @@ class PanoramaDataset(Dataset):
         """A frame's stored depth in metres, resized to ``size`` (None: as stored), or None without a file."""
         if frame.depth is None:
             return None
+        expected = self.stored_depth_size(frame)
         if Path(frame.depth).suffix.lower() == ".npy":
-            depth = read_depth_npy(frame.depth, size=size, resize_mode=self.depth_resize)
+            depth = read_depth_npy(frame.depth, size=size, resize_mode=self.depth_resize, expected=expected)
             return depth if frame.depth_scale is None else depth / frame.depth_scale
-        return read_depth_png(frame.depth, size=size, expected=self.stored_size, resize_mode=self.depth_resize,
+        return read_depth_png(frame.depth, size=size, expected=expected, resize_mode=self.depth_resize,
                               **({} if frame.depth_scale is None else {"scale": frame.depth_scale}))
+
+    def stored_depth_size(self, frame: FrameRef) -> tuple[int, int] | None:
+        """(H, W) a frame's depth file must have (None: any 2:1 size); the layout's size by default."""
+        return self.stored_size
 
     def stored_depths(self, index: int) -> tuple[Tensor | None, Tensor | None]:
         """Ground-truth depth of example ``index`` at the stored resolution: ``(targets (T, Hs, Ws), contexts

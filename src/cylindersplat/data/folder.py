@@ -35,7 +35,6 @@ prior (``--depth-prior``), and with no prior chosen they are an error.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -45,12 +44,15 @@ import torch
 from torch import Tensor
 
 from .base import ExampleRef, FrameRef, PanoramaDataset
+from .confine import confined_path
 from .depth_prior.base import DepthPrior, MissingPrior, StoredDepthPrior
 from .depth_prior.files import PRIORS_DIR
 from .io import DEPTH_PNG_SCALE
 from .pose_formats import (POSE_CONVENTIONS, is_transforms_json, parse_pose_matrix, read_transforms_json,
                            to_opencv_c2w)
 from .views import ViewSplit, select_views
+from ..utils.jsonfile import read_json_file
+from ..validation import check_translation_plausible
 
 __all__ = ["FolderDataset", "FOLDER_VIEWS", "IMAGE_SUFFIXES", "POSES_FILE", "TRANSFORMS_FILE", "POSE_CONVENTIONS",
            "read_poses_file", "list_panoramas", "is_input_folder", "poses_path"]
@@ -87,15 +89,12 @@ def _read_poses(path: str | Path) -> tuple[list[tuple[str | None, Tensor, str | 
     names are relative to its own folder and whose ``.npy`` depths are in ``depth_scale`` units too), and
     its ``depth_scale`` (depth file units per metre)."""
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"missing poses file: {path}")
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    data = read_json_file(path, "poses file")
     if is_transforms_json(data):  # nerfstudio: OpenGL c2w of EQUIRECTANGULAR frames
         records = read_transforms_json(path, data=data)
-        return [(r.image, r.c2w.float(), r.depth) for r in records], True, _depth_scale(data, path)
+        entries = [(r.image, r.c2w.float(), r.depth) for r in records]
+        _check_positions(entries, path)
+        return entries, True, _depth_scale(data, path)
     if isinstance(data, list):
         data = {"poses": data}
     if not isinstance(data, dict) or not ({"frames", "poses"} & set(data)):
@@ -120,7 +119,14 @@ def _read_poses(path: str | Path) -> tuple[list[tuple[str | None, Tensor, str | 
         entries = [(None, _parse_pose(p, f"{path} pose {i}", convention), None) for i, p in enumerate(data["poses"])]
     if not entries:
         raise ValueError(f"{path}: no poses")
+    _check_positions(entries, path)
     return entries, False, _depth_scale(data, path)
+
+
+def _check_positions(entries, path: Path) -> None:
+    """Camera positions within 10 km of the origin (:mod:`cylindersplat.validation`), named by frame."""
+    for i, (_, c2w, _) in enumerate(entries):
+        check_translation_plausible(c2w, f"{path} frame {i}")
 
 
 def _depth_scale(data, path: Path) -> float:
@@ -149,10 +155,13 @@ def _rebase(name: str, base: Path, folder: Path) -> str:
     return os.path.relpath((base / name).resolve(), folder.resolve())
 
 
-def _folder_entries(folder: Path, poses_file: Path) -> tuple[list[tuple[str, Tensor, str | None]], bool, float]:
+def _folder_entries(folder: Path, poses_file: Path, allow_outside: bool = False
+                    ) -> tuple[list[tuple[str, Tensor, str | None]], bool, float]:
     """``([(image name, c2w, depth file or None)], nerfstudio, depth_scale)`` of an input folder (poses matched
-    to the images in name order where the file names none)."""
+    to the images in name order where the file names none). Named files must lie inside the folder they are
+    relative to (:func:`_confine`)."""
     entries, nerfstudio, scale = _read_poses(poses_file)
+    _confine(entries, poses_file.parent if nerfstudio else folder, poses_file, allow_outside)
     if nerfstudio and poses_file.parent.resolve() != folder.resolve():  # its names are relative to its own folder
         entries = [(_rebase(name, poses_file.parent, folder), pose, depth and _rebase(depth, poses_file.parent, folder))
                    for name, pose, depth in entries]
@@ -168,6 +177,15 @@ def _folder_entries(folder: Path, poses_file: Path) -> tuple[list[tuple[str, Ten
     elif any(name is None for name, _, _ in entries):
         raise ValueError(f'{poses_file}: every frame needs an "image" name')
     return entries, nerfstudio, scale
+
+
+def _confine(entries, base: Path, poses_file: Path, allow_outside: bool) -> None:
+    """Refuse image/depth names that lead out of ``base`` (the input folder; a nerfstudio file's own folder,
+    which its names are relative to), unless ``allow_outside`` (:mod:`.confine`)."""
+    for i, (name, _, depth) in enumerate(entries):
+        for key, value in (("image", name), ("depth", depth)):
+            if value is not None:
+                confined_path(base, value, f'{poses_file} frame {i} "{key}"', allow_outside)
 
 
 def is_input_folder(folder: str | Path) -> bool:
@@ -201,14 +219,16 @@ def list_panoramas(folder: str | Path, poses_file: str | Path | None = None) -> 
     return [folder / name for name, _, _ in _folder_entries(folder, poses_path(folder, poses_file))[0]]
 
 
-def _folder_frames(folder: Path, poses_file: Path) -> tuple[list[FrameRef], float]:
+def _folder_frames(folder: Path, poses_file: Path, allow_outside: bool = False) -> tuple[list[FrameRef], float]:
     """The frames of one input folder (depth file: ``"depth"`` of the poses file, else ``<stem>_depth.png|.npy``)
-    and its ``depth_scale``."""
-    entries, nerfstudio, scale = _folder_entries(folder, poses_file)
+    and its ``depth_scale``. Every file must lie inside ``folder`` unless ``allow_outside`` (:mod:`.confine`)."""
+    entries, nerfstudio, scale = _folder_entries(folder, poses_file, allow_outside)
     frames = []
     for name, pose, depth_name in entries:
         image = folder / name
         depth = folder / depth_name if depth_name else _find_depth(image)
+        if depth is not None and not depth_name:  # found beside the image: may still be a symlink leading out
+            confined_path(folder, depth.relative_to(folder), f"{poses_file}: depth of {name}", allow_outside)
         # PNG depth is in depth_scale units; .npy in metres, except nerfstudio's (in the units of its PNGs)
         npy = depth is not None and depth.suffix.lower() == ".npy"
         frames.append(FrameRef(name, image, pose, depth, None if npy and not nerfstudio else scale))
@@ -237,6 +257,10 @@ class FolderDataset(PanoramaDataset):
     are only the reference of the depth metrics (``Sample.target_depths``, ``context_gt_depths``) and every
     input prior comes from ``depth_prior`` (to score a network prior against measured or rendered depth).
     File priors (``file:NAME``) are read from ``<root>/priors/NAME/<image path relative to root>.png``.
+
+    Image and depth files named by a poses file must resolve inside its input folder (symlinks pointing inside
+    are fine); an absolute path or one leading out is an :class:`~cylindersplat.errors.OutsideFolderError`
+    unless ``allow_outside_paths=True`` (the CLI's ``--allow-outside-paths``).
     """
 
     dataset_name = "folder"
@@ -252,6 +276,7 @@ class FolderDataset(PanoramaDataset):
         depth_files: str = "prior",
         poses_file: str | Path | None = None,
         depth_resize: str = "area",
+        allow_outside_paths: bool = False,
     ) -> None:
         if depth_files not in ("prior", "reference"):
             raise ValueError(f"depth_files must be 'prior' or 'reference', got {depth_files!r}")
@@ -279,7 +304,7 @@ class FolderDataset(PanoramaDataset):
                 poses_path(root)  # the missing-poses-file error
         self.scenes: list[tuple[str, Path, list[FrameRef], ViewSplit, float]] = []
         for scene, folder, poses in folders:
-            frames, scale = _folder_frames(folder, poses)
+            frames, scale = _folder_frames(folder, poses, allow_outside_paths)
             self.scenes.append((scene, folder, frames, self._split(frames, poses), scale))
 
     def _split(self, frames: list[FrameRef], where: Path) -> ViewSplit:
@@ -308,6 +333,14 @@ class FolderDataset(PanoramaDataset):
         if not context:
             raise ValueError(f"{where}: every frame is held out as a target; keep at least one as an input")
         return ViewSplit(context, tuple(sorted(set(held))))
+
+    def stored_depth_size(self, frame: FrameRef) -> tuple[int, int] | None:
+        """A depth file must have its panorama's stored size (a half- or double-size map is a mix-up, not a
+        depth of this image)."""
+        from PIL import Image
+
+        with Image.open(frame.rgb) as image:  # reads the header only
+            return image.height, image.width
 
     def __len__(self) -> int:
         return len(self.scenes)

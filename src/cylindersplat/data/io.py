@@ -149,8 +149,10 @@ def read_depth_png(
     return depth
 
 
-def read_depth_npy(path: Path | str, size: tuple[int, int] | None = None, resize_mode: str = "area") -> Tensor:
-    """Float depth in metres from a ``.npy`` file ``(H, W)``; NaN/Inf/negative become 0 (invalid)."""
+def read_depth_npy(path: Path | str, size: tuple[int, int] | None = None, resize_mode: str = "area",
+                   expected: tuple[int, int] | None = None) -> Tensor:
+    """Float depth in metres from a ``.npy`` file ``(H, W)`` of numbers (not booleans, records or objects),
+    stored at ``expected`` (H, W) when given; NaN/Inf/negative become 0 (invalid)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"missing file: {path}")
@@ -158,10 +160,12 @@ def read_depth_npy(path: Path | str, size: tuple[int, int] | None = None, resize
         arr = np.load(path)
     except (ValueError, OSError) as exc:
         raise ValueError(f"{path}: cannot read .npy ({exc})") from exc
+    if arr.dtype.kind not in "fiu":  # bool masks, structured records, strings: not a depth map
+        raise ValueError(f"{path}: depth must be a float array of metres, got dtype {arr.dtype}")
     arr = np.squeeze(arr)
     if arr.ndim != 2:
         raise ValueError(f"{path}: depth must be 2-D (H, W), got shape {arr.shape}")
-    check_panorama_size(arr.shape[0], arr.shape[1], path)
+    check_panorama_size(arr.shape[0], arr.shape[1], path, expected)
     depth = torch.from_numpy(np.nan_to_num(arr.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)).clamp(min=0)
     return resize_depth(depth, size, mode=resize_mode) if size is not None else depth
 

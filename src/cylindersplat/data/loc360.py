@@ -21,12 +21,12 @@ same sampler with the span from the first to the last context in place of the ga
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from ..utils.jsonfile import read_json_file
 from .base import ExampleRef, FrameRef, PanoramaDataset
 from .views import all_between, all_between_span, all_between_starts
 
@@ -37,12 +37,7 @@ LOC360_SPLITS = {"train": ("concourse", "hall", "piatrium"), "test": ("atrium",)
 
 def read_camera_pose_json(path: Path) -> list[tuple[str, torch.Tensor]]:
     """``camera_pose.json`` -> ``[(frame name, c2w 4x4 float32)]`` in file order."""
-    if not path.is_file():
-        raise FileNotFoundError(f"missing file: {path}")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: invalid JSON ({exc})") from exc
+    data = read_json_file(path)
     if not isinstance(data, dict) or not data:
         raise ValueError(f"{path}: expected a non-empty object {{frame name: 4x4 matrix}}")
     out = []

@@ -38,6 +38,7 @@ from torch import Tensor
 
 from ..geometry import validate_c2w
 from ..utils.atomic import atomic_write_text
+from ..utils.jsonfile import read_json_file
 
 __all__ = [
     "POSE_CONVENTIONS",
@@ -126,12 +127,7 @@ def _check_scale(scale: float) -> float:
 
 
 def _load_json(path: Path):
-    if not path.is_file():
-        raise FileNotFoundError(f"missing poses file: {path}")
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    return read_json_file(path, "poses file")
 
 
 # --- nerfstudio ---------------------------------------------------------------------------------------

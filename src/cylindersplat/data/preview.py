@@ -26,11 +26,12 @@ __all__ = ["open_dataset", "contact_sheet", "write_contact_sheet", "ExampleOcclu
 
 
 def open_dataset(path: str | Path, resolution: tuple[int, int] | None = None, views: str | None = None,
-                 targets: list[str] | None = None) -> PanoramaDataset:
+                 targets: list[str] | None = None, allow_outside_paths: bool = False) -> PanoramaDataset:
     """A synthetic folder (has ``meta.json``), a ``png_render_*`` PanoGRF folder or a folder of posed panoramas
     (``poses.json`` or ``transforms.json``, or a folder of such folders). ``views`` defaults to ``n_view`` (every
     frame of a 3-frame sequence), for a folder of panoramas to ``all_inputs`` (every frame, in poses-file order,
-    whatever their number); ``targets`` (folders only) holds those frames out, as ``eval --targets`` does."""
+    whatever their number); ``targets`` (folders only) holds those frames out, as ``eval --targets`` does;
+    ``allow_outside_paths`` (folders only) reads files their poses files name outside them."""
     path = Path(path)
     try:
         layout = detect_layout(path)
@@ -41,7 +42,7 @@ def open_dataset(path: str | Path, resolution: tuple[int, int] | None = None, vi
                          "not of a synthetic or png_render_* dataset; choose views (--views) there")
     if layout == "folder":  # depth files only as ground truth: pictures and occlusion need no prior
         return FolderDataset(path, views=views or "all_inputs", targets=targets, resolution=resolution,
-                             depth_prior=NoPrior(), depth_files="reference")
+                             depth_prior=NoPrior(), depth_files="reference", allow_outside_paths=allow_outside_paths)
     views = views or "n_view"
     if layout == "synthetic":
         return SyntheticDataset(path, views=views, resolution=resolution, depth_prior=NoPrior())
@@ -146,8 +147,10 @@ def _frame_depths(dataset: PanoramaDataset, index: int, sample) -> list[torch.Te
     return depths
 
 
-def write_contact_sheet(data: str | Path, out: str | Path, count: int = 4, height: int = 128) -> Path:
-    sheet = contact_sheet(open_dataset(data, resolution=(height, 2 * height)), count)
+def write_contact_sheet(data: str | Path, out: str | Path, count: int = 4, height: int = 128,
+                        allow_outside_paths: bool = False) -> Path:
+    sheet = contact_sheet(open_dataset(data, resolution=(height, 2 * height), allow_outside_paths=allow_outside_paths),
+                          count)
     out = Path(out)
     with atomic_path(out) as tmp:  # a failed write keeps an earlier sheet; the temporary keeps the suffix (format)
         Image.fromarray(sheet).save(tmp)

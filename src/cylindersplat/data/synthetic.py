@@ -2,27 +2,37 @@
 
 from __future__ import annotations
 
-import json
+import math
+import warnings
 from pathlib import Path
 
-import numpy as np
-import torch
-
+from ..utils.jsonfile import read_json_file
+from ..utils.notices import Notice
 from .base import ExampleRef, FrameRef, PanoramaDataset
 from .depth_prior.base import DepthPrior
 from .depth_prior.simulated import SimulatedPrior
+from .io import DEPTH_PNG_SCALE
+from .pose_formats import parse_pose_matrix
 from .views import select_views
 
 __all__ = ["SyntheticDataset"]
 
 
-def _read_json(path: Path):
-    if not path.is_file():
-        raise FileNotFoundError(f"missing file: {path}")
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: invalid JSON ({exc})") from exc
+def _read_json(path: Path, kind: type = dict):
+    """A JSON file of the dataset, which must hold a ``kind`` (an object, for every file of the layout)."""
+    data = read_json_file(path)
+    if not isinstance(data, kind):
+        raise ValueError(f"{path}: expected a JSON {'object' if kind is dict else kind.__name__}, got "
+                         f"{type(data).__name__} (is it a file written by cylindersplat data synth?)")
+    return data
+
+
+def _depth_scale(meta: dict, path: Path) -> float:
+    """``depth_scale`` of a scene's meta.json (depth PNG units per metre; absent: millimetres)."""
+    scale = meta.get("depth_scale", DEPTH_PNG_SCALE)
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
+        raise ValueError(f"{path}: depth_scale must be a positive number (PNG units per metre), got {scale!r}")
+    return float(scale)
 
 
 class SyntheticDataset(PanoramaDataset):
@@ -54,7 +64,15 @@ class SyntheticDataset(PanoramaDataset):
         super().__init__(resolution, depth_prior or SimulatedPrior(), stored_size=stored, depth_resize=depth_resize)
         self.root = self.data_root = root
         self.views = views
-        self.scenes = [s for s in meta.get("scenes", []) if (root / s / "meta.json").is_file()]
+        listed = meta.get("scenes", [])
+        if not isinstance(listed, list) or not all(isinstance(s, str) for s in listed):
+            raise ValueError(f'{root / "meta.json"}: "scenes" must be a list of scene ids, got {listed!r:.80}')
+        self.scenes = [s for s in listed if (root / s / "meta.json").is_file()]
+        if self.scenes and len(self.scenes) < len(listed):  # an interrupted `data synth`: say so, read the rest
+            absent = [s for s in listed if s not in self.scenes]
+            warnings.warn(f"{root}: {len(absent)} of {len(listed)} scenes listed in meta.json are missing or incomplete "
+                          f"({', '.join(absent[:3])}{', ...' if len(absent) > 3 else ''}); using the other "
+                          f"{len(self.scenes)} (run data synth again to finish them)", Notice, stacklevel=2)
         if not self.scenes:
             raise ValueError(f"{root}: no complete scenes (each needs <id>/meta.json)")
         if scenes is not None:
@@ -69,16 +87,24 @@ class SyntheticDataset(PanoramaDataset):
     def example(self, index: int) -> ExampleRef:
         scene = self.scenes[index]
         folder = self.root / scene
-        meta = _read_json(folder / "meta.json")
+        meta_path = folder / "meta.json"
+        meta = _read_json(meta_path)
         poses = _read_json(folder / "poses.json")
+        names = meta.get("frames")
+        if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+            raise ValueError(f'{meta_path}: "frames" must be a non-empty list of frame names, got {names!r:.80}')
+        scale = _depth_scale(meta, meta_path)
         frames = []
-        for name in meta["frames"]:
+        for name in names:
             if name not in poses:
                 raise ValueError(f"{folder / 'poses.json'}: no pose for frame {name!r}")
-            c2w = np.asarray(poses[name], dtype=np.float64)
-            if c2w.shape != (4, 4) or not np.isfinite(c2w).all():
-                raise ValueError(f"{folder / 'poses.json'}: pose of {name!r} must be a finite 4x4 matrix")
-            frames.append(FrameRef(name, folder / name / "rgb.png", torch.from_numpy(c2w).float(), folder / name / "depth.png"))
+            # finite, 4x4, a rotation (a reflected pose is refused), last row 0 0 0 1
+            c2w = parse_pose_matrix(poses[name], f"{folder / 'poses.json'} frame {name!r}")
+            for file in ("rgb.png", "depth.png"):
+                if not (folder / name / file).is_file():
+                    raise FileNotFoundError(f"missing {file} of frame {name!r}: {folder / name / file} (the scene is "
+                                            "incomplete; run data synth again to finish it)")
+            frames.append(FrameRef(name, folder / name / "rgb.png", c2w.float(), folder / name / "depth.png", scale))
         extra = {"kind": meta.get("kind"), "spacing": meta.get("spacing")}
         if "target_offset" in meta:  # datasets made with a target offset (data synth --profile occlusion)
             extra["target_offset"] = meta["target_offset"]

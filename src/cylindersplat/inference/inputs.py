@@ -20,6 +20,7 @@ from ..data.folder import (IMAGE_SUFFIXES, POSE_CONVENTIONS, POSES_FILE, TRANSFO
                            list_panoramas, poses_path, read_poses_file)
 from ..data.io import DEPTH_PNG_SCALE
 from ..utils.atomic import atomic_write_text
+from ..validation import check_depth_plausible
 
 __all__ = ["PanoramaInputs", "load_panorama_folder", "write_panorama_folder", "read_poses_file", "list_panoramas",
            "IMAGE_SUFFIXES", "POSE_CONVENTIONS", "POSES_FILE", "TRANSFORMS_FILE"]
@@ -44,6 +45,8 @@ def load_panorama_folder(
     resolution: tuple[int, int],
     depth_prior: DepthPrior | None = None,
     poses_file: str | Path | None = None,
+    allow_outside_paths: bool = False,
+    check_plausibility: bool = True,
 ) -> PanoramaInputs:
     """Read the panoramas, poses and depth priors of ``folder`` at ``resolution`` ``(H, W)``.
 
@@ -52,16 +55,24 @@ def load_panorama_folder(
     given (e.g. a depth foundation model, or ``file:NAME`` for ``FOLDER/priors/NAME/<stem>.png`` from
     ``cylindersplat data priors``) and are an error otherwise. A depth without a single positive
     pixel is an error unless ``depth_prior`` is :class:`~cylindersplat.data.depth_prior.NoPrior` (asked for
-    by name). This is :class:`~cylindersplat.data.FolderDataset` (``views="all_inputs"``), its one example.
+    by name). This is :class:`~cylindersplat.data.FolderDataset` (``views="all_inputs"``), its one example;
+    files named by the poses file must lie inside ``folder`` unless ``allow_outside_paths``. With
+    ``check_plausibility`` each frame's depth (file or prior) must have a median within 1 cm to 1 km
+    (:func:`cylindersplat.validation.check_depth_plausible`; the error names the file).
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"input folder not found: {folder}")
     poses_path(folder, poses_file)  # one folder of panoramas, not a folder of them: its poses file must be there
-    dataset = FolderDataset(folder, resolution=resolution, depth_prior=depth_prior, poses_file=poses_file)
+    dataset = FolderDataset(folder, resolution=resolution, depth_prior=depth_prior, poses_file=poses_file,
+                            allow_outside_paths=allow_outside_paths)
     dataset.check_depth("--depth-prior")
     sample = dataset[0]
-    names = [dataset.example(0).frames[i].name for i in sample.metadata["context_indices"]]
+    frames = [dataset.example(0).frames[i] for i in sample.metadata["context_indices"]]
+    names = [frame.name for frame in frames]
+    if check_plausibility:
+        for frame, depth in zip(frames, sample.context_priors):
+            check_depth_plausible(depth, str(frame.depth) if frame.depth else f"the depth prior of {frame.name}")
     return PanoramaInputs(sample.context_images, sample.context_priors, sample.context_poses, names)
 
 

@@ -13,6 +13,7 @@ from jaxtyping import Float
 from torch import Tensor
 
 from ..data.io import DEPTH_PNG_SCALE, to_uint8, write_depth_png, write_rgb
+from ..errors import InputError
 from ..gaussians import Gaussians
 from ..render import Equirect, render
 from ..render.api import RenderOutput
@@ -22,6 +23,7 @@ from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
 from ..utils.notices import Notice
 from ..utils.progress import Progress
+from ..validation import check_c2w, check_depth_plausible, check_depths, check_images, check_opacity_threshold
 from .camera_path import flythrough_path
 from .memory import check_forward_memory
 from .video import VideoWriter
@@ -40,14 +42,29 @@ def reconstruct_gaussians(
     device: torch.device | str = "cpu",
     min_opacity: float = 0.0,
     amp: str = "auto",
+    check_plausibility: bool = True,
 ) -> Gaussians:
     """World-frame Gaussians (unbatched, float32, on ``device``) of one scene; drops those with opacity <=
     ``min_opacity``. ``amp``: ``"auto"`` runs the network under bf16 autocast on CUDA (as training
     does; the Gaussians come out in float32), ``"off"`` in float32 everywhere. A resolution whose
     forward pass would not fit in the device's free memory is refused first
-    (:class:`~cylindersplat.inference.memory.ReconstructionMemoryError`)."""
+    (:class:`~cylindersplat.inference.memory.ReconstructionMemoryError`).
+
+    Inputs are checked first (:mod:`cylindersplat.validation`, one-line
+    :class:`~cylindersplat.errors.InputError`): ``images`` float RGB in [0, 1], finite, W == 2H, H divisible
+    by the model's token stride; ``depths`` finite, >= 0 (0 = unknown), the images' size; ``c2w`` finite rigid
+    poses (no reflection) within 10 km of the origin; ``min_opacity`` in [0, 1). With ``check_plausibility``
+    each view's median positive depth must lie in 1 cm to 1 km (a unit mistake otherwise). A ``min_opacity``
+    that leaves no Gaussian is an error naming it."""
     if amp not in ("auto", "off"):
-        raise ValueError(f"amp must be 'auto' or 'off', got {amp!r}")
+        raise InputError(f"amp must be 'auto' or 'off', got {amp!r}")
+    check_opacity_threshold(min_opacity)
+    check_images(images, model.config.backbone.token_stride)
+    check_depths(depths, images)
+    check_c2w(c2w, images.shape[0])
+    if check_plausibility:
+        for i, depth in enumerate(depths):
+            check_depth_plausible(depth, f"depths[{i}]")
     model.eval()
     device = torch.device(device)
     check_forward_memory(model.config, images.shape[0], images.shape[-2], images.shape[-1], device, model.mode)
@@ -56,7 +73,11 @@ def reconstruct_gaussians(
         out = model(images[None].to(device), depths[None].to(device), c2w[None].to(device))
     gaussians = out.gaussians.detach().to(torch.float32).batch(0)
     if min_opacity > 0:
-        gaussians = gaussians[gaussians.opacities > min_opacity]
+        kept = gaussians[gaussians.opacities > min_opacity]
+        if len(kept) == 0 and len(gaussians):  # an empty scene is never what was asked for
+            raise InputError(f"min_opacity (--min-opacity) {min_opacity:g} leaves 0 of {len(gaussians):,} Gaussians "
+                             f"(the most opaque has {float(gaussians.opacities.max()):.3g}); choose a lower value")
+        gaussians = kept
     return gaussians
 
 

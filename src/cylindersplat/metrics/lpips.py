@@ -36,7 +36,9 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import pickle
 import re
+import warnings
 from pathlib import Path
 
 import torch
@@ -160,9 +162,21 @@ def _read_weight_file(path: Path) -> dict[str, Tensor]:
         from safetensors.torch import load_file
 
         return load_file(str(path))
-    state = torch.load(path, map_location="cpu", weights_only=True)
+    try:  # weights_only: a pickle is never executed, it is refused (with torch's many-line advice cut to one)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # torch's note on the pickle protocol
+            state = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, OSError, AttributeError) as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        first = ("a pickle of more than tensors: refused, never run" if isinstance(exc, pickle.UnpicklingError)
+                 else str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__)
+        raise ValueError(f"{path}: not a weights file that loads without running code ({first}); give the LPIPS "
+                         "weights as a .pth state_dict or .safetensors") from None
     if isinstance(state, dict) and "state_dict" in state:
         state = state["state_dict"]
+    if not isinstance(state, dict) or not all(isinstance(v, Tensor) for v in state.values()):
+        raise ValueError(f"{path}: expected a state_dict of tensors, got {type(state).__name__}")
     return state
 
 

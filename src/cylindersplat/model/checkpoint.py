@@ -63,9 +63,42 @@ def read_model_config(path: str | Path) -> ModelConfig:
     if CONFIG_KEY not in metadata:
         raise ValueError(f"{path} has no {CONFIG_KEY!r} metadata; was it written by save_model? ({WEIGHTS_HINT})")
     try:
-        return config_from_dict(json.loads(metadata[CONFIG_KEY]))
-    except (ValueError, TypeError, AttributeError) as exc:  # JSON errors are ValueErrors
+        return config_from_dict(json.loads(metadata[CONFIG_KEY])).validate()
+    except (ValueError, TypeError, AttributeError, RecursionError) as exc:  # JSON errors are ValueErrors
         raise ValueError(f"{path}: its model config cannot be read by this version of cylindersplat ({exc})") from None
+
+
+def _check_model_size(config: ModelConfig, path: Path, device) -> None:
+    """Refuse a stored config whose weights alone would not fit in free memory (a hand-edited or hostile
+    config asking for terabytes), before allocating: the parameters are counted on the meta device."""
+    from ..render.rasterize import available_memory
+
+    with torch.device("meta"):
+        model = CylinderSplat(config)
+    need = sum(p.numel() * p.element_size() for p in model.parameters())
+    free = available_memory(torch.device(device))
+    if free is not None and need > free:
+        raise MemoryError(f"{path}: its model config asks for {need / 2**30:.3g} GiB of weights but {free / 2**30:.3g} "
+                          f"GiB are free; is it the right file? {WEIGHTS_HINT}")
+
+
+MAX_WEIGHT = 1e8  # no trained layer holds weights this large; beyond it the file was scaled or corrupted
+
+
+def _check_weights(state: dict, path: Path) -> None:
+    """Finite floating-point weights of plausible size (NaN/inf: a diverged run; ints or 1e30: not trained weights)."""
+    not_float = [name for name, tensor in state.items() if not tensor.is_floating_point()]
+    if not_float:
+        raise ValueError(f"{path}: weight {not_float[0]} is {state[not_float[0]].dtype}, not floating point; the file was "
+                         f"not written by save_model: {WEIGHTS_HINT}")
+    bad = [name for name, tensor in state.items() if not torch.isfinite(tensor).all()]
+    if bad:  # what a diverged run leaves; it would render nothing without a word
+        raise ValueError(f"{path}: {len(bad)} weight tensors contain NaN/inf (e.g. {bad[0]}); the training run "
+                         "diverged: use an earlier checkpoint or retrain with a lower learning rate")
+    huge = [(name, float(t.abs().max())) for name, t in state.items() if t.numel() and float(t.abs().max()) > MAX_WEIGHT]
+    if huge:
+        raise ValueError(f"{path}: weight {huge[0][0]} reaches {huge[0][1]:.3g} (more than {MAX_WEIGHT:g}); no trained "
+                         f"model holds such values: the file is scaled or corrupted: {WEIGHTS_HINT}")
 
 
 def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> CylinderSplat:
@@ -73,6 +106,7 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> Cy
     weights that do not fit their stored config raise ``ValueError``/``FileNotFoundError`` naming ``path``."""
     path = Path(path)
     config = read_model_config(path)
+    _check_model_size(config, path, map_location)
     try:
         model = CylinderSplat(config)
     except (ValueError, TypeError, AttributeError) as exc:
@@ -81,10 +115,7 @@ def load_model(path: str | Path, map_location: str | torch.device = "cpu") -> Cy
         state = load_file(str(path), device=str(map_location))
     except Exception as exc:  # noqa: BLE001 - truncated tensor data
         raise ValueError(f"{path}: cannot read its tensors ({exc}); is the file complete? {WEIGHTS_HINT}") from None
-    bad = [name for name, tensor in state.items() if tensor.is_floating_point() and not torch.isfinite(tensor).all()]
-    if bad:  # what a diverged run leaves; it would render nothing without a word
-        raise ValueError(f"{path}: {len(bad)} weight tensors contain NaN/inf (e.g. {bad[0]}); the training run "
-                         "diverged: use an earlier checkpoint or retrain with a lower learning rate")
+    _check_weights(state, path)
     try:
         model.load_state_dict(state)
     except RuntimeError as exc:  # missing/unexpected keys, shapes: weights of another architecture

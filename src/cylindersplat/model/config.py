@@ -22,6 +22,7 @@ cylinder that is ``(r, theta, h)``, so the paper's ``(N_r, N_z, N_theta) = (16, 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -178,10 +179,27 @@ class ModelConfig:
             (isinstance(vol.retrieval_window, int) and 0 <= vol.retrieval_window <= 8,
              f"volume.retrieval_window must be an integer 0..8 (pixels), got {vol.retrieval_window!r}"),
         ]
-        for ok, message in checks:
+        for ok, message in checks + self._size_checks():
             if not ok:
                 raise ValueError(f"invalid model config: {message}")
         return self
+
+    def _size_checks(self) -> list[tuple[bool, str]]:
+        """Every layer size (the integers of the sections: widths, dims, heads, grids, ...) >= 1 and every
+        number finite: a negative or zero size would fail deep inside a layer instead."""
+        checks = []
+        for section in ("backbone", "attention", "pixel", "volume", "fusion"):
+            part = getattr(self, section)
+            for f in dataclasses.fields(part):
+                value = getattr(part, f.name)
+                values = value if isinstance(value, tuple) else (value,)
+                numbers = [v for v in values if isinstance(v, (int, float)) and not isinstance(v, bool)]
+                if any(not math.isfinite(v) for v in numbers):
+                    checks.append((False, f"{section}.{f.name} must be finite, got {value!r}"))
+                ints = [v for v in numbers if isinstance(v, int)]
+                if f.name != "retrieval_window" and ints and min(ints) < 1:
+                    checks.append((False, f"{section}.{f.name} must be >= 1, got {value!r}"))
+        return checks
 
     def replace(self, **changes: Any) -> "ModelConfig":
         """Copy with top-level fields or dotted sub-fields replaced: ``replace(**{"volume.init": "isolated"})``."""
@@ -258,9 +276,36 @@ def config_from_dict(data: dict[str, Any]) -> ModelConfig:
         "volume": VolumeBranchConfig,
         "fusion": FusionConfig,
     }
+    if not isinstance(data, dict):
+        raise TypeError(f"a model config is a mapping, got {type(data).__name__}")
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
         if key in sub:
+            if not isinstance(value, dict):
+                raise TypeError(f"{key} must be a mapping, got {value!r:.60}")
             value = sub[key](**{k: tuple(v) if isinstance(v, list) else v for k, v in value.items()})
+            _check_types(value, f"{key}.")
         kwargs[key] = value
-    return ModelConfig(**kwargs)
+    config = ModelConfig(**kwargs)
+    _check_types(config, "")
+    return config
+
+
+def _check_types(section: Any, prefix: str) -> None:
+    """Each field of the kind its default has (a stored ``image_height: "abc"`` fails here, by name, not deep
+    inside a layer); ints are accepted for floats, booleans only for booleans."""
+    def same_kind(value: Any, default: Any) -> bool:
+        if isinstance(value, bool) != isinstance(default, bool):
+            return False
+        return isinstance(value, (int, float) if isinstance(default, float) else type(default))
+
+    for f in dataclasses.fields(section):
+        value, default = getattr(section, f.name), f.default
+        if default is dataclasses.MISSING or default is None or dataclasses.is_dataclass(value):
+            continue
+        if isinstance(default, tuple):
+            ok = isinstance(value, tuple) and all(same_kind(v, default[0]) for v in value) if default else True
+        else:
+            ok = same_kind(value, default)
+        if not ok:
+            raise TypeError(f"{prefix}{f.name} must be like {default!r}, got {value!r:.60}")

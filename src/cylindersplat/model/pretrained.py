@@ -51,6 +51,11 @@ def resolve_weights(name_or_path: str | Path = DEFAULT_PRETRAINED) -> Path:
     (missing, folder, pickle: a one-line error) without loading it."""
     if isinstance(name_or_path, str) and name_or_path in PRETRAINED:
         return pretrained_path(name_or_path)
+    if not isinstance(name_or_path, (str, Path)) or not str(name_or_path):
+        from ..errors import InputError
+
+        raise InputError(f"weights must be a shipped model name ({', '.join(PRETRAINED)}), a .safetensors file or a run "
+                         f"folder, got {name_or_path!r}")
     path = Path(name_or_path)
     if path.is_dir() and (path / "model.safetensors").is_file():
         path = path / "model.safetensors"

@@ -12,6 +12,7 @@ adds others.
 from __future__ import annotations
 
 import math
+import os
 import warnings
 from dataclasses import dataclass
 from typing import Callable
@@ -19,8 +20,10 @@ from typing import Callable
 import torch
 from torch import Tensor
 
+from ..errors import InputError
 from ..gaussians import Gaussians
 from ..geometry.poses import validate_c2w
+from ..validation import MAX_TRANSLATION_M, farthest_camera
 from .cameras import CameraModel, Equirect
 from .projection import DenseProjection, ProjectedGaussians, RasterSettings, UnsupportedSettings, flatten_cameras, project_gaussians
 from .rasterize import rasterize
@@ -80,6 +83,10 @@ def available_backends() -> list[str]:
 
 
 def _pick_backend(name: str, device: torch.device) -> Backend:
+    if name == "triton" and device.type != "cuda" and os.environ.get("TRITON_INTERPRET") != "1":
+        # Triton compiles for GPUs only (its CPU interpreter, TRITON_INTERPRET=1, is for tests)
+        raise InputError(f"backend='triton' needs a CUDA GPU, but the Gaussians are on {device.type}; use "
+                         "backend='torch' (or 'auto'), or move the Gaussians to CUDA")
     if name == "auto":
         if device.type == "cuda":
             for cand in _AUTO_ORDER:
@@ -87,7 +94,8 @@ def _pick_backend(name: str, device: torch.device) -> Backend:
                     return _BACKENDS[cand]
         return _reference_backend
     if name not in _BACKENDS:
-        raise ValueError(f"unknown render backend {name!r}; available: {available_backends()} or 'auto'")
+        needs = " (needs the triton package: pip install triton)" if name == "triton" else ""
+        raise InputError(f"unknown render backend {name!r}{needs}; available: {', '.join(available_backends())} or auto")
     return _BACKENDS[name]
 
 
@@ -160,7 +168,14 @@ def render(
         raise TypeError(f"camera must be a camera model (cylindersplat.render.cameras), got {type(camera).__name__}")
     gaussians.validate()
     validate_c2w(c2w)
+    far = farthest_camera(c2w)
+    if far > MAX_TRANSLATION_M:  # float32 positions keep ~1 m / 2^24 of relative precision: splats smear and jitter
+        warnings.warn(f"cameras up to {far:.3g} m from the origin (beyond {MAX_TRANSLATION_M:g} m): float32 loses "
+                      "centimetres there and the render is wrong; recentre the scene (subtract a common origin)",
+                      RuntimeWarning, stacklevel=2)
     settings = settings or RasterSettings()
+    if not isinstance(settings, RasterSettings):
+        raise TypeError(f"settings must be a RasterSettings, got {type(settings).__name__}")
     flat_gaussians, flat_c2w, out_shape = flatten_cameras(gaussians, c2w.to(device=gaussians.device))
     num_cameras = math.prod(out_shape)
     if num_cameras == 0:

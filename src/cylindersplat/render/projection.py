@@ -31,6 +31,8 @@ map, :func:`ewa_footprint` the caps), documented so the fast backend can match t
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -61,6 +63,27 @@ class RasterSettings:
     transmittance_min: float = 1e-4
     pole_eps: float = 1e-3  # rho >= pole_eps * r inside the equirect Jacobian
     tile_size: int = 16
+
+    def __post_init__(self) -> None:
+        """Refuse settings no backend can honour (one-line :class:`~cylindersplat.errors.InputError`)."""
+        from ..errors import InputError
+
+        def number(name: str, ok: bool, rule: str) -> None:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or not ok:
+                raise InputError(f"RasterSettings.{name} must be {rule}, got {value!r}")
+
+        number("near", isinstance(self.near, (int, float)) and self.near > 0, "> 0 metres (e.g. 0.01)")
+        number("dilation", isinstance(self.dilation, (int, float)) and self.dilation >= 0, ">= 0 px^2 (e.g. 0.3)")
+        number("sigma_extent", isinstance(self.sigma_extent, (int, float)) and self.sigma_extent > 0, "> 0 (e.g. 3)")
+        number("alpha_max", isinstance(self.alpha_max, (int, float)) and 0 < self.alpha_max <= 1, "in (0, 1] (e.g. 0.99)")
+        number("alpha_min", isinstance(self.alpha_min, (int, float)) and 0 <= self.alpha_min < self.alpha_max,
+               "in [0, alpha_max) (e.g. 1/255)")
+        number("transmittance_min", isinstance(self.transmittance_min, (int, float))
+               and 0 <= self.transmittance_min < 1, "in [0, 1) (e.g. 1e-4)")
+        number("pole_eps", isinstance(self.pole_eps, (int, float)) and 0 < self.pole_eps < 1, "in (0, 1) (e.g. 1e-3)")
+        if isinstance(self.tile_size, bool) or not isinstance(self.tile_size, int) or self.tile_size < 1:
+            raise InputError(f"RasterSettings.tile_size must be an integer >= 1 (e.g. 16), got {self.tile_size!r}")
 
 
 @dataclass

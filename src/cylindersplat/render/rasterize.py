@@ -178,16 +178,18 @@ class RenderMemoryError(MemoryError):
     GENERIC_ADVICE = ("render at a lower resolution or fewer cameras at once, prune transparent Gaussians, or use "
                       "the Triton backend on a GPU")
 
-    def __init__(self, need: int, free: int, fragments: int, cameras: int, device, advice: str = GENERIC_ADVICE):
+    def __init__(self, need: int, free: int, fragments: int, cameras: int, device, advice: str = GENERIC_ADVICE,
+                 what: str = "fragments"):
         self.need, self.free, self.fragments, self.cameras, self.device = need, free, fragments, cameras, device
+        self.what = what
         self.facts = (f"this render of {cameras} view(s) at once needs about {need / 2**30:.1f} GiB for {fragments:,} "
-                      f"fragments but {free / 2**30:.1f} GiB are free on {device}")
+                      f"{what} but {free / 2**30:.1f} GiB are free on {device}")
         self.advice = advice
         super().__init__(f"{self.facts}; {advice}")
 
     def advise(self, advice: str) -> "RenderMemoryError":
         """The same refusal, ending in ``advice`` instead."""
-        return RenderMemoryError(self.need, self.free, self.fragments, self.cameras, self.device, advice)
+        return RenderMemoryError(self.need, self.free, self.fragments, self.cameras, self.device, advice, self.what)
 
 
 def available_memory(device: torch.device) -> int | None:
@@ -207,10 +209,24 @@ def available_memory(device: torch.device) -> int | None:
 def check_fragment_memory(num_fragments: int, device: torch.device, cameras: int = 1) -> None:
     """Refuse, with numbers and what to do, a render whose fragments would not fit in free memory
     (instead of swapping the machine to a halt or failing deep in the allocator)."""
-    need = num_fragments * BYTES_PER_FRAGMENT
+    _check_memory(num_fragments, BYTES_PER_FRAGMENT, "fragments", device, cameras)
+
+
+# Bytes per (Gaussian, tile, row) span of expand_fragments' first level: about twenty int64/float tensors.
+BYTES_PER_ROW_SPAN = 200
+
+
+def check_span_memory(num_spans: int, device: torch.device, cameras: int = 1) -> None:
+    """:func:`check_fragment_memory` for the row spans fragments are cut from: Gaussians as large as the panorama
+    make billions of them before a single fragment is counted."""
+    _check_memory(num_spans, BYTES_PER_ROW_SPAN, "row spans", device, cameras)
+
+
+def _check_memory(count: int, per_item: int, what: str, device: torch.device, cameras: int) -> None:
+    need = count * per_item
     free = available_memory(device)
     if free is not None and need > free:
-        raise RenderMemoryError(need, free, num_fragments, cameras, device)
+        raise RenderMemoryError(need, free, count, cameras, device, what=what)
 
 
 def expand_fragments(proj: ProjectedGaussians, bins: TileBins, sigma_extent: float = 3.0) -> tuple[Tensor, Tensor]:
@@ -223,6 +239,8 @@ def expand_fragments(proj: ProjectedGaussians, bins: TileBins, sigma_extent: flo
     h, w = proj.height, proj.width
     # Level 1: (pair, row) items.
     nr = bins.rows[:, 1] - bins.rows[:, 0] + 1
+    # Large footprints make many spans before a fragment is counted: refuse those first, by the same rule.
+    check_span_memory(int(nr.sum()), nr.device, proj.num_cameras)
     pair, k = _expand(nr)
     row = bins.rows[pair, 0] + k
     g = bins.gaussian[pair]

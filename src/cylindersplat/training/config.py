@@ -11,6 +11,9 @@ field changes: ``model: {preset: tiny, attention: {depth: 4}}``.
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import math
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -176,10 +179,15 @@ def _coerce(value: Any, current: Any, where: str) -> Any:
         return value
     if isinstance(current, float) and isinstance(value, str):
         try:  # YAML 1.1 reads "1e-4" (no dot) as a string
-            return float(value)
+            number = float(value)
         except ValueError:
             raise ValueError(f"{where} must be a number, got {value!r}") from None
+        if not math.isfinite(number):
+            raise ValueError(f"{where} must be a finite number, got {value!r}")
+        return number
     if isinstance(current, float) and isinstance(value, (int, float)) and not isinstance(value, bool):
+        if not math.isfinite(value):
+            raise ValueError(f"{where} must be a finite number, got {value!r}")
         return float(value)
     if isinstance(current, int) and isinstance(value, float) and value.is_integer():
         return int(value)
@@ -189,6 +197,16 @@ def _coerce(value: Any, current: Any, where: str) -> Any:
         raise ValueError(f"{where} must be a number, got {value!r}")
     if isinstance(current, tuple) and not isinstance(value, (list, tuple)):
         raise ValueError(f"{where} must be a list like [1, 2], got {value!r}")
+    if isinstance(current, tuple) and current:  # elements of the defaults' kind: [abc] is not a list of counts
+        kind = type(current[0])
+        if kind in (int, float) and not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            raise ValueError(f"{where} must be a list of numbers like {list(current)}, got {value!r}")
+        if kind is int and not all(float(v).is_integer() for v in value):
+            raise ValueError(f"{where} must be a list of whole numbers like {list(current)}, got {value!r}")
+        if kind is int:
+            value = [int(v) for v in value]
+        if kind is float and not all(math.isfinite(v) for v in value):
+            raise ValueError(f"{where} must be a list of finite numbers, got {value!r}")
     if isinstance(current, str) and not isinstance(value, str):
         raise ValueError(f"{where} must be a string, got {value!r}")
     if isinstance(value, list):
@@ -198,17 +216,48 @@ def _coerce(value: Any, current: Any, where: str) -> Any:
 
 def _update(obj: Any, values: dict[str, Any], prefix: str) -> None:
     names = {f.name for f in dataclasses.fields(obj)}
+    hints = typing.get_type_hints(type(obj))
     for key, value in values.items():
         where = f"{prefix}{key}"
         if key not in names:
-            raise ValueError(f"unknown config key {where!r}; known: {sorted(names)}")
+            raise ValueError(_unknown_key(where, names))
         current = getattr(obj, key)
         if dataclasses.is_dataclass(current):
             if not isinstance(value, dict):
                 raise ValueError(f"{where} is a section; set its fields, e.g. {where}.<field>=...")
             _update(current, value, f"{where}.")
         else:
-            setattr(obj, key, _coerce(value, current, where))
+            setattr(obj, key, _check_choice(_coerce(value, current, where), hints.get(key), where))
+
+
+def _check_choice(value: Any, hint: Any, where: str) -> Any:
+    """``value`` if the field's type allows it: one of a ``Literal``'s choices (e.g. train.amp)."""
+    choices = typing.get_args(hint) if typing.get_origin(hint) is Literal else ()
+    if choices and value not in choices:
+        raise ValueError(f"{where} must be one of {', '.join(map(str, choices))}; got {value!r}")
+    return value
+
+
+def _all_keys(obj: Any, prefix: str = "") -> list[str]:
+    """Every dotted key of a config (sections included), e.g. ``train.epochs_per_stage``."""
+    keys = []
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        keys.append(f"{prefix}{f.name}")
+        if dataclasses.is_dataclass(value):
+            keys += _all_keys(value, f"{prefix}{f.name}.")
+    return keys
+
+
+def _unknown_key(where: str, names: set[str]) -> str:
+    """One line for a key that is not in the config: the close names anywhere in it, else the section's keys."""
+    every = _all_keys(ExperimentConfig())
+    last = where.rsplit(".", 1)[-1]
+    close = [k for k in every if k.rsplit(".", 1)[-1] == last]  # the right name in another section
+    close += [k for k in difflib.get_close_matches(where, every, n=3, cutoff=0.75) if k not in close]
+    if close:
+        return f"unknown config key {where!r}; did you mean {' or '.join(close[:3])}?"
+    return f"unknown config key {where!r}; known: {sorted(names)}"
 
 
 def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
@@ -248,7 +297,25 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     if not t.lr > 0 or t.grad_clip < 0 or t.weight_decay < 0:
         raise ValueError(f"train.lr must be > 0 and train.grad_clip, train.weight_decay >= 0 "
                          f"(got {t.lr}, {t.grad_clip}, {t.weight_decay})")
+    _check_ranges(cfg)
     return cfg
+
+
+
+def _check_ranges(cfg: ExperimentConfig) -> None:
+    """Ranges the types alone do not give: loss weights >= 0, epochs > 0, a 2:1 resolution,
+    a model whose sizes are positive (:meth:`ModelConfig.validate`)."""
+    for f in dataclasses.fields(cfg.loss):
+        value = getattr(cfg.loss, f.name)
+        if isinstance(value, float) and value < 0:  # every number of the loss is a weight or a margin
+            raise ValueError(f"loss.{f.name} must be >= 0, got {value:g}")
+    epochs = cfg.train.epochs_per_stage
+    if epochs is not None and (isinstance(epochs, bool) or not isinstance(epochs, (int, float)) or not epochs > 0):
+        raise ValueError(f"train.epochs_per_stage must be a number > 0 (or null to use steps_per_stage), got {epochs!r}")
+    size = cfg.data.resolution
+    if size is not None and (len(size) != 2 or size[1] != 2 * size[0] or size[0] < 8):
+        raise ValueError(f"data.resolution must be [H, W] with W == 2H and H >= 8, e.g. [128, 256]; got {list(size)}")
+    cfg.model.validate()
 
 
 def nest_changes(changes: dict[str, Any]) -> dict[str, Any]:

@@ -17,6 +17,7 @@ schedule still advances. ``train.max_nonfinite_steps`` consecutive skips end the
 from __future__ import annotations
 
 import contextlib
+import os
 import time
 import warnings
 from pathlib import Path
@@ -96,6 +97,9 @@ class Trainer:
                 f"choose 'auto' or one of {available_backends()}"
             )
         self.dist, self.device = init_distributed(select_device(tcfg.device))
+        if tcfg.render_backend == "triton" and self.device.type != "cuda" and os.environ.get("TRITON_INTERPRET") != "1":
+            raise ValueError(f"train.render_backend=triton needs a CUDA GPU, but training runs on {self.device.type}; "
+                             "use train.render_backend=auto (or torch), or train.device=cuda")
         torch.manual_seed(tcfg.seed + self.dist.rank)
         self.output_dir = Path(config.output_dir)
         self.model = CylinderSplat(config.model).to(self.device)

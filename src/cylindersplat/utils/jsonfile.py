@@ -1,4 +1,5 @@
-"""Strict JSON text for result files: ``json.dumps`` writes ``inf`` / ``nan`` as ``Infinity`` / ``NaN``,
+"""JSON files in and out. In: :func:`read_json_file`, every input JSON file's reader (one line for a missing,
+undecodable or absurdly nested file instead of a traceback). Out: strict JSON text for result files: ``json.dumps`` writes ``inf`` / ``nan`` as ``Infinity`` / ``NaN``,
 which most JSON parsers (JavaScript, jq, Go, ...) refuse. Result files write them as ``null`` instead;
 where a value is infinite on purpose (a PSNR of a render equal to its target) the file's notes say so."""
 
@@ -8,7 +9,7 @@ import json
 import math
 from typing import Any
 
-__all__ = ["strict_json", "json_text"]
+__all__ = ["strict_json", "json_text", "read_json_file"]
 
 
 def strict_json(value: Any) -> Any:
@@ -25,3 +26,19 @@ def strict_json(value: Any) -> Any:
 def json_text(value: Any, indent: int | None = 1) -> str:
     """JSON text any parser reads (``allow_nan=False`` after :func:`strict_json`)."""
     return json.dumps(strict_json(value), indent=indent, allow_nan=False)
+
+
+def read_json_file(path, what: str = "file") -> Any:
+    """The parsed JSON of ``path``; ``FileNotFoundError`` (``missing {what}: path``) or ``ValueError`` naming the
+    file for text that is not JSON, not UTF-8, or nested too deeply to parse (a hostile file)."""
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"missing {what}: {path}")
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise ValueError(f"{path}: JSON nested too deeply to read (thousands of levels); is it the right file?") from None

@@ -24,10 +24,12 @@ never touches the network; a hub id (``org/name``) is fetched by the package's o
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib
 import importlib.metadata
 import importlib.util
+import logging
 import math
 import re
 import warnings
@@ -151,7 +153,8 @@ class ExportedDepthPrior(NetworkDepthPrior):
             raise ValueError(f"{path}: not a {kind} file (not a zip archive; corrupt or a plain state_dict?)")
         try:
             if path.suffix == ".pt2":
-                self.module = torch.export.load(str(path)).module().to(device)
+                with _quiet_logger("torch.export"):  # it logs a traceback before raising; our one line says it all
+                    self.module = torch.export.load(str(path)).module().to(device)
             else:
                 with warnings.catch_warnings():  # TorchScript still loads fine; its deprecation is not the user's problem
                     warnings.simplefilter("ignore", DeprecationWarning)
@@ -363,3 +366,15 @@ class DepthAnythingV2Adapter(FoundationDepthAdapter):
         self._loaded()
         return {**super().describe(), "output": self.kind,
                 "median_depth": self.median_depth if self.kind != "metric" else None}
+
+
+@contextlib.contextmanager
+def _quiet_logger(name: str):
+    """Silence the ``logging`` logger ``name`` (and its children) within the block."""
+    logger = logging.getLogger(name)
+    level = logger.level
+    logger.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)

@@ -101,9 +101,9 @@ class ConstantPrior(DepthPrior):
     name = "constant"
 
     def __init__(self, depth: float = 2.0) -> None:
-        if not (depth > 0 and depth < float("inf")):
-            raise ValueError(f"constant depth prior needs a positive finite depth, got {depth}")
-        self.depth = float(depth)
+        from ...validation import check_constant_depth
+
+        self.depth = check_constant_depth(depth)  # 1 cm to 1 km: beyond is a unit mistake
 
     def __call__(self, query: PriorQuery) -> Tensor:
         return torch.full(query.size, self.depth)

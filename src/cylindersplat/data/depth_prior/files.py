@@ -23,7 +23,7 @@ from torch import Tensor
 from ..io import DEPTH_PNG_SCALE, read_depth_npy, read_depth_png
 from .base import DepthPrior, PriorQuery
 
-__all__ = ["FilePrior", "PRIORS_DIR", "SIDECAR", "prior_tree", "tree_file", "read_sidecar"]
+__all__ = ["FilePrior", "PRIORS_DIR", "SIDECAR", "prior_tree", "check_prior_name", "tree_file", "read_sidecar"]
 
 PRIORS_DIR = "priors"  # <dataset root>/priors/<name>/...
 SIDECAR = "prior.json"  # at the top of a prior tree
@@ -31,7 +31,20 @@ SIDECAR = "prior.json"  # at the top of a prior tree
 
 def prior_tree(dataset_root: str | Path, name: str) -> Path:
     """The folder ``cylindersplat data priors --name NAME`` writes for a dataset (and ``file:NAME`` reads)."""
-    return Path(dataset_root) / PRIORS_DIR / name
+    return Path(dataset_root) / PRIORS_DIR / check_prior_name(name)
+
+
+def check_prior_name(name: str) -> str:
+    """``name`` if it is one plain folder name; else :class:`~cylindersplat.errors.InputError` (a name with
+    ``/``, ``..`` or an absolute path would write outside ``DATA/priors/``)."""
+    from ...errors import InputError
+
+    if not isinstance(name, str) or not name.strip():
+        raise InputError(f"--name {name!r}: a prior needs a non-empty name (files go to DATA/priors/NAME)")
+    if "/" in name or "\\" in name or name in (".", "..") or Path(name).is_absolute():
+        raise InputError(f"--name {name}: a prior name is one folder name (no '/', '..' or absolute path), e.g. "
+                         "depth_anything; use --out DIR to write the files elsewhere")
+    return name
 
 
 def tree_file(tree: str | Path, rgb_path: str | Path, dataset_root: str | Path, suffix: str = ".png") -> Path:

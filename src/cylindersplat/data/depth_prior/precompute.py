@@ -22,7 +22,7 @@ from tqdm.auto import tqdm
 
 from ...utils.atomic import atomic_path, atomic_write_text
 from ..io import DEPTH_PNG_SCALE, read_rgb, write_depth_png
-from .files import SIDECAR, prior_tree, read_sidecar, tree_file
+from .files import SIDECAR, check_prior_name, prior_tree, read_sidecar, tree_file
 from ...dataset_layouts import DATASET_LAYOUTS, detect_layout, layout_name
 from .registry import parse_network_prior
 
@@ -51,9 +51,15 @@ def prior_frames(data: str | Path, layout: str = "auto", split: str = "all") -> 
     data = Path(data)
     layout = detect_layout(data) if layout == "auto" else layout_name(layout)
     if layout == "folder":
+        from ...data.confine import ALLOW_OUTSIDE_OPTION
+        from ...errors import OutsideFolderError
         from ..folder import FolderDataset
 
-        dataset = FolderDataset(data, depth_prior=NoPrior())
+        try:
+            dataset = FolderDataset(data, depth_prior=NoPrior())
+        except OutsideFolderError as exc:  # no way round here: the tree mirrors paths inside the dataset
+            text = str(exc).replace(f" (or pass {ALLOW_OUTSIDE_OPTION} to read it anyway)", "")
+            raise OutsideFolderError(f"{text} (prior files mirror the panoramas' paths inside the dataset)") from None
     elif layout == "synthetic":
         dataset = SyntheticDataset(data, depth_prior=NoPrior())
     elif layout == "pano_grf":
@@ -110,6 +116,8 @@ def write_priors(
         raise ValueError(f"--batch-size must be >= 1, got {batch_size}")
     if name is None and out is None:
         raise ValueError("give the prior a --name (files go to DATA/priors/NAME) or an --out folder")
+    if name is not None:
+        check_prior_name(name)  # before any work: a name must not lead out of DATA/priors/
     root, frames, layout = prior_frames(data, layout, split)
     tree = Path(out) if out is not None else prior_tree(root, name)
     name = name or tree.name

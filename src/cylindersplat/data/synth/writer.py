@@ -46,6 +46,28 @@ def config_record(cfg: SequenceConfig) -> dict:
     return record
 
 
+def _check_same_settings(meta_path: Path, settings: dict) -> None:
+    """Resuming (or adding scenes to) a dataset is fine; writing scenes of other settings into it is not: one
+    dataset of two resolutions, seeds or generator settings would be read as one without a word."""
+    if not meta_path.is_file():
+        return
+    try:
+        old = json.loads(meta_path.read_text())
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        old = None
+    if not isinstance(old, dict):
+        raise ValueError(f"{meta_path} exists but is not a data synth meta.json; choose another --out")
+    settings = json.loads(json.dumps(settings))  # as the file holds them (tuples become lists)
+    labels = {"format": "format", "seed": "--seed", "resolution": "--resolution", "config": "generator settings"}
+    differ = [label for key, label in labels.items() if old.get(key) != settings[key]]
+    if differ:
+        shown = {"seed": lambda v: str(v), "resolution": lambda v: "x".join(map(str, v)) if isinstance(v, list) else repr(v)}
+        said = "; ".join(f"{label} {shown[key](old.get(key))} there, {shown[key](settings[key])} now" if key in shown
+                         else f"other {label}" for key, label in labels.items() if label in differ)
+        raise ValueError(f"{meta_path.parent} already holds a synthetic dataset made with other settings ({said}); "
+                         "choose another --out, or repeat the original settings to resume or extend it")
+
+
 def write_synthetic_dataset(
     out: str | Path,
     scenes: int,
@@ -59,12 +81,13 @@ def write_synthetic_dataset(
     if width != 2 * height:
         raise ValueError(f"resolution must be HxW with W == 2H, got {height}x{width}")
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     ids = [scene_id(i) for i in range(scenes)]
     settings = {
         "format": SYNTH_FORMAT, "seed": seed, "resolution": [height, width],
         "depth_scale": DEPTH_PNG_SCALE, "config": config_record(cfg), "scenes": ids,
     }
+    _check_same_settings(out / "meta.json", settings)
+    out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "meta.json", json.dumps(settings, indent=1))
     for index in tqdm(range(scenes), desc="synth scenes", unit="scene", disable=None if progress else True):  # None: no bar when output is not a terminal
         folder = out / ids[index]
