@@ -32,26 +32,23 @@ def image_resolution(text: str) -> tuple[int, int]:
     return size
 
 
-def positive_int(text: str) -> int:
-    """An integer >= 1; an argparse type."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return value
+def int_at_least(minimum: int, meaning: str = ""):
+    """An argparse type for integers >= ``minimum`` (``meaning``: a word on what the bound means)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}{meaning}, got {text!r}")
+        return value
+
+    return parse
 
 
-def nonnegative_int(text: str) -> int:
-    """An integer >= 0 (a count where 0 means none); an argparse type."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
-    return value
+positive_int = int_at_least(1)
+nonnegative_int = int_at_least(0)  # a count where 0 means none
 
 
 def fraction(text: str) -> float:

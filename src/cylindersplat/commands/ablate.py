@@ -8,7 +8,7 @@ from pathlib import Path
 from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
-from ._arguments import device, fill_list, model_resolution, positive_int
+from ._arguments import device, fill_list, model_resolution, positive_int, positive_int
 
 
 def _steps(text: str) -> tuple[int, int, int]:
@@ -53,7 +53,7 @@ def register(subparsers) -> None:
                    help="fill rows of the pixel-only variants and the forward warp: mean (the inputs' mean colour) or "
                    "inpaint (a 2-D inpaint) behind the pixels a render leaves uncovered; none for no fill rows "
                    "(default mean,inpaint)")
-    p.add_argument("--threads", type=int, default=2, help="torch threads of every run (default 2): part of the recipe, "
+    p.add_argument("--threads", type=positive_int, default=2, help="torch threads of every run (default 2): part of the recipe, "
                    "as the thread count sets the order of float sums; the same count gives bit-identical reruns")
     p.add_argument("--json", type=Path, help="also copy ablation.json here (e.g. benchmarks/results/ablation.json)")
     p.set_defaults(func=run)
