@@ -22,6 +22,17 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def cpu_name() -> str:
+    """The CPU's model name (kernels of the math libraries, hence float results, may differ between CPU models)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def one_run(data: str, out: str, variant: str, seed: int, threads: int, steps: tuple[int, int, int]) -> dict:
     """Train and score one run in a fresh process (thread count and RNG state start clean)."""
     code = f"""
@@ -60,8 +71,8 @@ def main() -> int:
     groups: dict[str, list[int]] = {}
     for i, run in enumerate(runs):
         groups.setdefault(run["sha256"], []).append(i)
-    report = {"variant": args.variant, "seed": args.seed, "steps": args.steps, "data": args.data, "machine": platform.processor() or
-              platform.machine(), "date": time.strftime("%Y-%m-%d"), "runs": runs,
+    report = {"variant": args.variant, "seed": args.seed, "steps": args.steps, "data": args.data, "machine": cpu_name(),
+              "date": time.strftime("%Y-%m-%d"), "runs": runs,
               "identical_groups": list(groups.values())}
     args.json.parent.mkdir(parents=True, exist_ok=True)
     args.json.write_text(json.dumps(report, indent=1) + "\n")
