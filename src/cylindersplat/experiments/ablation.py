@@ -118,7 +118,7 @@ def extra_variants() -> list[Variant]:
         Variant("depth_fusion_own_view", "full, depth-guided fusion against each Gaussian's own view only",
                 ("model.fusion.strategy=depth_prune", "model.fusion.side=front")),
         Variant("retrieval_window_2", "full, volume colours from the nearest observed surface points in 5x5 pixels",
-                ("model.volume.retrieval_window=2",)),
+                ("model.volume.color=surface", "model.volume.surface_window=2", "model.volume.surface_temperature=1")),
         Variant("volume_weight_1", "full, the volume branch's own render in the loss (loss.volume_weight=1)",
                 ("loss.volume_weight=1",)),
         Variant("pixel_stage_leaves_hidden", "full, stage 1 leaves pixels no input view sees out of the loss",

@@ -37,10 +37,36 @@ __all__ = [
     "get_config",
     "config_to_dict",
     "config_from_dict",
+    "CHOICES",
+    "COLOR_RULES",
 ]
 
 BranchMode = Literal["pixel", "volume", "both"]
 CoordinateKind = Literal["cylindrical", "spherical", "cartesian"]
+
+# volume.color -> what it is (model/rgb_retrieval.py builds them)
+COLOR_RULES = {
+    "retrieval": "Eq. 6: softmax over views of -(d_g - d_o) / T at the projection (the paper)",
+    "surface": "colour of the observed surface points nearest the Gaussian (taps around the projection, sharp T in m)",
+    "released_mlp": "the released code's MLP over every view's 3x3 colour taps and d_g - d_o",
+    "decoded": "decoded from the triplane feature alone, no image lookup (the ablation's w/o RGB row)",
+}
+
+# Every string choice of the model config, defined once: validate() checks against it and the modules that
+# dispatch on a choice (make_coordinates, build_color_module, fuse_gaussians, ...) cover exactly these values.
+CHOICES: dict[str, tuple[str, ...]] = {
+    "mode": ("pixel", "volume", "both"),
+    "volume.coordinates": ("cylindrical", "spherical", "cartesian"),
+    "volume.init": ("shared", "isolated"),
+    "volume.scale_transform": ("paper", "exact", "cartesian"),
+    "volume.color": tuple(COLOR_RULES),
+    "volume.placement": ("per_camera", "central"),
+    "volume.image_query": ("coarse", "full"),
+    "volume.image_views": ("own", "all"),
+    "fusion.strategy": ("concat", "depth_prune"),
+    "fusion.side": ("both", "front", "hidden"),
+    "fusion.pixel_clearing": ("none", "seen_through"),
+}
 
 
 @dataclass
@@ -124,11 +150,19 @@ class VolumeBranchConfig:
     scale_transform: Literal["paper", "exact", "cartesian"] = "paper"  # Eq. 4 (|J| S), J diag(S^2) J^T, or metric S
     max_scale_cells: float = 1.0  # S_local <= this many cells along each axis
     min_scale_cells: float = 0.02
-    visibility_temperature: float = 1.0  # w = softmax(-s / T); T = 1 m is the paper's Eq. 6
-    retrieval_window: int = 0  # 0: Eq. 6; r > 0: nearest observed surface point among (2r+1)^2 pixels per view
-    color: Literal["retrieval", "decoded"] = "retrieval"  # Eq. 6 RGB retrieval, or decoded from the triplane
+    # colour rule of the volume Gaussians (model/rgb_retrieval.py, COLOR_RULES): Eq. 6 retrieval (the paper), the
+    # nearest observed surface, the released code's tap MLP, or decoded from the triplane
+    color: Literal["retrieval", "surface", "released_mlp", "decoded"] = "retrieval"
+    visibility_temperature: float = 1.0  # retrieval: w = softmax(-s / T); T = 1 m is the paper's Eq. 6
+    surface_window: int = 4  # surface: (2r+1)^2 taps per view around the projection
+    surface_temperature: float = 0.1  # surface: T in metres (sharp: the nearest observed points win)
+    learn_temperature: bool = False  # surface: T is a trained parameter (initialised at surface_temperature)
+    color_views: int = 3  # released_mlp: the most input views its MLP takes (fewer are zero-padded)
     placement: Literal["per_camera", "central"] = "per_camera"  # one triplane per camera, or one at the centre
     image_query: Literal["coarse", "full"] = "coarse"  # Eq. 2 queries at image_grid (coarse) or at grid (full)
+    # Eq. 2 reads its own camera's F_pano (the paper) or every view's (the released code); per-camera triplanes only
+    image_views: Literal["own", "all"] = "own"
+    gaussians_per_cell: int = 1  # Gaussians decoded per triplane cell (the released configs: 3)
 
 
 @dataclass
@@ -137,6 +171,9 @@ class FusionConfig:
     sigma: float = 0.1  # relative depth deviation giving opacity factor exp(-1/2)
     prune_threshold: float = 0.005  # opacities below this after attenuation are marked pruned
     side: Literal["both", "front", "hidden"] = "both"  # "front": only Gaussians in front of their own view's surface; "hidden": in front of any view's
+    # "seen_through": pixel Gaussians in front of another input view's refined surface (space that view saw
+    # empty: flying pixels strung across depth edges) fade by the same rule, so the volume Gaussians behind show
+    pixel_clearing: Literal["none", "seen_through"] = "none"
 
 
 @dataclass
@@ -155,7 +192,6 @@ class ModelConfig:
         """Raise ``ValueError`` naming the first inconsistent field; return ``self``."""
         bb, att, vol = self.backbone, self.attention, self.volume
         checks = [
-            (self.mode in ("pixel", "volume", "both"), f"mode must be pixel, volume or both, got {self.mode!r}"),
             (len(bb.widths) == len(bb.blocks) and len(bb.widths) >= 1, "backbone.widths and backbone.blocks need equal, non-zero lengths"),
             (len(self.pixel.decoder_widths) == len(bb.widths) + 1,
              f"pixel.decoder_widths needs {len(bb.widths) + 1} entries (one per 2x upsampling step)"),
@@ -163,26 +199,27 @@ class ModelConfig:
             (vol.channels % vol.heads == 0, f"volume.channels {vol.channels} must be divisible by volume.heads {vol.heads}"),
             (len(vol.grid) == 3 and min(vol.grid) >= 1, f"volume.grid must be 3 positive sizes, got {vol.grid}"),
             (len(vol.image_grid) == 3 and min(vol.image_grid) >= 1, f"volume.image_grid must be 3 positive sizes, got {vol.image_grid}"),
-            (vol.coordinates in ("cylindrical", "spherical", "cartesian"), f"unknown volume.coordinates {vol.coordinates!r}"),
-            (vol.init in ("shared", "isolated"), f"volume.init must be shared or isolated, got {vol.init!r}"),
-            (vol.scale_transform in ("paper", "exact", "cartesian"),
-             f"volume.scale_transform must be paper, exact or cartesian, got {vol.scale_transform!r}"),
-            (vol.color in ("retrieval", "decoded"), f"volume.color must be retrieval or decoded, got {vol.color!r}"),
-            (vol.placement in ("per_camera", "central"), f"volume.placement must be per_camera or central, got {vol.placement!r}"),
-            (vol.image_query in ("coarse", "full"), f"volume.image_query must be coarse or full, got {vol.image_query!r}"),
             (vol.placement != "central" or vol.init == "shared",
              ("volume.placement='central' needs volume.init='shared' (the single central triplane has no view "
               "of its own to be isolated to)")),
-            (self.fusion.strategy in ("concat", "depth_prune"), f"unknown fusion.strategy {self.fusion.strategy!r}"),
-            (self.fusion.side in ("both", "front", "hidden"), f"fusion.side must be both, front or hidden, got {self.fusion.side!r}"),
             (0 < vol.min_scale_cells < vol.max_scale_cells, "need 0 < volume.min_scale_cells < volume.max_scale_cells"),
-            (isinstance(vol.retrieval_window, int) and 0 <= vol.retrieval_window <= 8,
-             f"volume.retrieval_window must be an integer 0..8 (pixels), got {vol.retrieval_window!r}"),
+            (vol.surface_window <= 8, f"volume.surface_window must be an integer 1..8 (pixels), got {vol.surface_window!r}"),
+            (vol.surface_temperature > 0 and vol.visibility_temperature > 0, "volume temperatures must be > 0"),
         ]
-        for ok, message in checks + self._size_checks():
+        for ok, message in self._choice_checks() + checks + self._size_checks():
             if not ok:
                 raise ValueError(f"invalid model config: {message}")
         return self
+
+    def _choice_checks(self) -> list[tuple[bool, str]]:
+        """Every string choice among its :data:`CHOICES`."""
+        checks = []
+        for key, allowed in CHOICES.items():
+            value = self
+            for part in key.split("."):
+                value = getattr(value, part)
+            checks.append((value in allowed, f"{key} must be one of {', '.join(allowed)}; got {value!r}"))
+        return checks
 
     def _size_checks(self) -> list[tuple[bool, str]]:
         """Every layer size (the integers of the sections: widths, dims, heads, grids, ...) >= 1 and every
@@ -197,7 +234,7 @@ class ModelConfig:
                 if any(not math.isfinite(v) for v in numbers):
                     checks.append((False, f"{section}.{f.name} must be finite, got {value!r}"))
                 ints = [v for v in numbers if isinstance(v, int)]
-                if f.name != "retrieval_window" and ints and min(ints) < 1:
+                if ints and min(ints) < 1:
                     checks.append((False, f"{section}.{f.name} must be >= 1, got {value!r}"))
         return checks
 
@@ -278,6 +315,7 @@ def config_from_dict(data: dict[str, Any]) -> ModelConfig:
     }
     if not isinstance(data, dict):
         raise TypeError(f"a model config is a mapping, got {type(data).__name__}")
+    data = _upgrade(data)
     kwargs: dict[str, Any] = {}
     for key, value in data.items():
         if key in sub:
@@ -289,6 +327,19 @@ def config_from_dict(data: dict[str, Any]) -> ModelConfig:
     config = ModelConfig(**kwargs)
     _check_types(config, "")
     return config
+
+
+def _upgrade(data: dict[str, Any]) -> dict[str, Any]:
+    """Configs stored by earlier versions: ``volume.retrieval_window = r > 0`` was the nearest-surface rule (now
+    ``volume.color = "surface"`` with ``surface_window = r`` and its temperature), ``0`` Eq. 6."""
+    volume = data.get("volume")
+    if not isinstance(volume, dict) or "retrieval_window" not in volume:
+        return data
+    volume = dict(volume)
+    window = volume.pop("retrieval_window")
+    if isinstance(window, int) and window > 0 and volume.get("color", "retrieval") == "retrieval":
+        volume.update(color="surface", surface_window=window, surface_temperature=volume.get("visibility_temperature", 1.0))
+    return dict(data, volume=volume)
 
 
 def _check_types(section: Any, prefix: str) -> None:

@@ -22,7 +22,7 @@ from torch import Tensor, nn
 
 from ..gaussians import Gaussians
 from .config import ModelConfig, get_config
-from .fusion import fuse_gaussians
+from .fusion import fuse
 from .pixel_branch import PixelBranch, PixelBranchOutput
 from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
 from .volume_branch import VolumeBranch
@@ -128,25 +128,19 @@ class CylinderSplat(nn.Module):
             pixel_out = self.pixel_branch(images, depth_prior, c2w, predict_gaussians=self.mode != "volume")
 
         pixel = self._pixel_gaussians(pixel_out, c2w) if self.mode != "volume" else None
-        volume = volume_points = None
-        check_depth = pixel_out.refined_depth
+        volume = None
         if self.mode != "pixel":
-            vol = self.volume_branch(
+            volume = self.volume_branch(
                 images, depth_prior, c2w, pixel_out.features, pixel_out.points_world, pixel_out.point_features
             )
-            volume, volume_points = vol.gaussians, vol.points_cam
-            if vol.depth_view is not None:  # central triplane: its Gaussians are checked against one view
-                check_depth = check_depth[:, vol.depth_view : vol.depth_view + 1]
-        if self.config.fusion.side == "hidden":
-            check_depth = pixel_out.refined_depth  # every view's, for every Gaussian
-        fused, keep = fuse_gaussians(pixel, volume, self.config.fusion, volume_points, check_depth, c2w)
+        fused, keep = fuse(pixel, volume, pixel_out.refined_depth, c2w, self.config.fusion)
         return ModelOutput(
             gaussians=fused,
             keep_mask=keep,
             refined_depth=pixel_out.refined_depth,
             features=pixel_out.features,
             pixel_gaussians=pixel,
-            volume_gaussians=volume,
+            volume_gaussians=None if volume is None else volume.gaussians,
         )
 
     @staticmethod

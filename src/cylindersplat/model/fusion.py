@@ -12,6 +12,15 @@
   ``side="hidden"``: the ``front`` attenuation against *every* input view's refined depth
   (multiplied), so volume Gaussians survive only in space no input view saw: where completion is
   needed, and where they cannot cover surfaces the pixel branch reconstructs.
+
+``pixel_clearing="seen_through"`` (our addition, issue 23) applies the same ``hidden`` rule to the
+*pixel* Gaussians when volume Gaussians are fused with them: a pixel Gaussian in front of another
+input view's refined surface sits in space that view saw empty (a "flying pixel" a smooth depth map
+strings across an occlusion boundary), and there it would cover the hidden surface the volume branch
+completes; it fades. Pixel Gaussians on a surface another view also sees, or behind it, keep their
+opacity (``e >= 0``); against their own view ``e = 0`` by construction.
+
+:func:`fuse` is the one fusion rule :class:`~.cylindersplat.CylinderSplat` applies.
 """
 
 from __future__ import annotations
@@ -27,7 +36,7 @@ from ..geometry import project_equirect, world_to_camera
 from .config import FusionConfig
 from .sampling import sample_panorama
 
-__all__ = ["depth_confidence", "hidden_confidence", "fuse_gaussians", "compact"]
+__all__ = ["depth_confidence", "hidden_confidence", "fuse", "fuse_gaussians", "compact"]
 
 
 def depth_confidence(
@@ -90,6 +99,30 @@ def fuse_gaussians(
     if volume is not None and cfg.strategy == "depth_prune":
         keep[..., fused.num_gaussians - volume.num_gaussians :] = volume.opacities >= cfg.prune_threshold
     return fused, keep
+
+
+def fuse(
+    pixel: Gaussians | None,
+    volume,  # VolumeBranchOutput | None
+    refined_depth: Float[Tensor, "B V H W"],
+    c2w: Float[Tensor, "B V 4 4"],
+    cfg: FusionConfig,
+) -> tuple[Gaussians, Float[Tensor, "B N"]]:
+    """The model's output Gaussians ``(B, N, ...)`` (pixel then volume) and keep mask from the branches' outputs
+    (either may be ``None``: curriculum stages 1 and 2) and every input view's refined depth."""
+    volume_gaussians = points = check_depth = None
+    if volume is not None:
+        volume_gaussians, points, check_depth = volume.gaussians, volume.points_cam, refined_depth
+        if cfg.side == "hidden":
+            pass  # every view's depth, for every Gaussian
+        elif volume.depth_view is not None:  # central triplane: its Gaussians are checked against one view
+            check_depth = refined_depth[:, volume.depth_view : volume.depth_view + 1]
+        if pixel is not None and cfg.pixel_clearing == "seen_through":
+            pixel = replace(pixel, opacities=pixel.opacities * hidden_confidence(pixel.means, c2w, refined_depth, cfg.sigma))
+        elif cfg.pixel_clearing != "none":
+            if pixel is not None:
+                raise ValueError(f"unknown fusion.pixel_clearing {cfg.pixel_clearing!r}; expected 'none' or 'seen_through'")
+    return fuse_gaussians(pixel, volume_gaussians, cfg, points, check_depth, c2w)
 
 
 def compact(gaussians: Gaussians, keep: Float[Tensor, "B N"]) -> list[Gaussians]:

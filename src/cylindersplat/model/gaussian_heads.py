@@ -104,13 +104,14 @@ class VolumeGaussianHead(nn.Module):
     the colour decoder) conditions on.
     """
 
-    def __init__(self, channels: int, hidden: int, color_feature_dim: int, max_scale_cells: float, min_scale_cells: float):
+    def __init__(self, channels: int, hidden: int, color_feature_dim: int, max_scale_cells: float, min_scale_cells: float,
+                 per_cell: int = 1):
         super().__init__()
         self.max_scale_cells, self.min_scale_cells = max_scale_cells, min_scale_cells
-        self.color_feature_dim = color_feature_dim
+        self.color_feature_dim, self.per_cell = color_feature_dim, per_cell
         self.mlp = nn.Sequential(
             nn.Linear(channels, hidden), nn.GELU(), nn.Linear(hidden, hidden), nn.GELU(),
-            nn.Linear(hidden, 3 + 3 + 4 + 1 + color_feature_dim),
+            nn.Linear(hidden, per_cell * (3 + 3 + 4 + 1 + color_feature_dim)),
         )
 
     def forward(
@@ -119,7 +120,9 @@ class VolumeGaussianHead(nn.Module):
         cell_size: Float[Tensor, "3"],
         scale_unit: Float[Tensor, "*#B 3"] | None = None,
     ) -> dict[str, Tensor]:
-        raw = self.mlp(features)
+        """Parameters ``(*B, per_cell, .)`` of the ``per_cell`` Gaussians of every cell (``scale_unit``
+        broadcasts against ``(*B, 1, 3)``)."""
+        raw = self.mlp(features).unflatten(-1, (self.per_cell, -1))
         raw_offset, raw_scale, raw_rot, raw_opacity, color_feature = raw.split(
             (3, 3, 4, 1, self.color_feature_dim), dim=-1
         )

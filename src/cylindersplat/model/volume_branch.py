@@ -12,7 +12,8 @@ For every input camera ``t`` (all cameras processed in parallel, batch ``B*V``):
    bounded local offsets and scales, rotation, opacity (:class:`~.gaussian_heads.VolumeGaussianHead`);
    positions by ``coords.to_cartesian`` (Eq. 3); scales by the Jacobian (Eq. 4-5); camera ->
    world with the pose.
-4. **Colour** by visibility-aware RGB retrieval over all input views (Eq. 6).
+4. **Colour** from the input views by the rule ``volume.color`` (Eq. 6 by default;
+   :mod:`~.rgb_retrieval`).
 
 The coordinate system (cylindrical / spherical / Cartesian) is a pluggable
 :class:`~cylindersplat.geometry.TriplaneCoordinates`; nothing here is specific to the cylinder.
@@ -28,6 +29,10 @@ Ablation switches (``VolumeBranchConfig``; paper Table "Ablation Study" and Tabl
 * ``scale_transform="cartesian"`` - row "Ours (Cartesian Scale)": metric scales straight from the
   head, no Jacobian (see :func:`~.gaussian_heads.local_to_cartesian_scales`).
 * ``image_query="full"`` - Eq. 2 as printed (queries at the plane resolution).
+* ``image_views="all"`` - the released code's triplane-to-image attention: every per-camera triplane
+  reads every view's ``F_pano`` (the paper: its own camera's).
+* ``gaussians_per_cell=k`` - ``k`` Gaussians decoded per cell (the released configs: 3), each with its
+  own offset inside the cell.
 """
 
 from __future__ import annotations
@@ -42,7 +47,7 @@ from ..gaussians import Gaussians
 from ..geometry import TriplaneCoordinates, camera_to_world, invert_rigid, make_coordinates, world_to_camera
 from .config import ModelConfig
 from .gaussian_heads import VolumeGaussianHead, cell_cartesian_extent, local_to_cartesian_scales
-from .rgb_retrieval import DecodedColor, RGBRetrieval
+from .rgb_retrieval import build_color_module
 from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
 from .triplane import grid_features, plane_shape, scatter_points_to_triplanes
 from .triplane_attention import TriplaneRefinementLayer
@@ -111,20 +116,17 @@ class VolumeBranch(nn.Module):
             )
             for _ in range(vc.layers)
         )
-        self.head = VolumeGaussianHead(vc.channels, vc.decoder_hidden, vc.color_hidden, vc.max_scale_cells, vc.min_scale_cells)
-        # only the colour module the configuration uses exists (default: state dict unchanged)
-        if vc.color == "retrieval":
-            self.rgb = RGBRetrieval(vc.color_hidden, vc.color_hidden, vc.visibility_temperature, vc.retrieval_window)
-        elif vc.color == "decoded":
-            self.color_decoder = DecodedColor(vc.color_hidden, vc.color_hidden)
-        else:
-            raise ValueError(f"unknown volume colour {vc.color!r}; expected 'retrieval' or 'decoded'")
+        self.head = VolumeGaussianHead(vc.channels, vc.decoder_hidden, vc.color_hidden, vc.max_scale_cells,
+                                       vc.min_scale_cells, vc.gaussians_per_cell)
+        # the colour rule (volume.color); its attribute name is the one earlier checkpoints' state dicts use
+        self._color_name = "color_decoder" if vc.color == "decoded" else "rgb"
+        self.add_module(self._color_name, build_color_module(vc))
 
     @property
     def gaussians_per_camera(self) -> int:
-        """Gaussians per triplane (``N_r * N_theta * N_z``)."""
+        """Gaussians per triplane (``N_r * N_theta * N_z`` cells x ``gaussians_per_cell``)."""
         n0, n1, n2 = self.cfg.grid
-        return n0 * n1 * n2
+        return n0 * n1 * n2 * self.cfg.gaussians_per_cell
 
     def num_triplanes(self, views: int) -> int:
         return views if self.cfg.placement == "per_camera" else 1
@@ -147,7 +149,11 @@ class VolumeBranch(nn.Module):
         frames = c2w if per_camera else central_frame(c2w)  # (B, T, 4, 4)
         t = frames.shape[1]
         planes = self.initializer(points_world, point_features, frames, self.coords, self.cfg.init)
-        if per_camera:  # each triplane reads its own camera's F_pano (identity pose)
+        if per_camera and self.cfg.image_views == "all":  # every triplane reads every view's F_pano
+            v = c2w.shape[1]
+            features = image_features[:, None].expand(-1, v, -1, -1, -1, -1).flatten(0, 1)  # (B*T, V, C, H, W)
+            view_from_plane = (invert_rigid(c2w)[:, None] @ c2w[:, :, None]).flatten(0, 1)  # (B*T, V, 4, 4)
+        elif per_camera:  # each triplane reads its own camera's F_pano (identity pose)
             features, view_from_plane = image_features.flatten(0, 1), None
         else:  # the central triplane reads every view: central frame -> view camera transforms
             features, view_from_plane = image_features, invert_rigid(c2w) @ frames
@@ -159,8 +165,10 @@ class VolumeBranch(nn.Module):
         centers = self.coords.cell_centers(self.cfg.grid, device=device, dtype=dtype).reshape(1, -1, 3)
         scale_unit = None
         if self.cfg.scale_transform == "cartesian":  # metric bounds: the cell's Cartesian extent
-            scale_unit = cell_cartesian_extent(self.coords, centers, cell)
-        params = self.head(grid_features(planes).flatten(1, 3), cell, scale_unit)  # (BT, G, .)
+            scale_unit = cell_cartesian_extent(self.coords, centers, cell)[..., None, :]
+        # (BT, cells, per_cell, .) -> (BT, G, .): a cell's Gaussians side by side
+        params = {k: p.flatten(1, 2) for k, p in self.head(grid_features(planes).flatten(1, 3), cell, scale_unit).items()}
+        centers = centers.repeat_interleave(self.cfg.gaussians_per_cell, dim=1)
         q = centers + params["offsets"]
         points_plane = self.coords.to_cartesian(q).view(b, t, -1, 3)
         scales, rotations_cam = local_to_cartesian_scales(
@@ -170,10 +178,7 @@ class VolumeBranch(nn.Module):
         rotations = quaternion_multiply(camera_rotation, rotations_cam.view(b, t, -1, 4))
         means = camera_to_world(points_plane, frames).flatten(1, 2)
         color_feature = params["color_feature"].view(b, -1, self.cfg.color_hidden)
-        if self.cfg.color == "retrieval":
-            colors = self.rgb(means, color_feature, images, depth_prior, c2w)
-        else:
-            colors = self.color_decoder(color_feature)
+        colors = getattr(self, self._color_name)(means, color_feature, images, depth_prior, c2w)
         gaussians = Gaussians.from_rgb(
             means,
             scales.view(b, -1, 3),

@@ -22,7 +22,7 @@ import yaml
 
 from ..data.datasets import check_reference_spec
 from ..model.config import ModelConfig, config_to_dict, get_config
-from .losses import LossConfig
+from .losses import VOLUME_LOSSES, LossConfig
 
 __all__ = [
     "DataConfig",
@@ -275,6 +275,8 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     check_reference_spec(cfg.eval.pcc_reference, "eval.pcc_reference", allowed=("gt",))
     if cfg.loss.occluded_weight < 0:
         raise ValueError(f"loss.occluded_weight must be >= 0, got {cfg.loss.occluded_weight}")
+    if cfg.loss.volume_loss not in VOLUME_LOSSES:
+        raise ValueError(f"loss.volume_loss must be one of {', '.join(VOLUME_LOSSES)}, got {cfg.loss.volume_loss!r}")
     if cfg.loss.pixel_stage_hidden not in ("fill", "leave"):
         raise ValueError(f"loss.pixel_stage_hidden must be fill or leave, got {cfg.loss.pixel_stage_hidden!r}")
     if cfg.loss.volume_weight < 0:

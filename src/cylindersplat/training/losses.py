@@ -22,7 +22,10 @@ from torch import Tensor, nn
 
 from ..utils.notices import Notice
 
-__all__ = ["LossConfig", "RenderLoss", "LossTerms", "reference_depths"]
+__all__ = ["LossConfig", "RenderLoss", "LossTerms", "reference_depths", "VOLUME_LOSSES", "RELEASED_VOLUME_WEIGHTS"]
+
+VOLUME_LOSSES = ("scaled", "released")
+RELEASED_VOLUME_WEIGHTS = {"rgb_l2": 0.1, "lpips": 0.005, "depth_l1": 0.1}  # the released code's stage-3 volume loss
 
 
 @dataclass
@@ -43,6 +46,10 @@ class LossConfig:
     # volume branch a whole-scene reconstruction, so the Gaussians fusion leaves in hidden space carry
     # its colours rather than a hole-filler's; 0 = off (the paper's loss).
     volume_weight: float = 0.0
+    # What the volume branch's own render is scored with (times volume_weight): "scaled", this loss (Eq. 7);
+    # "released", the authors' released code's stage-3 volume loss: 0.1 L2 + 0.005 LPIPS + 0.1 depth L1
+    # (volume_weight=1 gives exactly their weights).
+    volume_loss: str = "scaled"
     # Stage 1 (the pixel branch alone) of a curriculum that goes on to train the volume branch: "fill" scores
     # every target pixel (the paper's); "leave" leaves the pixels no context view sees out of its RGB and depth
     # terms, so the pixel branch is not taught to stretch foreground Gaussians over disocclusions the volume
@@ -143,6 +150,30 @@ class RenderLoss(nn.Module):
             error = (rendered - reference_depth).abs() * valid
             depth_l1 = error.sum() / valid.sum().clamp_min(1)
             total = total + cfg.depth_l1 * depth_l1
+            parts["depth_l1"] = float(depth_l1.detach())
+        parts["total"] = float(total.detach())
+        return LossTerms(total, parts)
+
+    def released_volume(
+        self,
+        rgb: Float[Tensor, "*B V 3 H W"],
+        depth: Float[Tensor, "*B V H W"],
+        target_rgb: Float[Tensor, "*B V 3 H W"],
+        reference_depth: Float[Tensor, "*B V H W"] | None,
+    ) -> LossTerms:
+        """``loss.volume_loss=released``: :data:`RELEASED_VOLUME_WEIGHTS` on the volume branch's own render (MSE,
+        LPIPS when its weights are loaded, depth L1 over valid reference pixels)."""
+        weights = RELEASED_VOLUME_WEIGHTS
+        rgb_l2 = ((rgb - target_rgb) ** 2).mean()
+        total, parts = weights["rgb_l2"] * rgb_l2, {"rgb_l2": float(rgb_l2.detach())}
+        if self.lpips_net is not None:
+            perceptual = self.lpips_net(rgb.flatten(0, -4), target_rgb.flatten(0, -4)).mean()
+            total = total + weights["lpips"] * perceptual
+            parts["lpips"] = float(perceptual.detach())
+        if reference_depth is not None:
+            valid = reference_depth > 0
+            depth_l1 = ((depth - reference_depth).abs() * valid).sum() / valid.sum().clamp_min(1)
+            total = total + weights["depth_l1"] * depth_l1
             parts["depth_l1"] = float(depth_l1.detach())
         parts["total"] = float(total.detach())
         return LossTerms(total, parts)

@@ -194,7 +194,11 @@ class Trainer:
             weight = self.config.loss.volume_weight
             if weight > 0 and out.pixel_gaussians is not None and out.volume_gaussians is not None:
                 # loss.volume_weight: the volume Gaussians rendered alone, before fusion, count too
-                own = loss_of(self._render(out.volume_gaussians.to(torch.float32), batch))
+                own_render = self._render(out.volume_gaussians.to(torch.float32), batch)
+                if self.config.loss.volume_loss == "released":
+                    own = self.loss_fn.released_volume(own_render.rgb, own_render.depth, batch.target_images, reference)
+                else:
+                    own = loss_of(own_render)
                 parts = dict(terms.parts, volume_total=own.parts["total"], total=terms.parts["total"] + weight * own.parts["total"])
                 terms = LossTerms(terms.total + weight * own.total, parts)
             return terms
