@@ -53,14 +53,14 @@ class Variant:
 
     def stages(self, schedule: Schedule) -> tuple[tuple[int, ...], tuple[int, ...]]:
         """(stages, steps per stage) of this variant under ``schedule``."""
-        if self.kind == "full":
-            stages = [(1, schedule.stage1), (2, schedule.stage2), (3, schedule.stage3)]
-        elif self.kind == "pixel":
-            stages = [(1, schedule.total)]
-        elif self.kind == "volume":
-            stages = [(1, schedule.stage1), (2, schedule.stage2 + schedule.stage3)]
-        else:
-            raise ValueError(f"unknown variant kind {self.kind!r}")
+        from ..model.curriculum import KIND_STAGES
+
+        if self.kind not in KIND_STAGES:
+            raise ValueError(f"unknown variant kind {self.kind!r}; expected one of {', '.join(KIND_STAGES)}")
+        # the same total for every kind: a kind's last stage takes the steps of the stages it skips
+        steps = [schedule.stage1, schedule.stage2, schedule.stage3][: len(KIND_STAGES[self.kind])]
+        steps[-1] += schedule.total - sum(steps)
+        stages = list(zip(KIND_STAGES[self.kind], steps))
         stages = [(s, n) for s, n in stages if n > 0]
         return tuple(s for s, _ in stages), tuple(n for _, n in stages)
 

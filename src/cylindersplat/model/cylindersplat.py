@@ -21,16 +21,15 @@ from jaxtyping import Float
 from torch import Tensor, nn
 
 from ..gaussians import Gaussians
-from .config import ModelConfig, get_config
+from .config import CHOICES, ModelConfig, get_config
+from .curriculum import stage_policy
 from .fusion import fuse
-from .pixel_branch import PixelBranch, PixelBranchOutput
-from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
+from .pixel_branch import PixelBranch
 from .volume_branch import VolumeBranch
 
 __all__ = ["ModelOutput", "CylinderSplat", "from_config", "MODES"]
 
-MODES = ("pixel", "volume", "both")
-STAGE_MODES = {1: "pixel", 2: "volume", 3: "both"}
+MODES = CHOICES["mode"]
 
 
 @dataclass
@@ -83,13 +82,13 @@ class CylinderSplat(nn.Module):
     def unfreeze_volume_branch(self) -> "CylinderSplat":
         return self._set_trainable(self.volume_branch, True)
 
-    def configure_stage(self, stage: int) -> "CylinderSplat":
-        """Curriculum stage 1 (pixel only), 2 (volume, pixel frozen) or 3 (joint)."""
-        if stage not in STAGE_MODES:
-            raise ValueError(f"curriculum stage must be 1, 2 or 3, got {stage}")
-        self.set_mode(STAGE_MODES[stage])
-        self._set_trainable(self.pixel_branch, stage != 2)
-        return self._set_trainable(self.volume_branch, stage != 1)
+    def configure_stage(self, stage: int, stage2_render: str = "volume") -> "CylinderSplat":
+        """Mode and freezing of curriculum stage 1 (pixel only), 2 (volume, pixel frozen; rendered alone or, with
+        ``stage2_render="fused"``, over the frozen pixel Gaussians) or 3 (joint): :func:`~.curriculum.stage_policy`."""
+        policy = stage_policy(stage, stage2_render)
+        self.set_mode(policy.mode)
+        self._set_trainable(self.pixel_branch, policy.train_pixel)
+        return self._set_trainable(self.volume_branch, policy.train_volume)
 
     def branch_parameters(self, branch: str) -> list[nn.Parameter]:
         return list({"pixel": self.pixel_branch, "volume": self.volume_branch}[branch].parameters())
@@ -127,7 +126,7 @@ class CylinderSplat(nn.Module):
         with no_grad:
             pixel_out = self.pixel_branch(images, depth_prior, c2w, predict_gaussians=self.mode != "volume")
 
-        pixel = self._pixel_gaussians(pixel_out, c2w) if self.mode != "volume" else None
+        pixel = pixel_out.gaussians
         volume = None
         if self.mode != "pixel":
             volume = self.volume_branch(
@@ -141,20 +140,6 @@ class CylinderSplat(nn.Module):
             features=pixel_out.features,
             pixel_gaussians=pixel,
             volume_gaussians=None if volume is None else volume.gaussians,
-        )
-
-    @staticmethod
-    def _pixel_gaussians(out: PixelBranchOutput, c2w: Tensor) -> Gaussians:
-        params = out.gaussian_params
-        assert params is not None
-        camera_rotation = matrix_to_quaternion(c2w[..., :3, :3])[:, :, None]
-        rotations = quaternion_multiply(camera_rotation, params["rotations"])
-        return Gaussians.from_rgb(
-            out.points_world.flatten(1, 2),
-            params["scales"].flatten(1, 2),
-            rotations.flatten(1, 2),
-            params["opacities"].flatten(1, 2),
-            params["colors"].flatten(1, 2),
         )
 
 

@@ -26,7 +26,9 @@ import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor, nn
 
+from ..gaussians import Gaussians
 from ..geometry import camera_to_world, equirect_rays, invert_rigid
+from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
 from .attention import AlternatingAttention, Mlp
 from .backbone import ConvNormAct, PanoConv2d, ResNetBackbone, pano_pad
 from .config import ModelConfig
@@ -131,7 +133,7 @@ class PixelBranchOutput:
     features: Float[Tensor, "B V C H W"]  # F_pano
     points_world: Float[Tensor, "B V HW 3"]  # feature point cloud P_feat (world frame)
     point_features: Float[Tensor, "B V HW C"]
-    gaussian_params: dict[str, Tensor] | None  # per-pixel parameters, see PixelBranch.forward
+    gaussians: Gaussians | None  # (B, V*H*W, ...) world frame, view-major then row-major pixels; None if not asked
 
 
 class PixelBranch(nn.Module):
@@ -180,18 +182,32 @@ class PixelBranch(nn.Module):
         points_cam = rays * depth.reshape(b * v, h * w, 1)
         points_world = camera_to_world(points_cam.view(b, v, h * w, 3), c2w)
         point_features = features.flatten(2).transpose(1, 2).reshape(b, v, h * w, -1)
-        params = None
+        gaussians = None
         if predict_gaussians:
             params = self.gaussian_head(features, flat_images, depth)
             if self.cfg.edge_sigma > 0:  # fade flying pixels at depth discontinuities (config docstring)
                 edge = depth_edge_confidence(depth.detach(), self.cfg.edge_sigma)
                 params["opacities"] = params["opacities"] * edge.flatten(1)
-            params = {k: t.reshape(b, v, h * w, -1) for k, t in params.items()}
-            params["opacities"] = params["opacities"].squeeze(-1)
+            gaussians = self._world_gaussians(params, points_world, c2w)
         return PixelBranchOutput(
             refined_depth=depth.view(b, v, h, w),
             features=features.view(b, v, -1, h, w),
             points_world=points_world,
             point_features=point_features,
-            gaussian_params=params,
+            gaussians=gaussians,
+        )
+
+    @staticmethod
+    def _world_gaussians(params: dict[str, Tensor], points_world: Float[Tensor, "B V HW 3"], c2w: Tensor) -> Gaussians:
+        """The head's per-pixel camera-frame parameters ``(B*V, HW, .)`` as world-frame Gaussians ``(B, V*HW, .)``."""
+        b, v, n = points_world.shape[:3]
+        params = {k: t.reshape(b, v, n, -1) for k, t in params.items()}
+        camera_rotation = matrix_to_quaternion(c2w[..., :3, :3])[:, :, None]
+        rotations = quaternion_multiply(camera_rotation, params["rotations"])
+        return Gaussians.from_rgb(
+            points_world.flatten(1, 2),
+            params["scales"].flatten(1, 2),
+            rotations.flatten(1, 2),
+            params["opacities"].squeeze(-1).flatten(1, 2),
+            params["colors"].flatten(1, 2),
         )

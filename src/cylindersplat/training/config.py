@@ -22,6 +22,7 @@ import yaml
 
 from ..data.datasets import check_reference_spec
 from ..model.config import ModelConfig, config_to_dict, get_config
+from ..model.curriculum import STAGE2_RENDERS
 from .losses import VOLUME_LOSSES, LossConfig
 
 __all__ = [
@@ -281,8 +282,8 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
         raise ValueError(f"loss.pixel_stage_hidden must be fill or leave, got {cfg.loss.pixel_stage_hidden!r}")
     if cfg.loss.volume_weight < 0:
         raise ValueError(f"loss.volume_weight must be >= 0, got {cfg.loss.volume_weight}")
-    if cfg.train.stage2_render not in ("volume", "fused"):
-        raise ValueError(f"train.stage2_render must be volume or fused, got {cfg.train.stage2_render!r}")
+    if cfg.train.stage2_render not in STAGE2_RENDERS:
+        raise ValueError(f"train.stage2_render must be one of {', '.join(STAGE2_RENDERS)}, got {cfg.train.stage2_render!r}")
     if not cfg.train.volume_lr_scale > 0:
         raise ValueError(f"train.volume_lr_scale must be > 0, got {cfg.train.volume_lr_scale}")
     if cfg.train.max_nonfinite_steps < 0:

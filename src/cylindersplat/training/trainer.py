@@ -29,6 +29,7 @@ from torch import Tensor
 
 from ..data import Sample
 from ..model import CylinderSplat, load_model, save_model
+from ..model.curriculum import volume_stage_follows
 from ..render import available_backends, render_equirect
 from ..utils.atomic import atomic_write_text
 from ..utils.progress import Progress
@@ -151,9 +152,7 @@ class Trainer:
     def _begin_stage(self) -> None:
         """Set the model's branch mode/freezing and a fresh optimizer + schedule for this stage."""
         tcfg = self.config.train
-        self.model.configure_stage(self.stage)
-        if self.stage == 2 and tcfg.stage2_render == "fused":
-            self.model.set_mode("both")  # pixel branch still frozen: only the volume branch learns
+        self.model.configure_stage(self.stage, tcfg.stage2_render)
         self.train_model = wrap_ddp(self.model, self.dist, self.device)
         volume = {id(p) for p in self.model.branch_parameters("volume")}
         groups = [
@@ -214,7 +213,7 @@ class Trainer:
         0 there in stage 1 with ``loss.pixel_stage_hidden=leave`` when later stages train the volume branch."""
         lcfg = self.config.loss
         weight, setting = lcfg.occluded_weight, "loss.occluded_weight"
-        if self.stage == 1 and lcfg.pixel_stage_hidden == "leave" and {2, 3} & set(self.config.train.stages):
+        if lcfg.pixel_stage_hidden == "leave" and volume_stage_follows(self.stage, self.config.train.stages):
             weight, setting = -1.0, "loss.pixel_stage_hidden=leave"
         if weight == 0:
             return None
