@@ -40,6 +40,9 @@ def require_pycolmap():
     except ImportError as exc:
         raise ModuleNotFoundError(f"data poses needs pycolmap (COLMAP's Python bindings), which is not installed: "
                                   f"{SFM_INSTALL} (or pip install pycolmap)", name="pycolmap") from exc
+    if not hasattr(pycolmap.CameraModelId, "EQUIRECTANGULAR"):
+        raise ModuleNotFoundError(f"pycolmap {pycolmap.__version__} has no EQUIRECTANGULAR camera model, which data "
+                                  f"poses needs: pip install -U 'pycolmap>=4.2'", name="pycolmap")
     return pycolmap
 
 
