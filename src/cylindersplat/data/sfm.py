@@ -87,9 +87,10 @@ def _stderr(message: str) -> None:
 
 
 def _quiet_colmap(pycolmap) -> None:
-    """COLMAP logs every step at INFO on stderr; keep its warnings and errors, our own lines say the progress."""
+    """COLMAP logs every step on stderr (INFO, and WARNING/ERROR lines for what our own one-line errors say
+    better); our own lines say the progress. Its fatal errors still show."""
     try:
-        pycolmap.logging.minloglevel = 1
+        pycolmap.logging.minloglevel = 3
     except AttributeError:  # older pycolmap: leave its logging as it is
         pass
 
