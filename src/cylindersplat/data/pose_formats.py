@@ -21,6 +21,15 @@ against each tool's own projection formulas in ``tests/test_pose_formats.py``):
   ``KITTI`` lines (12 numbers, a row-major 3x4) are camera-to-world in a camera frame x right, y down,
   z forward whose equirect model is ours exactly, so they are used as they are.
 
+* **COLMAP** sparse models (``images.txt``/``.bin``: ``cam_from_world`` as quaternion ``w x y z`` and
+  translation, OpenCV camera axes; its ``EQUIRECTANGULAR`` camera is our panorama exactly), so
+  ``c2w = [R^T | -R^T t]``; models of virtual pinhole cameras cut from panoramas (COLMAP's panorama workflow)
+  give each panorama's pose (:func:`panoramas_from_virtual_cameras`).
+* **Agisoft Metashape** camera XML: ``<transform>`` is camera-to-chunk (OpenCV camera axes), then the chunk's and
+  component's similarity; its spherical sensor projects as ours does.
+* **OpenMVG** ``sfm_data.json``: ``rotation`` R (world-to-camera) and ``center`` C; its spherical camera puts the
+  top row on +y, so the world is mirrored back with ``diag(1, -1, 1)`` (:func:`openmvg_to_c2w`).
+
 SfM and SLAM reconstructions have an arbitrary scale unless they were given one (GPS, a known
 distance); ``scale`` multiplies every camera position (metres per reconstruction unit).
 """
