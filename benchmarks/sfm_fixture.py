@@ -138,6 +138,20 @@ def main() -> None:
                 "scale_error_relative": round(1.0 / errors.similarity.scale - 1.0, 5),
                 "metres_per_sfm_unit": sfm["metres_per_sfm_unit"], "true_metres_per_sfm_unit": round(true_scale, 6),
             }
+        # --camera-height, with the true height: the three cameras share it (same height in the dataset); the depth
+        # straight down (bottom rows) is the floor under 01 and furniture under 00 and 02: the largest of the three.
+        from PIL import Image
+
+        downs = []
+        for f in FRAMES:
+            mm = np.asarray(Image.open(args.fixture / f / "depth.png")).astype(np.float64)[-4:]
+            downs.append(float(np.median(mm[mm > 0]) / 1000.0))
+        height = max(downs)
+        data, seconds = run_poses(tmp / "none", "--camera-height", f"{height:.3f}")
+        errors = pose_errors(poses_of(data), truth)
+        result["camera_height"] = {"command": f"cylindersplat data poses FOLDER --camera-height {height:.3f}",
+                                   "true_height_m": round(height, 3), "scale_estimate": data["sfm"]["scale"],
+                                   "scale_error_relative": round(1.0 / errors.similarity.scale - 1.0, 5)}
         recovered = poses_of(json.loads((tmp / "files" / "poses.json").read_text()))
         psnr_true, rgb_true = render_middle(tmp / "render_true", truth, size)
         psnr_sfm, rgb_sfm = render_middle(tmp / "render_sfm", recovered, size)

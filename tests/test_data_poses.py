@@ -166,13 +166,15 @@ def test_scale_from_depth_is_the_median_ratio():
 
 
 def test_scale_from_camera_height():
-    # Floor points 0.8 model units below a camera: with a 1.6 m camera height, 2 m per unit.
+    # Floor points 0.8 model units below a camera, a table top at 0.4 below and walls: with a 1.6 m camera
+    # height, 2 m per unit (the floor is the lowest surface: its points fill the top quantiles of the heights).
     rng = np.random.default_rng(1)
     ground = np.column_stack([rng.uniform(-0.3, 0.3, 100), np.full(100, 0.8), rng.uniform(-0.3, 0.3, 100)])
+    table = np.column_stack([rng.uniform(0.3, 0.6, 40), np.full(40, 0.4), rng.uniform(-0.2, 0.2, 40)])
     walls = np.column_stack([rng.uniform(-3, 3, 50), rng.uniform(-1, 0.5, 50), np.full(50, 3.0)])
     c2w = np.eye(4)
     c2w[:3, 3] = [1.0, -2.0, 0.5]
-    obs = {"a": (np.zeros((150, 2)), np.concatenate([ground, walls]) + c2w[:3, 3])}
+    obs = {"a": (np.zeros((190, 2)), np.concatenate([ground, table, walls]) + c2w[:3, 3])}
     assert scale_from_camera_height(obs, {"a": c2w}, 1.6).scale == pytest.approx(2.0, rel=1e-9)
 
 

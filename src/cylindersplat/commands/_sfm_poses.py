@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ._arguments import positive_int
+
 MATCHERS = ("auto", "exhaustive", "sequential")
 
 
@@ -180,6 +182,6 @@ def register(sub) -> None:
                         help="scale from the camera's height above a visible floor (upright panoramas)")
     parser.add_argument("--keep-sfm-frame", action="store_true",
                         help="keep COLMAP's world frame (scaled) instead of putting the first panorama at the origin")
-    parser.add_argument("--threads", type=int, default=None, help="CPU threads for COLMAP (default: up to 8)")
+    parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads for COLMAP (default: up to 8)")
     parser.add_argument("--device", default="cpu", help="device of a network --depth-prior (default cpu)")
     parser.set_defaults(func=_run)
