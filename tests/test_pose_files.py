@@ -260,3 +260,15 @@ def test_import_poses_from_colmap_names_the_images(tmp_path, capsys):
     assert [e[0] for e in entries] == ["pano_00.png", "pano_01.png", "pano_02.png"]
     centres = np.stack([e[1][:3, 3].double().numpy() for e in entries])
     assert np.linalg.norm(centres[0] - centres[2]) == pytest.approx(1.0, rel=0.01)  # 1 m baseline in metres
+
+
+def test_import_poses_from_metashape_finds_labels_without_suffix(tmp_path):
+    from cylindersplat.cli import main
+    from cylindersplat.data.folder import read_poses_file
+
+    for name in ("R0010001.jpg", "R0010002.jpg"):
+        (tmp_path / name).write_bytes(b"")
+    out = tmp_path / "poses.json"
+    assert main(["data", "import-poses", str(DATA / "metashape_spherical.xml"), "--from", "metashape", "--out", str(out),
+                 "--images", str(tmp_path)]) == 0
+    assert [e[0] for e in read_poses_file(out)] == ["R0010001.jpg", "R0010002.jpg"]

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._arguments import positive_int
+from ._arguments import device, positive_int
 
 MATCHERS = ("auto", "exhaustive", "sequential")
 
@@ -25,6 +25,16 @@ def _scale_arg(text: str) -> str | float:
         raise argparse.ArgumentTypeError(f"--scale must be auto, none or metres per SfM unit, got {text!r}") from None
     if not (np.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"--scale must be positive, got {text!r}")
+    return value
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
     return value
 
 
@@ -173,15 +183,15 @@ def register(sub) -> None:
     parser.add_argument("--scale", type=_scale_arg, default="auto", metavar="auto|none|M",
                         help="auto (default): metres from the depth files or --depth-prior (or --camera-height); "
                         "none: keep SfM units; a number: metres per SfM unit")
-    parser.add_argument("--depth-scale", type=float, default=1000.0,
+    parser.add_argument("--depth-scale", type=_positive, default=1000.0,
                         help="units per metre of 16-bit depth PNGs (default 1000 = millimetres); also written to poses.json")
     parser.add_argument("--depth-prior", metavar="SPEC",
                         help="depth for the scale from a prior instead of depth files (file:NAME, exported:NET.pt2, "
                         "unik3d:..., as render --depth-prior)")
-    parser.add_argument("--camera-height", type=float, metavar="METRES",
+    parser.add_argument("--camera-height", type=_positive, metavar="METRES",
                         help="scale from the camera's height above a visible floor (upright panoramas)")
     parser.add_argument("--keep-sfm-frame", action="store_true",
                         help="keep COLMAP's world frame (scaled) instead of putting the first panorama at the origin")
     parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads for COLMAP (default: up to 8)")
-    parser.add_argument("--device", default="cpu", help="device of a network --depth-prior (default cpu)")
+    parser.add_argument("--device", type=device, default="cpu", help="device of a network --depth-prior (default cpu)")
     parser.set_defaults(func=_run)
