@@ -7,6 +7,8 @@
 #                                              #   npm into ~/.local (PREFIX=... to change; needs Node.js >= 20)
 #   bash scripts/install_optional.sh browser   # for scripts/viewer_screenshot.py: Debian's chromium (apt-get,
 #                                              #   as root) and the playwright Python package (no browser download)
+#   bash scripts/install_optional.sh sfm       # `data poses` (SfM on unposed panoramas): pycolmap, a CPU wheel
+#                                              #   from PyPI (pip install -e ".[sfm]")
 #   bash scripts/install_optional.sh all
 #
 # Measured on the 2-core dev machine: view ~5 s, formats ~10 s (215 MB of node_modules),
@@ -48,6 +50,10 @@ install_formats() {
     esac
 }
 
+install_sfm() {
+    "$PY" -m pip install --disable-pip-version-check -q -e ".[sfm]"
+}
+
 install_browser() {
     if ! command -v chromium >/dev/null; then
         if [ "$(id -u)" -ne 0 ]; then
@@ -66,6 +72,7 @@ case "${1:-}" in
     view) install_view ;;
     formats) install_formats ;;
     browser) install_browser ;;
-    all) install_video; install_view; install_formats; install_browser ;;
-    *) echo "usage: bash scripts/install_optional.sh video|view|formats|browser|all" >&2; exit 2 ;;
+    sfm) install_sfm ;;
+    all) install_video; install_view; install_formats; install_browser; install_sfm ;;
+    *) echo "usage: bash scripts/install_optional.sh video|view|formats|browser|sfm|all" >&2; exit 2 ;;
 esac

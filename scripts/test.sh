@@ -6,10 +6,10 @@ cd "$(dirname "$0")/.."
 . scripts/_python.sh
 choose_python  # exported PYTHON: the scripts below install into the same one (.venv under PEP 668)
 bash scripts/install.sh test
-# The optional tools (viewer, browser, splat formats), so that their tests run instead of skipping; a tool
+# The optional tools (viewer, browser, splat formats, SfM), so that their tests run instead of skipping; a tool
 # that cannot be installed here only makes its tests skip (CYLINDERSPLAT_SKIP_OPTIONAL=1 skips the installs).
 if [ -z "${CYLINDERSPLAT_SKIP_OPTIONAL:-}" ]; then
-    for part in video view formats browser; do
+    for part in video view formats browser sfm; do
         timeout 300 bash scripts/install_optional.sh "$part" >/dev/null 2>&1 \
             || echo "optional part '$part' not installed: its tests will skip" >&2
     done

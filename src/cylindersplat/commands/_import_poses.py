@@ -6,7 +6,8 @@ import argparse
 import os
 from pathlib import Path
 
-FORMATS = ("opensfm", "nerfstudio", "tum", "kitti")
+FORMATS = ("opensfm", "nerfstudio", "tum", "kitti", "colmap", "metashape", "openmvg")
+NAMED_FORMATS = ("opensfm", "colmap", "metashape", "openmvg")  # their poses name their images
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -14,7 +15,10 @@ def _run(args: argparse.Namespace) -> int:
     from ..data.pose_formats import (
         PoseRecord,
         match_timestamps_to_images,
+        read_colmap,
         read_kitti,
+        read_metashape_xml,
+        read_openmvg,
         read_opensfm,
         read_transforms_json,
         read_tum,
@@ -35,6 +39,12 @@ def _run(args: argparse.Namespace) -> int:
         records = read_transforms_json(source, args.scale)
     elif args.source_format == "tum":
         records = read_tum(source, args.scale)
+    elif args.source_format == "colmap":
+        records = read_colmap(source, args.scale)
+    elif args.source_format == "metashape":
+        records = read_metashape_xml(source, args.scale)
+    elif args.source_format == "openmvg":
+        records = read_openmvg(source, args.scale)
     else:
         records = read_kitti(source, args.scale)
     base = out.parent.resolve()
@@ -57,11 +67,11 @@ def _run(args: argparse.Namespace) -> int:
                             and not p.stem.endswith("_depth"))
             records = match_timestamps_to_images(records, [os.path.relpath(folder / name, base) for name in images],
                                                  args.fps, source, _start_time(args.start_time))
-        elif args.source_format == "opensfm":
-            records = [PoseRecord(os.path.relpath(folder / r.image, base), r.c2w) for r in records]
+        elif args.source_format in NAMED_FORMATS:
+            records = [PoseRecord(os.path.relpath(folder / _image_file(folder, r.image), base), r.c2w) for r in records]
         else:
             raise ValueError("--images does not apply to --from nerfstudio (its frames name their images)")
-        missing = [r.image for r in records if not (base / r.image).is_file()]
+        missing = [r.image for r in records if not Path(os.path.normpath(base / r.image)).is_file()]  # out may not exist yet
         if missing:
             raise FileNotFoundError(f"{len(missing)} image(s) of the poses are not there, e.g. {base / missing[0]}")
     elif args.source_format in ("tum", "kitti"):
@@ -72,6 +82,16 @@ def _run(args: argparse.Namespace) -> int:
     print(f"wrote {len(records)} poses (OpenCV camera-to-world, {args.scale:g} m per source unit) to {path}"
           + (f" with their {named} image names" if named else "; they pair with the folder's images in name order"))
     return 0
+
+
+def _image_file(folder: Path, name: str) -> str:
+    """``name`` in ``folder``; a Metashape label without its suffix (``hall`` for ``hall.jpg``) is found by stem."""
+    if (folder / name).is_file() or Path(name).suffix:
+        return name
+    from ..inference.inputs import IMAGE_SUFFIXES
+
+    matches = [p.name for p in sorted(folder.glob(f"{name}.*")) if p.suffix.lower() in IMAGE_SUFFIXES]
+    return matches[0] if matches else name
 
 
 def _start_time(text: str | None) -> float | str:
@@ -93,14 +113,17 @@ def register(sub) -> None:
         description="Convert the poses of equirectangular panoramas from another tool into our poses.json "
         "(OpenCV camera-to-world, metres): an OpenSfM/OpenDroneMap reconstruction.json (spherical cameras), a "
         "nerfstudio transforms.json (EQUIRECTANGULAR), or a stella_vslam/OpenVSLAM keyframe trajectory (TUM or KITTI "
-        "format). SfM/SLAM results have an arbitrary scale: --scale gives metres per unit. See docs/inference.md.")
-    parser.add_argument("source", type=Path, help="reconstruction.json, transforms.json or a trajectory text file")
+        "format), a COLMAP sparse model (EQUIRECTANGULAR cameras, or the virtual pinhole cameras of COLMAP's panorama "
+        "workflow), an Agisoft Metashape camera XML (spherical sensors) or an OpenMVG sfm_data.json (spherical "
+        "intrinsics). SfM/SLAM results have an arbitrary scale: --scale gives metres per unit. See docs/inference.md.")
+    parser.add_argument("source", type=Path, help="reconstruction.json, transforms.json, a trajectory text file, a COLMAP "
+                        "model folder (sparse/0), a Metashape cameras .xml or an OpenMVG sfm_data.json")
     parser.add_argument("--from", dest="source_format", required=True, choices=FORMATS, help="the source's format")
     parser.add_argument("--out", type=Path, required=True, help="poses.json to write (in the input folder)")
     parser.add_argument("--scale", type=float, default=1.0,
                         help="metres per source unit: multiplies every camera position (default 1)")
     parser.add_argument("--images", type=Path,
-                        help="folder of the panoramas: OpenSfM shot names are looked up there; TUM/KITTI poses are "
+                        help="folder of the panoramas: OpenSfM/COLMAP/Metashape/OpenMVG image names are looked up there; TUM/KITTI poses are "
                         "matched to its images in name order, or by timestamp with --fps")
     parser.add_argument("--fps", type=float,
                         help="TUM: the pose at time t belongs to image number round(t * fps) of --images (frames "

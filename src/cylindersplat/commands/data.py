@@ -216,6 +216,10 @@ def register(subparsers) -> None:
 
     register_import_poses(sub)
 
+    from ._sfm_poses import register as register_sfm_poses
+
+    register_sfm_poses(sub)
+
     priors = sub.add_parser(
         "priors", help="run a depth network once over a dataset and store its depth as prior files",
         description="Run a depth network over every panorama of a dataset (synthetic, PanoGRF png_render_* folder, "
