@@ -51,6 +51,17 @@ positive_int = int_at_least(1)
 nonnegative_int = int_at_least(0)  # a count where 0 means none
 
 
+def positive_float(text: str) -> float:
+    """A finite number > 0 (metres, scales)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
+
+
 def fraction(text: str) -> float:
     """A share in [0, 1]; an argparse type."""
     try:

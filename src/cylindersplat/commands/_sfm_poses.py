@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._arguments import device, positive_int
+from ._arguments import device, positive_float, positive_int
 
 MATCHERS = ("auto", "exhaustive", "sequential")
 
@@ -20,22 +20,10 @@ def _scale_arg(text: str) -> str | float:
     if text in ("auto", "none"):
         return text
     try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--scale must be auto, none or metres per SfM unit, got {text!r}") from None
-    if not (np.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"--scale must be positive, got {text!r}")
-    return value
-
-
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (np.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
+        return positive_float(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"--scale must be auto, none or a positive number of metres per SfM unit, "
+                                         f"got {text!r}") from None
 
 
 def _warn(message: str) -> None:
@@ -183,12 +171,12 @@ def register(sub) -> None:
     parser.add_argument("--scale", type=_scale_arg, default="auto", metavar="auto|none|M",
                         help="auto (default): metres from the depth files or --depth-prior (or --camera-height); "
                         "none: keep SfM units; a number: metres per SfM unit")
-    parser.add_argument("--depth-scale", type=_positive, default=1000.0,
+    parser.add_argument("--depth-scale", type=positive_float, default=1000.0,
                         help="units per metre of 16-bit depth PNGs (default 1000 = millimetres); also written to poses.json")
     parser.add_argument("--depth-prior", metavar="SPEC",
                         help="depth for the scale from a prior instead of depth files (file:NAME, exported:NET.pt2, "
                         "unik3d:..., as render --depth-prior)")
-    parser.add_argument("--camera-height", type=_positive, metavar="METRES",
+    parser.add_argument("--camera-height", type=positive_float, metavar="METRES",
                         help="scale from the camera's height above a visible floor (upright panoramas)")
     parser.add_argument("--keep-sfm-frame", action="store_true",
                         help="keep COLMAP's world frame (scaled) instead of putting the first panorama at the origin")
