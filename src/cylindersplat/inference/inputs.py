@@ -20,7 +20,7 @@ from ..data.folder import (IMAGE_SUFFIXES, POSE_CONVENTIONS, POSES_FILE, TRANSFO
                            list_panoramas, poses_path, read_poses_file)
 from ..data.io import DEPTH_PNG_SCALE
 from ..utils.atomic import atomic_write_text
-from ..validation import check_depth_plausible, check_scene_scale
+from ..validation import PLAUSIBILITY_OVERRIDE, check_depth_plausible, check_scene_scale
 
 __all__ = ["PanoramaInputs", "load_panorama_folder", "write_panorama_folder", "read_poses_file", "list_panoramas",
            "IMAGE_SUFFIXES", "POSE_CONVENTIONS", "POSES_FILE", "TRANSFORMS_FILE"]
@@ -67,14 +67,16 @@ def load_panorama_folder(
         raise FileNotFoundError(f"input folder not found: {folder}")
     poses_path(folder, poses_file)  # one folder of panoramas, not a folder of them: its poses file must be there
     dataset = FolderDataset(folder, resolution=resolution, depth_prior=depth_prior, poses_file=poses_file,
-                            allow_outside_paths=allow_outside_paths)
+                            allow_outside_paths=allow_outside_paths, check_plausibility=check_plausibility)
+    dataset.plausibility_override = PLAUSIBILITY_OVERRIDE  # the depth files' bounds are checked on loading
     dataset.check_depth("--depth-prior")
     sample = dataset[0]
     frames = [dataset.example(0).frames[i] for i in sample.metadata["context_indices"]]
     names = [frame.name for frame in frames]
     if check_plausibility:
         for frame, depth in zip(frames, sample.context_priors):
-            check_depth_plausible(depth, str(frame.depth) if frame.depth else f"the depth prior of {frame.name}")
+            if frame.depth is None:  # a network's (or constant) prior, not checked as a file
+                check_depth_plausible(depth, f"the depth prior of {frame.name}")
         check_scene_scale(sample.context_priors, sample.context_poses, str(folder))
     return PanoramaInputs(sample.context_images, sample.context_priors, sample.context_poses, names)
 
