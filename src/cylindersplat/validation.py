@@ -159,7 +159,7 @@ def check_scene_scale(depths: Tensor, c2w: Tensor, where: str) -> None:
               f"than any room: a scene scaled by 1e-3 (kilometres read as metres?); give depth in metres (fix "
               f"{DEPTH_SCALE_FIX}) and poses in metres ({POSE_SCALE_FIX}); {silence}")
         return
-    centres = c2w[:, :3, 3].double()
+    centres = c2w[:, :3, 3].detach().double()
     spacing = float(torch.cdist(centres, centres).max()) if len(centres) > 1 else 0.0
     if spacing == 0.0:
         return  # one camera (or all at one spot): no spacing to compare
@@ -180,13 +180,14 @@ def _warn(message: str) -> None:
 
 def _median_positive(depth: Tensor) -> float | None:
     """The median of the positive (known) values of ``depth``; None if there is none."""
+    depth = depth.detach()
     valid = depth[depth > 0]
     return float(valid.float().median()) if valid.numel() else None
 
 
 def farthest_camera(c2w: Tensor) -> float:
     """The largest distance (m) of a camera of ``c2w`` from the origin."""
-    return float(c2w[..., :3, 3].double().norm(dim=-1).max()) if c2w.numel() else 0.0
+    return float(c2w[..., :3, 3].detach().double().norm(dim=-1).max()) if c2w.numel() else 0.0
 
 
 def check_translation_plausible(c2w: Tensor, where: str) -> None:
