@@ -111,3 +111,61 @@ def test_a_pickle_given_as_lpips_weights_is_refused_unrun(tmp_path):
                                "tensors: refused, never run); give the LPIPS weights as a .pth state_dict or "
                                ".safetensors")
     assert not (tmp_path / "ran").exists()
+
+
+# --- every frame a training or evaluation sample loads is checked once (base.PanoramaDataset.check_frame) ----
+
+DATASET_OVERRIDE = "data.check_plausibility=false in train, or check_plausibility=False on the dataset in Python"
+
+
+def test_an_all_zero_reference_depth_is_named(synth_copy):
+    """Frame 01 is the two-view protocol's target: its depth is only the metrics' reference, never a prior."""
+    from cylindersplat.data.io import write_depth_png
+
+    depth = synth_copy / "00000000" / "01" / "depth.png"
+    write_depth_png(depth, torch.zeros(32, 64))
+    with pytest.raises(ValueError) as info:
+        SyntheticDataset(synth_copy)[0]
+    assert str(info.value) == (f"depth file {depth} has no positive depth (all zeros = unknown): the file is empty or "
+                               "corrupt; write it again or remove the frame")
+
+
+def test_a_depth_file_out_of_bounds_is_named_and_can_be_read_on_request(synth_copy):
+    from cylindersplat.data import make_dataset
+    from cylindersplat.data.io import write_depth_png
+
+    depth = synth_copy / "00000000" / "01" / "depth.png"
+    write_depth_png(depth, torch.full((32, 64), 0.005))  # 5 mm everywhere: a scene scaled by 1e-3
+    with pytest.raises(ValueError) as info:
+        make_dataset("synthetic", synth_copy)[0]
+    assert str(info.value) == (f"{depth}: median depth 0.005 m is below 0.01 m (check depth_scale or the .npy units); "
+                               f"depth is radial metres ({DATASET_OVERRIDE}, to use it anyway)")
+    sample = make_dataset("synthetic", synth_copy, check_plausibility=False)[0]
+    assert float(sample.target_depths.max()) == pytest.approx(0.005)
+
+
+def test_a_non_finite_pose_is_named_by_its_image(synth_copy):
+    """Readers check their poses files; the base class checks what any reader hands on, once per frame."""
+    ds = SyntheticDataset(synth_copy)
+    frame = ds.example(0).frames[1]
+    broken = type(frame)(frame.name, frame.rgb, frame.c2w.clone(), frame.depth, frame.depth_scale)
+    broken.c2w[0, 3] = float("nan")
+    with pytest.raises(ValueError) as info:
+        ds.check_frame(broken, None)
+    assert str(info.value) == (f"pose of {frame.rgb} contains non-finite values (NaN or Inf); fix the dataset's pose of "
+                               "this frame (OpenCV camera-to-world, metres)")
+
+
+def test_checking_frames_costs_little_next_to_reading_them():
+    """The check is a median of every 8th row and column (the full one only near a bound): a few per cent of
+    decoding the 16-bit PNG it came from."""
+    import time
+
+    from cylindersplat.validation import check_depth_plausible
+
+    depth = torch.rand(512, 1024) * 5 + 0.5
+    start = time.perf_counter()
+    for _ in range(10):
+        check_depth_plausible(depth, "x")
+    per_frame = (time.perf_counter() - start) / 10
+    assert per_frame < 0.004  # 0.5 ms here; reading the PNG takes about 12 ms

@@ -159,3 +159,43 @@ def test_export_writes_spz(tmp_path, capsys):
     assert main([*common, "--out", str(tmp_path / "g.ply")]) == 0
     n = len(load_gaussians(tmp_path / "g.ply"))
     assert _read_spz_header(tmp_path / "g.spz")[:2] == (3, n)
+
+
+# --- splat-transform runs with a timeout proportionate to the work ------------------------------------------
+
+
+def test_the_splat_transform_timeout_grows_with_the_work(monkeypatch):
+    from cylindersplat.gaussians.formats import TIMEOUT_ENV, splat_transform_timeout
+
+    monkeypatch.delenv(TIMEOUT_ENV, raising=False)
+    assert splat_transform_timeout() == 120  # the floor: Node.js start-up on a busy machine
+    assert splat_transform_timeout(gaussians=1_000_000) == pytest.approx(320)
+    assert splat_transform_timeout(nbytes=50_000_000) == pytest.approx(620)
+    monkeypatch.setenv(TIMEOUT_ENV, "7.5")
+    assert splat_transform_timeout(gaussians=10**9) == 7.5
+    monkeypatch.setenv(TIMEOUT_ENV, "soon")
+    with pytest.raises(ValueError) as info:
+        splat_transform_timeout()
+    assert str(info.value) == f"{TIMEOUT_ENV}='soon': give splat-transform's timeout in seconds, e.g. 600"
+
+
+def test_a_hanging_splat_transform_is_stopped_with_one_line(tmp_path, monkeypatch, capsys):
+    """A stand-in that never returns, through a child that holds its pipes (as npx's node does)."""
+    import sys
+    import time
+
+    from cylindersplat.gaussians.formats import TIMEOUT_ENV
+
+    tool = tmp_path / "hanging_splat_transform.py"
+    tool.write_text("import subprocess, sys, time\n"
+                    f"subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'])\ntime.sleep(600)\n")
+    monkeypatch.setenv(SPLAT_TRANSFORM_ENV, f"{sys.executable} {tool}")
+    monkeypatch.setenv(TIMEOUT_ENV, "1")
+    start = time.monotonic()
+    with pytest.raises(ValueError) as info:
+        save_gaussians(_scene(10), tmp_path / "g.spz")
+    assert time.monotonic() - start < 30  # not the tool's 600 s, nor its child's
+    assert str(info.value) == (
+        "splat-transform did not finish writing 10 Gaussians to g.spz within 1 s and was stopped; if it is merely "
+        f"slow, allow more time ({TIMEOUT_ENV}=SECONDS), else check that `{sys.executable} {tool} --help` answers")
+    assert not (tmp_path / "g.spz").exists() and [p.name for p in tmp_path.iterdir()] == [tool.name]

@@ -34,6 +34,60 @@ def test_ctrl_c_at_start_up_is_one_line(monkeypatch, capsys):
     assert capsys.readouterr().err == "cylindersplat export: interrupted\n"
 
 
+def test_ctrl_c_that_a_library_turns_into_its_own_error_is_one_line(monkeypatch, capsys):
+    """numpy's C extensions, interrupted while importing, raise an ImportError instead of KeyboardInterrupt."""
+    import signal
+    import time
+
+    def interrupted_import():
+        try:
+            os.kill(os.getpid(), signal.SIGINT)  # main's handler raises KeyboardInterrupt here ...
+            time.sleep(5)
+        except KeyboardInterrupt:
+            raise ImportError('PyCapsule_Import could not import module "datetime"') from None  # ... numpy's error
+
+    monkeypatch.setattr(cli, "build_parser", interrupted_import)
+    previous = signal.getsignal(signal.SIGINT)
+    assert main(["export", "--input", "x"]) == 130
+    assert capsys.readouterr().err == "cylindersplat export: interrupted\n"
+    assert signal.getsignal(signal.SIGINT) is previous  # a library caller's handler is given back
+
+
+def _run_and_interrupt(argv: list[str], when) -> tuple[int, str]:
+    """Start ``python argv...``, send SIGINT as soon as ``when(pid)`` holds, -> (exit status, stderr)."""
+    import signal
+    import time
+
+    env = {**os.environ, "PYTHONPATH": SRC, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, *argv], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    deadline = time.monotonic() + 120
+    while not when(proc.pid) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.002)
+    proc.send_signal(signal.SIGINT)
+    err = proc.communicate(timeout=120)[1].decode()
+    return proc.returncode, err
+
+
+def test_ctrl_c_right_after_the_executable_starts_is_one_line():
+    """The entry module's first act: from there on Ctrl-C ends in one line, before the CLI's imports."""
+    code = ("import sys; sys.argv = ['cylindersplat', 'export', '--input', 'x']; import cylindersplat.console; "
+            "import os, signal, time; os.kill(os.getpid(), signal.SIGINT); time.sleep(30)")
+    code, err = _run_and_interrupt(["-c", code], lambda pid: False)  # the process interrupts itself
+    assert (code, err) == (130, "cylindersplat export: interrupted\n")
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="needs Linux /proc to see the imports happen")
+def test_ctrl_c_while_the_command_imports_numpy_and_torch_is_one_line():
+    def importing(pid: int) -> bool:  # numpy's C extensions are mapped: its import (then torch's) is under way
+        try:
+            return "numpy" in Path(f"/proc/{pid}/maps").read_text()
+        except OSError:
+            return False
+
+    code, err = _run_and_interrupt(["-m", "cylindersplat", "export", "--input", "x"], importing)
+    assert (code, err) == (130, "cylindersplat export: interrupted\n")
+
+
 def test_ctrl_c_while_exporting_leaves_no_partial_file(panorama_folder, tiny_checkpoint, tmp_path, monkeypatch, capsys):
     from cylindersplat.gaussians import ply
 

@@ -70,6 +70,18 @@ def test_splat_arrays_from_sh_dc_scales_and_quaternions():
         splat_arrays(Gaussians(*(t[None] for t in g.tensors().values())))
 
 
+def test_huge_and_zero_scales_reach_the_page_finite():
+    """viser packs covariances as float16 (max 65504): a 300 m Gaussian (sky, background) was Inf there."""
+    n = 3
+    g = Gaussians(torch.zeros(n, 3), torch.tensor([[300.0, 1.0, 1.0], [0.0, 0.0, 0.0], [1e-13, 2.0, 3.0]]),
+                  torch.tensor([[1.0, 0.0, 0.0, 0.0]] * n), torch.tensor([0.5, 1.0, 0.0]), torch.rand(n, 1, 3))
+    a = splat_arrays(g)
+    packed = a.covariances.astype(np.float16)  # what viser sends
+    assert np.isfinite(packed).all()
+    assert a.covariances[0, 0, 0] == 255.0 ** 2 and a.covariances[0, 1, 1] == 1.0  # capped at 255 m, the rest kept
+    assert np.isfinite(default_view(g)[0]).all() and np.isfinite(default_view(g[:0])[0]).all()
+
+
 @needs_viser
 def test_viser_scene_holds_the_splats_and_one_frustum_per_camera():
     import viser

@@ -2,6 +2,6 @@
 
 import sys
 
-from .cli import main
+from .console import main  # first: Ctrl-C from here on ends in one line
 
 sys.exit(main())

@@ -16,6 +16,8 @@ import re
 import sys
 from pathlib import Path
 
+from . import interrupt
+
 
 def subcommand_modules() -> list[str]:
     """Every module of ``cylindersplat.commands`` (those starting with ``_`` are helpers)."""
@@ -51,23 +53,29 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; process faults end in one line (or none) instead of a traceback: Ctrl-C at any
     moment, the start-up imports included, prints ``interrupted`` and exits 130 (files are written atomically,
-    so none is left half-written); a reader that stops early (``| head``) ends the output quietly (141)."""
+    so none is left half-written; an error a library made of the interrupt counts as one, see
+    :mod:`cylindersplat.interrupt`); a reader that stops early (``| head``) ends the output quietly (141)."""
+    previous = interrupt.remember()
     try:
         code = _run_command(argv)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's own flush at exit
         return code
     except KeyboardInterrupt:
-        print(f"{_command_name(argv)}: interrupted", file=sys.stderr)
-        return 130
+        return _interrupted(argv)
     except BrokenPipeError:
         _silence_stdout()
         return 141  # as if killed by SIGPIPE, what `| head` expects of a producer
+    except Exception:
+        if interrupt.received():  # e.g. numpy's ImportError when Ctrl-C hits its C extensions' import
+            return _interrupted(argv)
+        raise
+    finally:
+        interrupt.restore(previous)
 
 
-def _command_name(argv: list[str] | None) -> str:
-    """``cylindersplat train``: the program and its first word, known before (or without) parsing."""
-    words = [a for a in (sys.argv[1:] if argv is None else argv) if not a.startswith("-")]
-    return f"cylindersplat {words[0]}" if words else "cylindersplat"
+def _interrupted(argv: list[str] | None) -> int:
+    print(f"{interrupt.command_name(argv)}: interrupted", file=sys.stderr)
+    return 130
 
 
 def _silence_stdout() -> None:
@@ -95,6 +103,8 @@ def _run_command(argv: list[str] | None) -> int:
     except (KeyboardInterrupt, BrokenPipeError):
         raise  # main's: one line, or a quiet end
     except Exception as exc:  # noqa: BLE001 - sorted into expected failures and bugs below
+        if interrupt.received():
+            raise  # main's: whatever a library made of Ctrl-C, it was an interrupt
         message = None if args.debug else expected_failure(exc)
         if message is None:
             raise  # a bug (or --debug): the traceback is what we need

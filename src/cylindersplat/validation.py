@@ -12,23 +12,35 @@ Plausibility bounds (finite values that are almost surely a unit or format mista
   (1 cm to 1 km; millimetres read as metres land above it, a wrong ``depth_scale`` on either side);
 * pose: camera translations up to :data:`MAX_TRANSLATION_M` (10 km) from the origin (float32 loses
   centimetres beyond it: recentre the poses).
+
+Scale warnings (:func:`check_scene_scale`; a :class:`ScaleWarning`, the input is used as given): the scene's
+median depth beyond :data:`INDOOR_MAX_MEDIAN_M` (100 m, deeper than any room) or below
+:data:`MIN_SCENE_MEDIAN_M` (5 cm, smaller than any room: a scene scaled by 1e-3), and camera spacing out of
+proportion with the depth (below :data:`MIN_SPACING_RATIO` or above :data:`MAX_SPACING_RATIO` times the median
+depth: poses and depth in different units, or SfM poses of arbitrary scale).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 
 import torch
 from torch import Tensor
 
 from .errors import ImplausibleInputError, InputError
+from .utils.notices import Notice
 
 __all__ = ["check_images", "check_depths", "check_c2w", "check_depth_plausible", "check_translation_plausible",
-           "check_opacity_threshold", "check_constant_depth", "farthest_camera", "PLAUSIBILITY_OVERRIDE", "MIN_DEPTH_M", "MAX_DEPTH_M", "MAX_TRANSLATION_M"]
+           "check_opacity_threshold", "check_constant_depth", "farthest_camera", "check_scene_scale", "ScaleWarning", "PLAUSIBILITY_OVERRIDE", "MIN_DEPTH_M", "MAX_DEPTH_M", "MAX_TRANSLATION_M"]
 
 MIN_DEPTH_M = 0.01
 MAX_DEPTH_M = 1000.0
 MAX_TRANSLATION_M = 10_000.0
+INDOOR_MAX_MEDIAN_M = 100.0  # a room is never this deep; outdoor scenes can be, so a warning, not a refusal
+MIN_SCENE_MEDIAN_M = 0.05  # below this (and above MIN_DEPTH_M) a scene is smaller than any room: km read as m
+MIN_SPACING_RATIO = 1e-3  # camera spacing / median depth: 1 mm apart in a 1 m room is no capture
+MAX_SPACING_RATIO = 100.0  # cameras 300 m apart around 3 m of depth do not see the same scene
 
 
 def _tensor(value, name: str) -> Tensor:
@@ -98,14 +110,18 @@ def check_c2w(c2w, count: int, name: str = "c2w") -> None:
 PLAUSIBILITY_OVERRIDE = "--skip-plausibility-checks, or check_plausibility=False in Python"
 
 
-def check_depth_plausible(depth: Tensor, where: str) -> None:
+def check_depth_plausible(depth: Tensor, where: str, override: str = PLAUSIBILITY_OVERRIDE) -> None:
     """The median positive depth of ``depth`` within [:data:`MIN_DEPTH_M`, :data:`MAX_DEPTH_M`] metres, else
-    :class:`ImplausibleInputError` naming ``where``, the bound and how to skip the check
-    (:data:`PLAUSIBILITY_OVERRIDE`: a real scene beyond the bounds is possible, if rare)."""
-    valid = depth[depth > 0]
-    if valid.numel() == 0:
+    :class:`ImplausibleInputError` naming ``where``, the bound and how to skip the check (``override``, by
+    default :data:`PLAUSIBILITY_OVERRIDE`: a real scene beyond the bounds is possible, if rare)."""
+    # Datasets check every frame they load: a sample of every 8th row and column decides at a 64th of the
+    # cost when it lies well inside the bounds (five orders of magnitude apart); near a bound the full median decides.
+    quick = _median_positive(depth[..., ::8, ::8]) if depth.ndim >= 2 else None
+    if quick is not None and 2 * MIN_DEPTH_M <= quick <= MAX_DEPTH_M / 2:
+        return
+    median = _median_positive(depth)
+    if median is None:
         return  # all unknown: refused (or accepted for NoPrior) by the readers, which know why
-    median = float(valid.float().median())
     if MIN_DEPTH_M <= median <= MAX_DEPTH_M:
         return
     if median > MAX_DEPTH_M:
@@ -113,12 +129,65 @@ def check_depth_plausible(depth: Tensor, where: str) -> None:
     else:
         bound, units = f"below {MIN_DEPTH_M:g} m", " (check depth_scale or the .npy units)"
     raise ImplausibleInputError(f"{where}: median depth {median:.3g} m is {bound}{units}; depth is radial metres "
-                                f"({PLAUSIBILITY_OVERRIDE}, to use it anyway)")
+                                f"({override}, to use it anyway)")
+
+
+class ScaleWarning(Notice):
+    """The scene's size or camera spacing suggests a unit mistake; the input is used as given."""
+
+
+POSE_SCALE_FIX = "cylindersplat data import-poses --scale (metres per unit), or scale the translations in poses.json"
+DEPTH_SCALE_FIX = '"depth_scale" of poses.json (depth file units per metre; .npy in metres)'
+
+
+def check_scene_scale(depths: Tensor, c2w: Tensor, where: str) -> None:
+    """Warn (:class:`ScaleWarning`) once per scene when its size is implausible for an indoor capture: the median
+    positive depth of all ``depths`` beyond :data:`INDOOR_MAX_MEDIAN_M` or below :data:`MIN_SCENE_MEDIAN_M`, or the
+    largest distance between two cameras of ``c2w`` out of proportion with it (:data:`MIN_SPACING_RATIO`,
+    :data:`MAX_SPACING_RATIO`). The message names ``where``, the bound, the likely unit mistake and its fix."""
+    median = _median_positive(depths)
+    if median is None:
+        return
+    silence = "--skip-plausibility-checks silences this"
+    if median > INDOOR_MAX_MEDIAN_M:
+        _warn(f"{where}: median scene depth {median:.3g} m is beyond {INDOOR_MAX_MEDIAN_M:g} m, deeper than any "
+              f"indoor room; if the scene is indoors, the depth is in the wrong units (fix {DEPTH_SCALE_FIX}); "
+              f"{silence}")
+        return
+    if median < MIN_SCENE_MEDIAN_M:
+        _warn(f"{where}: median scene depth {median * 100:.3g} cm is below {MIN_SCENE_MEDIAN_M * 100:g} cm, smaller "
+              f"than any room: a scene scaled by 1e-3 (kilometres read as metres?); give depth in metres (fix "
+              f"{DEPTH_SCALE_FIX}) and poses in metres ({POSE_SCALE_FIX}); {silence}")
+        return
+    centres = c2w[:, :3, 3].detach().double()
+    spacing = float(torch.cdist(centres, centres).max()) if len(centres) > 1 else 0.0
+    if spacing == 0.0:
+        return  # one camera (or all at one spot): no spacing to compare
+    ratio = spacing / median
+    if ratio < MIN_SPACING_RATIO:
+        _warn(f"{where}: the cameras are at most {spacing:.3g} m apart around a median depth of {median:.3g} m "
+              f"({ratio:.2g}x, below {MIN_SPACING_RATIO:g}x): poses in kilometres or of arbitrary SfM scale? give "
+              f"them in metres ({POSE_SCALE_FIX}); {silence}")
+    elif ratio > MAX_SPACING_RATIO:
+        _warn(f"{where}: the cameras are up to {spacing:.3g} m apart around a median depth of {median:.3g} m "
+              f"({ratio:.3g}x, above {MAX_SPACING_RATIO:g}x): poses in millimetres or of arbitrary SfM scale? give "
+              f"them in metres ({POSE_SCALE_FIX}); {silence}")
+
+
+def _warn(message: str) -> None:
+    warnings.warn(message, ScaleWarning, stacklevel=3)
+
+
+def _median_positive(depth: Tensor) -> float | None:
+    """The median of the positive (known) values of ``depth``; None if there is none."""
+    depth = depth.detach()
+    valid = depth[depth > 0]
+    return float(valid.float().median()) if valid.numel() else None
 
 
 def farthest_camera(c2w: Tensor) -> float:
     """The largest distance (m) of a camera of ``c2w`` from the origin."""
-    return float(c2w[..., :3, 3].double().norm(dim=-1).max()) if c2w.numel() else 0.0
+    return float(c2w[..., :3, 3].detach().double().norm(dim=-1).max()) if c2w.numel() else 0.0
 
 
 def check_translation_plausible(c2w: Tensor, where: str) -> None:

@@ -36,6 +36,9 @@ __all__ = ["VIEW_INSTALL", "ViewCamera", "ViewerScene", "SplatArrays", "splat_ar
 
 VIEW_INSTALL = "pip install 'cylindersplat[view]'"
 FRUSTUM_COLOR = (255, 140, 0)
+# viser sends covariances to the page as float16 (largest finite value 65504): a standard deviation beyond
+# sqrt(65504) m would arrive as Inf and the splat as NaN in the page's shader, so it is capped there.
+MAX_VIEWER_SCALE_M = 255.0
 
 
 def import_viser():
@@ -58,15 +61,15 @@ class SplatArrays:
 
 
 def splat_arrays(gaussians: Gaussians) -> SplatArrays:
-    """Unbatched ``gaussians`` -> viser's arrays: colours from the SH DC term, covariances from scales and
-    (normalised) quaternions."""
+    """Unbatched ``gaussians`` -> viser's arrays: colours from the SH DC term, covariances from scales (capped at
+    :data:`MAX_VIEWER_SCALE_M`, to stay finite in viser's float16 buffer) and (normalised) quaternions."""
     if gaussians.batch_shape:
         raise ValueError(f"the viewer takes unbatched Gaussians, got batch shape {tuple(gaussians.batch_shape)}")
     g = gaussians.detach().to("cpu", torch.float32).validate()
     as_np = lambda t: np.ascontiguousarray(t.numpy(), dtype=np.float32)  # noqa: E731
     return SplatArrays(
         centers=as_np(g.means),
-        covariances=as_np(covariance_3d(g.scales, g.rotations)),
+        covariances=as_np(covariance_3d(g.scales.clamp(max=MAX_VIEWER_SCALE_M), g.rotations)),
         rgbs=as_np(g.rgb.clamp(0.0, 1.0)),
         opacities=as_np(g.opacities[:, None]),
     )

@@ -28,7 +28,9 @@ def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) 
     parser.add_argument("--min-opacity", type=opacity_threshold, default=0.005,
                         help="drop Gaussians at or below this opacity, in [0, 1) (default 0.005)")
     parser.add_argument("--skip-plausibility-checks", action="store_true",
-                        help="accept depths whose median is outside 1 cm to 1 km (refused by default as a unit mistake)")
+                        help="accept depths whose median is outside 1 cm to 1 km (refused by default as a unit mistake) "
+                        "and silence the scene-scale warnings (median depth beyond 100 m or below 5 cm, camera "
+                        "spacing out of proportion with the depth)")
     parser.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
 
 
@@ -63,8 +65,9 @@ def reconstruct_from_args(args: argparse.Namespace):
                                   allow_outside_paths=args.allow_outside_paths,
                                   check_plausibility=not args.skip_plausibility_checks)
     start = time.perf_counter()
+    # the folder's depths were checked just above, by file name: no second, nameless round of the same checks
     gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, args.min_opacity,
-                                      check_plausibility=not args.skip_plausibility_checks)
+                                      check_plausibility=False)
     print(f"reconstructed {len(gaussians):,} Gaussians from {len(inputs.names)} panoramas at "
           f"{size[0]}x{size[1]} in {time.perf_counter() - start:.2f} s on {args.device}")
     return inputs, gaussians, model

@@ -15,13 +15,17 @@ import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
+from ..errors import InputError
 from ..geometry import validate_c2w
+from ..validation import check_depth_plausible, check_translation_plausible
 from .depth_prior.base import DepthPrior, MissingPrior, PriorQuery
 from .io import read_depth_npy, read_depth_png, read_rgb
 from .sample import Sample
 from .views import ViewSplit
 
-__all__ = ["FrameRef", "ExampleRef", "PanoramaDataset"]
+__all__ = ["FrameRef", "ExampleRef", "PanoramaDataset", "DATASET_OVERRIDE"]
+
+DATASET_OVERRIDE = "data.check_plausibility=false in train, or check_plausibility=False on the dataset in Python"
 
 
 @dataclass
@@ -59,11 +63,19 @@ class PanoramaDataset(Dataset):
     ``Sample.target_reference_depths``: the reference depth of the target views (the depth loss's
     ``D_ref``, or the evaluation's PCC reference). ``data_root`` is the folder the dataset was opened
     at; file priors resolve ``<data_root>/priors/<name>/...`` against it.
+
+    Every frame a sample loads is checked once, cheaply (a median per depth map), and a corrupt or absurd one
+    stops with one line naming its file (:meth:`check_frame`): a non-finite or non-rigid pose, a depth file
+    without a single positive pixel (unless the prior allows zeros: ``none``), and (unless ``check_plausibility`` is False) a camera beyond 10 km or a
+    depth file whose median lies outside 1 cm to 1 km (:mod:`cylindersplat.validation`).
     """
 
     dataset_name = "base"
     data_root: Path | None = None
     target_reference: DepthPrior | None = None
+    check_plausibility: bool = True  # the bounds of check_frame (train: data.check_plausibility)
+    #: how the bounds' error says to skip them (the folder reader of render/export names its CLI option)
+    plausibility_override: str = DATASET_OVERRIDE
 
     def __init__(
         self,
@@ -112,6 +124,24 @@ class PanoramaDataset(Dataset):
         return read_depth_png(frame.depth, size=size, expected=expected, resize_mode=self.depth_resize,
                               **({} if frame.depth_scale is None else {"scale": frame.depth_scale}))
 
+    def check_frame(self, frame: FrameRef, depth: Tensor | None) -> None:
+        """One loaded frame (``depth``: its stored depth in metres, or None) is usable, else a one-line
+        :class:`~cylindersplat.errors.InputError` naming its file (see the class docstring)."""
+        try:
+            validate_c2w(frame.c2w, name=f"pose of {frame.rgb}")
+        except ValueError as exc:
+            raise InputError(f"{exc}; fix the dataset's pose of this frame (OpenCV camera-to-world, metres)") from None
+        if self.check_plausibility:
+            check_translation_plausible(frame.c2w, f"pose of {frame.rgb}")
+        if depth is None:
+            return
+        # an empty or corrupt file says nothing as reference or prior (unless no depth was asked for: prior none)
+        if not self.depth_prior.allows_zeros and not float(depth.max()) > 0:  # stored depths are >= 0
+            raise InputError(f"depth file {frame.depth} has no positive depth (all zeros = unknown): the file is empty "
+                             "or corrupt; write it again or remove the frame")
+        if self.check_plausibility:
+            check_depth_plausible(depth, str(frame.depth), self.plausibility_override)
+
     def stored_depth_size(self, frame: FrameRef) -> tuple[int, int] | None:
         """(H, W) a frame's depth file must have (None: any 2:1 size); the layout's size by default."""
         return self.stored_size
@@ -141,7 +171,7 @@ class PanoramaDataset(Dataset):
             files = ", ".join(str(ref.frames[i].rgb) for i in needed)
             raise ValueError(f"frames of one example differ in size {sorted(sizes)}: {files}")
         for i in needed:
-            validate_c2w(ref.frames[i].c2w, name=f"pose of {ref.frames[i].rgb.parent}")
+            self.check_frame(ref.frames[i], loaded[i][1])
 
         def stack_depths(indices):
             depths = [loaded[i][1] for i in indices]

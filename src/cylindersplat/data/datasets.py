@@ -138,12 +138,14 @@ def make_dataset(
     reference: str = "none",
     prior_option: str = "data.depth_prior",
     reference_option: str = "loss.depth_reference",
+    check_plausibility: bool = True,
     **options,
 ) -> PanoramaDataset:
     """Open ``root`` as ``layout`` (a key of :data:`DATASETS`) with an input prior and a target reference.
 
     ``options`` go to the loader (``scenes=[...]`` for synthetic data, ``dist=`` for PanoGRF, ...);
-    ``prior_option`` / ``reference_option`` name the settings in error messages.
+    ``prior_option`` / ``reference_option`` name the settings in error messages. ``check_plausibility=False``
+    reads frames outside the plausibility bounds (:meth:`~cylindersplat.data.base.PanoramaDataset.check_frame`).
     """
     layout = layout_name(layout)
     if not root:
@@ -155,6 +157,7 @@ def make_dataset(
     if depth_prior != "default":
         kwargs["depth_prior"] = parse_depth_prior(depth_prior)  # a name or name:value, e.g. unik3d:/weights
     dataset = DATASETS[layout](root, views=views, split=split, **kwargs)
+    dataset.check_plausibility = check_plausibility
     require_depth_prior(dataset, prior_option)  # no silent zeros: the PanoGRF / 360Loc default asks for a choice
     if isinstance(dataset, FolderDataset):
         dataset.check_depth(prior_option)  # frames without a depth file need a chosen prior

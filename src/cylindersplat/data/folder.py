@@ -260,7 +260,8 @@ class FolderDataset(PanoramaDataset):
 
     Image and depth files named by a poses file must resolve inside its input folder (symlinks pointing inside
     are fine); an absolute path or one leading out is an :class:`~cylindersplat.errors.OutsideFolderError`
-    unless ``allow_outside_paths=True`` (the CLI's ``--allow-outside-paths``).
+    unless ``allow_outside_paths=True`` (the CLI's ``--allow-outside-paths``). ``check_plausibility``: the
+    bounds every loaded frame is checked against (:meth:`~cylindersplat.data.base.PanoramaDataset.check_frame`).
     """
 
     dataset_name = "folder"
@@ -277,6 +278,7 @@ class FolderDataset(PanoramaDataset):
         poses_file: str | Path | None = None,
         depth_resize: str = "area",
         allow_outside_paths: bool = False,
+        check_plausibility: bool = True,
     ) -> None:
         if depth_files not in ("prior", "reference"):
             raise ValueError(f"depth_files must be 'prior' or 'reference', got {depth_files!r}")
@@ -291,6 +293,7 @@ class FolderDataset(PanoramaDataset):
         if depth_files == "prior" and not isinstance(depth_prior, StoredDepthPrior):
             depth_prior = StoredDepthPrior(depth_prior)
         super().__init__(resolution, depth_prior, depth_resize=depth_resize)
+        self.check_plausibility = check_plausibility
         root = Path(root)
         _check_folder(root)
         self.root = self.data_root = root

@@ -17,13 +17,19 @@ as ``npx @playcanvas/splat-transform``), then ``splat-transform`` on ``PATH``, t
 ``~/.local/bin/splat-transform`` (where ``bash scripts/install_optional.sh formats`` puts it).
 Coordinates are written as they are (OpenCV world frame of the poses, no axis flip): splat-transform
 stores ``.spz`` with the coordinate system "unspecified" and converts nothing in either direction.
+
+splat-transform runs with a timeout proportionate to the work (:func:`splat_transform_timeout`: at least
+:data:`MIN_TIMEOUT_S`, more for more Gaussians or a larger file); ``$CYLINDERSPLAT_SPLAT_TRANSFORM_TIMEOUT``
+(seconds) sets it. A run past it is ended (with anything it started) and reported in one line.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import shlex
 import shutil
+import signal
 import subprocess
 import tempfile
 from pathlib import Path
@@ -36,12 +42,19 @@ from .ply import load_ply, save_ply
 from .splat import load_splat, save_splat
 
 __all__ = [
-    "SPLAT_TRANSFORM_ENV", "SPLAT_TRANSFORM_INSTALL", "SplatTransformError", "WRITE_FORMATS", "READ_FORMATS",
+    "SPLAT_TRANSFORM_ENV", "SPLAT_TRANSFORM_INSTALL", "TIMEOUT_ENV", "SplatTransformError", "splat_transform_timeout", "WRITE_FORMATS", "READ_FORMATS",
     "splat_format", "find_splat_transform", "require_splat_transform", "save_gaussians", "load_gaussians",
 ]
 
 SPLAT_TRANSFORM_ENV = "CYLINDERSPLAT_SPLAT_TRANSFORM"
 SPLAT_TRANSFORM_PACKAGE = "@playcanvas/splat-transform@3"
+TIMEOUT_ENV = "CYLINDERSPLAT_SPLAT_TRANSFORM_TIMEOUT"
+# About ten times the measured rates (200k Gaussians on 2 busy cores: .sog written in 3.7 s, its k-means on the
+# CPU being the slowest path; .spz 0.9 s; any 3 MB file read in 0.6 s), so that only a hung tool reaches them;
+# a floor for Node.js start-up on a busy machine.
+MIN_TIMEOUT_S = 120.0
+SECONDS_PER_GAUSSIAN = 2e-4  # writing: 200 s more per million Gaussians
+SECONDS_PER_BYTE = 1e-5  # reading: 10 s more per MB of file
 SPLAT_TRANSFORM_INSTALL = (f"install PlayCanvas splat-transform (Node.js >= 20): `npm install -g {SPLAT_TRANSFORM_PACKAGE}` "
                            f"or `bash scripts/install_optional.sh formats`, or set {SPLAT_TRANSFORM_ENV} to its executable")
 
@@ -88,17 +101,53 @@ def require_splat_transform(what: str) -> list[str]:
     return command
 
 
-def _run(command: list[str], timeout: float = 3600) -> None:
+def splat_transform_timeout(gaussians: int = 0, nbytes: int = 0) -> float:
+    """Seconds splat-transform may take to write ``gaussians`` Gaussians or read a file of ``nbytes``:
+    ``$CYLINDERSPLAT_SPLAT_TRANSFORM_TIMEOUT`` if set, else :data:`MIN_TIMEOUT_S` plus the work's share."""
+    given = os.environ.get(TIMEOUT_ENV, "").strip()
+    if given:
+        try:
+            seconds = float(given)
+        except ValueError:
+            seconds = math.nan
+        if not math.isfinite(seconds) or seconds <= 0:
+            raise ValueError(f"{TIMEOUT_ENV}={given!r}: give splat-transform's timeout in seconds, e.g. 600")
+        return seconds
+    return MIN_TIMEOUT_S + gaussians * SECONDS_PER_GAUSSIAN + nbytes * SECONDS_PER_BYTE
+
+
+def _run(tool: list[str], arguments: list[str], timeout: float, what: str) -> None:
+    """Run splat-transform (``tool``, :func:`find_splat_transform`) with ``arguments`` for ``what`` (e.g.
+    "writing 1,000 Gaussians to x.spz") within ``timeout`` seconds."""
+    command = [*tool, *arguments]
     try:
-        proc = subprocess.run(command, capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL)
+        # its own session: a timeout ends everything it started (npx runs node as a child, which holds the pipes)
+        proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+                                text=True, start_new_session=True)
     except FileNotFoundError:
         raise FileNotFoundError(f"cannot run {command[0]!r}; {SPLAT_TRANSFORM_INSTALL}") from None
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
-        raise SplatTransformError(f"splat-transform did not finish within {timeout:.0f} s: {shlex.join(command)}") from None
+        _kill_group(proc)
+        raise SplatTransformError(
+            f"splat-transform did not finish {what} within {timeout:.0f} s and was stopped; if it is merely slow, "
+            f"allow more time ({TIMEOUT_ENV}=SECONDS), else check that `{shlex.join(tool)} --help` answers") from None
+    except BaseException:  # Ctrl-C: no converter left running behind us
+        _kill_group(proc)
+        raise
     if proc.returncode != 0:
-        lines = [line.strip() for line in (proc.stderr + proc.stdout).splitlines() if line.strip()]
+        lines = [line.strip() for line in (stderr + stdout).splitlines() if line.strip()]
         detail = next((line for line in reversed(lines) if "error" in line.lower()), lines[-1] if lines else "no output")
         raise SplatTransformError(f"splat-transform failed (exit {proc.returncode}): {detail[:300]}")
+
+
+def _kill_group(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except OSError:  # already gone
+        pass
+    proc.communicate()
 
 
 def save_gaussians(gaussians: Gaussians, path: str | Path, spz_version: int | None = None) -> Path:
@@ -129,7 +178,8 @@ def save_gaussians(gaussians: Gaussians, path: str | Path, spz_version: int | No
         # takes the place of atomic_path's temporary file (same folder: plain renames throughout).
         source, target = Path(work) / "in.ply", Path(work) / path.name
         save_ply(gaussians, source)
-        _run([*command, *options, str(source), str(target)])
+        _run(command, [*options, str(source), str(target)], splat_transform_timeout(gaussians=len(gaussians)),
+             f"writing {len(gaussians):,} Gaussians to {path.name}")
         if not target.is_file():
             raise SplatTransformError(f"splat-transform reported success but wrote no {target.name}")
         os.replace(target, tmp)
@@ -160,7 +210,8 @@ def load_gaussians(path: str | Path, device=None, dtype=torch.float32) -> Gaussi
         except OSError:
             shutil.copyfile(path, source)
         target = Path(work) / "out.ply"
-        _run([*command, "--quiet", str(source), str(target)])
+        _run(command, ["--quiet", str(source), str(target)], splat_transform_timeout(nbytes=path.stat().st_size),
+             f"reading {path.name}")
         return load_ply(_saturated_to_finite(target), device=device, dtype=dtype)
 
 

@@ -20,7 +20,7 @@ from ..data.folder import (IMAGE_SUFFIXES, POSE_CONVENTIONS, POSES_FILE, TRANSFO
                            list_panoramas, poses_path, read_poses_file)
 from ..data.io import DEPTH_PNG_SCALE
 from ..utils.atomic import atomic_write_text
-from ..validation import check_depth_plausible
+from ..validation import PLAUSIBILITY_OVERRIDE, check_depth_plausible, check_scene_scale
 
 __all__ = ["PanoramaInputs", "load_panorama_folder", "write_panorama_folder", "read_poses_file", "list_panoramas",
            "IMAGE_SUFFIXES", "POSE_CONVENTIONS", "POSES_FILE", "TRANSFORMS_FILE"]
@@ -58,21 +58,26 @@ def load_panorama_folder(
     by name). This is :class:`~cylindersplat.data.FolderDataset` (``views="all_inputs"``), its one example;
     files named by the poses file must lie inside ``folder`` unless ``allow_outside_paths``. With
     ``check_plausibility`` each frame's depth (file or prior) must have a median within 1 cm to 1 km
-    (:func:`cylindersplat.validation.check_depth_plausible`; the error names the file).
+    (:func:`cylindersplat.validation.check_depth_plausible`; the error names the file), and a scene whose size
+    suggests a unit mistake (median depth beyond 100 m or below 5 cm, cameras spaced out of proportion with
+    the depth) is warned about (:func:`cylindersplat.validation.check_scene_scale`, naming the folder).
     """
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"input folder not found: {folder}")
     poses_path(folder, poses_file)  # one folder of panoramas, not a folder of them: its poses file must be there
     dataset = FolderDataset(folder, resolution=resolution, depth_prior=depth_prior, poses_file=poses_file,
-                            allow_outside_paths=allow_outside_paths)
+                            allow_outside_paths=allow_outside_paths, check_plausibility=check_plausibility)
+    dataset.plausibility_override = PLAUSIBILITY_OVERRIDE  # the depth files' bounds are checked on loading
     dataset.check_depth("--depth-prior")
     sample = dataset[0]
     frames = [dataset.example(0).frames[i] for i in sample.metadata["context_indices"]]
     names = [frame.name for frame in frames]
     if check_plausibility:
         for frame, depth in zip(frames, sample.context_priors):
-            check_depth_plausible(depth, str(frame.depth) if frame.depth else f"the depth prior of {frame.name}")
+            if frame.depth is None:  # a network's (or constant) prior, not checked as a file
+                check_depth_plausible(depth, f"the depth prior of {frame.name}")
+        check_scene_scale(sample.context_priors, sample.context_poses, str(folder))
     return PanoramaInputs(sample.context_images, sample.context_priors, sample.context_poses, names)
 
 

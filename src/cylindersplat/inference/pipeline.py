@@ -23,7 +23,8 @@ from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
 from ..utils.notices import Notice
 from ..utils.progress import Progress
-from ..validation import check_c2w, check_depth_plausible, check_depths, check_images, check_opacity_threshold
+from ..validation import (check_c2w, check_depth_plausible, check_depths, check_images, check_opacity_threshold,
+                          check_scene_scale)
 from .camera_path import flythrough_path
 from .memory import check_forward_memory
 from .video import VideoWriter
@@ -54,7 +55,8 @@ def reconstruct_gaussians(
     :class:`~cylindersplat.errors.InputError`): ``images`` float RGB in [0, 1], finite, W == 2H, H divisible
     by the model's token stride; ``depths`` finite, >= 0 (0 = unknown), the images' size; ``c2w`` finite rigid
     poses (no reflection) within 10 km of the origin; ``min_opacity`` in [0, 1). With ``check_plausibility``
-    each view's median positive depth must lie in 1 cm to 1 km (a unit mistake otherwise). A ``min_opacity``
+    each view's median positive depth must lie in 1 cm to 1 km (a unit mistake otherwise), and a scene whose
+    size suggests one (:func:`~cylindersplat.validation.check_scene_scale`) is warned about. A ``min_opacity``
     that leaves no Gaussian is an error naming it."""
     if amp not in ("auto", "off"):
         raise InputError(f"amp must be 'auto' or 'off', got {amp!r}")
@@ -65,6 +67,7 @@ def reconstruct_gaussians(
     if check_plausibility:
         for i, depth in enumerate(depths):
             check_depth_plausible(depth, f"depths[{i}]")
+        check_scene_scale(depths, c2w, "the input views")
     model.eval()
     device = torch.device(device)
     check_forward_memory(model.config, images.shape[0], images.shape[-2], images.shape[-1], device, model.mode)

@@ -54,6 +54,8 @@ class DataConfig:
     # (unik3d:DIR, exported:NET.pt2, depth_anything_v2:MODEL)
     depth_prior: str = "default"
     options: dict[str, Any] = field(default_factory=dict)  # extra loader kwargs, e.g. {dist: 1.0}
+    # false: read frames outside the plausibility bounds (depth median 1 cm-1 km, cameras within 10 km)
+    check_plausibility: bool = True
     batch_size: int = 1  # per process
     num_workers: int = 0
 

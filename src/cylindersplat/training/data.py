@@ -29,7 +29,8 @@ def build_dataset(cfg: DataConfig, loss: LossConfig | None = None) -> Dataset:
         raise ValueError("data.root is not set: give a dataset folder (e.g. from `cylindersplat data synth`)")
     reference = loss.depth_reference if loss is not None and loss.depth_l1 > 0 else "none"
     return make_dataset(cfg.format, cfg.root, views=cfg.views, split=cfg.split, resolution=cfg.resolution,
-                        depth_prior=cfg.depth_prior, reference=reference, **cfg.options)
+                        depth_prior=cfg.depth_prior, reference=reference, check_plausibility=cfg.check_plausibility,
+                        **cfg.options)
 
 
 class ResumableBatchSampler(Sampler[list[int]]):
