@@ -61,7 +61,7 @@ COVERAGE = [
     Variant("volume_only_spherical_room_bounds", "volume only, spherical, radius 5 m",
             VOLUME_ONLY + ("model.volume.coordinates=spherical", "model.volume.radius=5"), kind="volume"),
     Variant("retrieval_window_2", "colour of the nearest observed surface points in 5x5 pixels",
-            ("model.volume.retrieval_window=2",)),
+            ("model.volume.color=surface", "model.volume.surface_window=2", "model.volume.surface_temperature=1")),
     Variant("volume_weight_1", "the volume branch's own render in the loss", ("loss.volume_weight=1",)),
     Variant("volume_weight_1_volume_stage2", "the same, stage 2 renders the volume branch alone",
             ("loss.volume_weight=1", "train.stage2_render=volume")),

@@ -18,6 +18,8 @@ import argparse
 import json
 from pathlib import Path
 
+import torch
+
 from cylindersplat.data.synth import profile_config, write_synthetic_dataset
 from cylindersplat.experiments.ablation import VOLUME_ONLY, Schedule, Variant, run_study
 
@@ -49,6 +51,61 @@ VARIANTS = [
 ]
 
 
+@torch.no_grad()
+def branch_report(weights: Path, data: Path) -> dict[str, float]:
+    """On the held-out targets' hidden pixels (robust mask), one checkpoint: the mean alpha of the pixel Gaussians
+    as fused (after any clearing) and with clearing off, of the volume Gaussians, and the WS-PSNR of the fused render
+    and of the volume branch's own render (its Gaussians alone, before fusion)."""
+    from cylindersplat.data import SyntheticDataset
+    from cylindersplat.data.occlusion import occluded_mask
+    from cylindersplat.evaluation.masked import MIN_OCCLUDED_PIXELS, masked_ws_psnr
+    from cylindersplat.metrics.image import ws_weights
+    from cylindersplat.model import load_model
+    from cylindersplat.render import render_equirect
+
+    model = load_model(weights).eval()
+    dataset = SyntheticDataset(data, views="two_view", scenes=SyntheticDataset(data).scenes[-8:])
+    acc: dict[str, list[float]] = {}
+    for sample in dataset:
+        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths,
+                             sample.context_poses)
+        if int(mask.sum()) < MIN_OCCLUDED_PIXELS:
+            continue
+        h, w = mask.shape
+        weight = ws_weights(h)[:, None] * mask
+        truth = sample.target_images[0]
+
+        def render(gaussians):
+            return render_equirect(gaussians, sample.target_poses[None, :1], h, w)
+
+        parts = {}
+        clearing = model.config.fusion.pixel_clearing
+        for setting in dict.fromkeys((clearing, "none")):
+            model.config.fusion.pixel_clearing = setting
+            out = model.set_mode("both")(sample.context_images[None], sample.context_priors[None], sample.context_poses[None])
+            n = out.pixel_gaussians.num_gaussians
+            fused = out.gaussians
+            parts[f"pixel alpha ({setting})"] = render(_slice(fused, 0, n)).alpha[0, 0]
+            if setting == clearing:
+                parts["volume alpha"] = render(_slice(fused, n, fused.num_gaussians)).alpha[0, 0]
+                parts["fused"] = render(fused).rgb[0, 0]
+                parts["volume alone"] = render(out.volume_gaussians).rgb[0, 0]
+        model.config.fusion.pixel_clearing = clearing
+        for key, value in parts.items():
+            if "alpha" in key:
+                acc.setdefault(key, []).append(float((value * weight).sum() / weight.sum()))
+            else:
+                acc.setdefault(f"WS-PSNR hidden, {key}", []).append(float(masked_ws_psnr(value.clamp(0, 1), truth, mask)))
+    return {k: sum(v) / len(v) for k, v in acc.items()}
+
+
+def _slice(gaussians, start: int, stop: int):
+    """Gaussians ``start:stop`` of a batched container (B, N, ...)."""
+    from dataclasses import fields, replace
+
+    return replace(gaussians, **{f.name: getattr(gaussians, f.name)[:, start:stop] for f in fields(gaussians)})
+
+
 def ensure_data(root: Path) -> Path:
     if not (root / "meta.json").is_file():
         write_synthetic_dataset(root, 28, (64, 128), profile_config("occlusion", **WIDE_HOLES), seed=0)
@@ -64,6 +121,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, help="the wide-holes data (default OUT/data; generated when absent)")
     parser.add_argument("--table", action="store_true", help="score every variant with finished runs of all seeds")
     parser.add_argument("--json", type=Path, help="copy the report here")
+    parser.add_argument("--branches", action="store_true",
+                        help="with --table: per variant and seed, each branch's alpha and WS-PSNR on hidden pixels")
     args = parser.parse_args()
     data = ensure_data(args.data or args.out / "data")
     chosen = [v for v in VARIANTS if args.variants is None or v.name in args.variants]
@@ -72,6 +131,14 @@ def main() -> None:
                                            for s in args.seeds)]
     report = run_study(data, args.out, chosen, seeds=tuple(args.seeds), schedule=Schedule(), held_out=8,
                        threads=args.threads)
+    if args.table and args.branches:
+        for v in chosen:
+            if v.kind != "full":
+                continue
+            report["variants"][v.name]["branches"] = per_seed = {}
+            for seed in args.seeds:
+                per_seed[str(seed)] = branch_report(args.out / "runs" / v.name / f"seed{seed}" / "model.safetensors", data)
+                print(v.name, seed, {k: round(x, 3) for k, x in per_seed[str(seed)].items()}, flush=True)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(report, indent=1))
