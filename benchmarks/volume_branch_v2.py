@@ -42,6 +42,7 @@ VARIANTS = [
     Variant("recipe_learned_T", "the recipe, temperature learned", RECIPE + ("model.volume.learn_temperature=true",)),
     Variant("recipe_all_views", "the recipe, triplane-to-image attention over all views", RECIPE + ("model.volume.image_views=all",)),
     Variant("recipe_k3", "the recipe, 3 Gaussians per cell", RECIPE + ("model.volume.gaussians_per_cell=3",)),
+    Variant("recipe_edge_0.1", "the recipe with stronger edge fading (pixel.edge_sigma 0.1)", RECIPE + ("model.pixel.edge_sigma=0.1",)),
     Variant("volume_only_cylindrical", "volume only, cylindrical, surface colour", VOLUME_ONLY + SURFACE, kind="volume"),
     Variant("volume_only_spherical", "volume only, spherical, surface colour",
             VOLUME_ONLY + SURFACE + ("model.volume.coordinates=spherical",), kind="volume"),
@@ -99,6 +100,59 @@ def branch_report(weights: Path, data: Path) -> dict[str, float]:
     return {k: sum(v) / len(v) for k, v in acc.items()}
 
 
+@torch.no_grad()
+def clearing_probe(weights: Path, data: Path) -> dict[str, dict[str, float]]:
+    """Test-time settings on one checkpoint, scored on the held-out hidden pixels: pixel clearing at several sigmas,
+    clearing against the contexts' *true* depth (an oracle: which pixel Gaussians sit in space an input truly saw
+    empty), and stronger edge fading. Per setting: the pixel Gaussians' mean alpha there and the fused WS-PSNR."""
+    from cylindersplat.data import SyntheticDataset
+    from cylindersplat.data.occlusion import occluded_mask
+    from cylindersplat.evaluation.masked import MIN_OCCLUDED_PIXELS, masked_ws_psnr
+    from cylindersplat.gaussians import Gaussians
+    from cylindersplat.metrics.image import ws_weights
+    from cylindersplat.model import load_model
+    from cylindersplat.model.fusion import hidden_confidence
+    from cylindersplat.render import render_equirect
+    from dataclasses import replace
+
+    dataset = SyntheticDataset(data, views="two_view", scenes=SyntheticDataset(data).scenes[-8:])
+    settings = {"as trained": {}, "no clearing": {"fusion.pixel_clearing": "none"},
+                "clearing sigma 0.03": {"fusion.sigma": 0.03}, "clearing sigma 0.3": {"fusion.sigma": 0.3},
+                "edge sigma 0.1": {"pixel.edge_sigma": 0.1}, "edge sigma 0.05": {"pixel.edge_sigma": 0.05},
+                "clearing against true context depth (oracle)": {"oracle": True}}
+    acc: dict[str, dict[str, list[float]]] = {}
+    for name, changes in settings.items():
+        model = load_model(weights).eval()
+        for key, value in changes.items():
+            if key != "oracle":
+                section, field = key.split(".")
+                setattr(getattr(model.config, section), field, value)
+        for sample in dataset:
+            mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths,
+                                 sample.context_poses)
+            if int(mask.sum()) < MIN_OCCLUDED_PIXELS:
+                continue
+            h, w = mask.shape
+            weight = ws_weights(h)[:, None] * mask
+            c2w = sample.context_poses[None]
+            out = model(sample.context_images[None], sample.context_priors[None], c2w)
+            fused, n = out.gaussians, out.pixel_gaussians.num_gaussians
+            if changes.get("oracle"):
+                conf = hidden_confidence(out.pixel_gaussians.means, c2w, sample.context_gt_depths[None],
+                                         model.config.fusion.sigma)
+                opacities = fused.opacities.clone()
+                opacities[:, :n] = out.pixel_gaussians.opacities * conf
+                fused = replace(fused, opacities=opacities)
+            pixel_alpha = render_equirect(_slice(fused, 0, n), sample.target_poses[None, :1], h, w).alpha[0, 0]
+            rgb = render_equirect(fused, sample.target_poses[None, :1], h, w).rgb[0, 0]
+            part = acc.setdefault(name, {})
+            part.setdefault("pixel alpha hidden", []).append(float((pixel_alpha * weight).sum() / weight.sum()))
+            part.setdefault("WS-PSNR hidden", []).append(float(masked_ws_psnr(rgb.clamp(0, 1), sample.target_images[0], mask)))
+            part.setdefault("WS-PSNR all", []).append(float(masked_ws_psnr(rgb.clamp(0, 1), sample.target_images[0],
+                                                                           torch.ones_like(mask))))
+    return {name: {k: sum(v) / len(v) for k, v in part.items()} for name, part in acc.items()}
+
+
 def _slice(gaussians, start: int, stop: int):
     """Gaussians ``start:stop`` of a batched container (B, N, ...)."""
     from dataclasses import fields, replace
@@ -121,10 +175,18 @@ def main() -> None:
     parser.add_argument("--data", type=Path, help="the wide-holes data (default OUT/data; generated when absent)")
     parser.add_argument("--table", action="store_true", help="score every variant with finished runs of all seeds")
     parser.add_argument("--json", type=Path, help="copy the report here")
+    parser.add_argument("--probe", help="a variant: test-time clearing / edge-fading settings on its seed-0 run, printed")
     parser.add_argument("--branches", action="store_true",
                         help="with --table: per variant and seed, each branch's alpha and WS-PSNR on hidden pixels")
     args = parser.parse_args()
     data = ensure_data(args.data or args.out / "data")
+    if args.probe:
+        probe = clearing_probe(args.out / "runs" / args.probe / "seed0" / "model.safetensors", data)
+        for name, values in probe.items():
+            print(f"{name}: " + ", ".join(f"{k} {v:.3f}" for k, v in values.items()), flush=True)
+        if args.json:
+            args.json.write_text(json.dumps({"variant": args.probe, "seed": 0, "settings": probe}, indent=1))
+        return
     chosen = [v for v in VARIANTS if args.variants is None or v.name in args.variants]
     if args.table:  # only what has finished for every seed
         chosen = [v for v in chosen if all((args.out / "runs" / v.name / f"seed{s}" / "model.safetensors").is_file()
