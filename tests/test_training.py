@@ -249,33 +249,48 @@ def test_code_changes_and_command_line_overrides_are_one_mechanism(tmp_path):
         load_config("tiny", changes={"train.nope": 1})
 
 
-def test_volume_weight_adds_the_volume_branchs_own_render_loss(synth_root, tmp_path):
-    """loss.volume_weight=w: total = loss(fused render) + w * loss(volume Gaussians rendered alone, before
-    fusion), recomputed here from the model's outputs with the renderer and the loss directly."""
+@pytest.mark.parametrize("volume_loss", ["scaled", "released"])
+def test_volume_weight_adds_the_volume_branchs_own_render_loss(synth_root, tmp_path, volume_loss):
+    """loss.volume_weight=w: total = loss(fused render) + w * L(volume Gaussians rendered alone, before fusion), with
+    L the same loss (``scaled``) or the released code's 0.1 L2 + 0.1 depth L1 (``released``, no LPIPS weights here),
+    recomputed here from the model's outputs with the renderer and the formulas directly."""
     from cylindersplat.data import collate_samples
     from cylindersplat.render import render_equirect
     from cylindersplat.training.trainer import batch_to_device
 
-    cfg = _config(synth_root, tmp_path / "run", "train.stages=[3]", "train.steps_per_stage=[1]", "loss.volume_weight=0.5")
+    cfg = _config(synth_root, tmp_path / "run", "train.stages=[3]", "train.steps_per_stage=[1]", "loss.volume_weight=0.5",
+                  f"loss.volume_loss={volume_loss}", "loss.use_lpips=off")
     trainer = Trainer(cfg)
     trainer._begin_stage()
     batch = batch_to_device(collate_samples([trainer.dataset[0]]), trainer.device)
     terms = trainer.compute_loss(batch)
 
-    out = trainer.model(batch.context_images, batch.context_priors, batch.context_poses)
+    with torch.no_grad():
+        out = trainer.model(batch.context_images, batch.context_priors, batch.context_poses)
     h, w = batch.target_images.shape[-2:]
     reference = batch.target_depths
 
-    def loss_of(gaussians):
-        r = render_equirect(gaussians, batch.target_poses, h, w, background=tuple(cfg.train.background))
-        return trainer.loss_fn(r.rgb, r.depth, r.alpha, batch.target_images, reference).total.detach()
+    def render(gaussians):
+        return render_equirect(gaussians, batch.target_poses, h, w, background=tuple(cfg.train.background))
 
-    fused, alone = loss_of(out.gaussians), loss_of(out.volume_gaussians)
+    def loss_of(gaussians):
+        r = render(gaussians)
+        return trainer.loss_fn(r.rgb, r.depth, r.alpha, batch.target_images, reference).total
+
+    fused = loss_of(out.gaussians)
+    if volume_loss == "scaled":
+        alone = loss_of(out.volume_gaussians)
+    else:
+        r = render(out.volume_gaussians)
+        valid = reference > 0
+        alone = 0.1 * ((r.rgb - batch.target_images) ** 2).mean() + 0.1 * (r.depth - reference)[valid].abs().mean()
     assert float(alone) != pytest.approx(float(fused), rel=1e-3)  # the two renders differ
-    assert float(terms.total) == pytest.approx(float(fused + 0.5 * alone), rel=1e-5)
+    assert float(terms.total.detach()) == pytest.approx(float(fused + 0.5 * alone), rel=1e-5)
     assert terms.parts["volume_total"] == pytest.approx(float(alone), rel=1e-5)
     with pytest.raises(ValueError, match="volume_weight"):
         load_config("tiny", ["loss.volume_weight=-1"])
+    with pytest.raises(ValueError, match="loss.volume_loss must be one of scaled, released"):
+        load_config("tiny", ["loss.volume_loss=nonsense"])
 
 
 def test_stage_one_can_leave_hidden_pixels_to_the_volume_branch(tmp_path, monkeypatch):
