@@ -43,6 +43,9 @@ VARIANTS = [
     Variant("recipe_all_views", "the recipe, triplane-to-image attention over all views", RECIPE + ("model.volume.image_views=all",)),
     Variant("recipe_k3", "the recipe, 3 Gaussians per cell", RECIPE + ("model.volume.gaussians_per_cell=3",)),
     Variant("recipe_edge_0.1", "the recipe with stronger edge fading (pixel.edge_sigma 0.1)", RECIPE + ("model.pixel.edge_sigma=0.1",)),
+    # ground-truth depth as the input prior (an oracle input): can the recipe clear the bar with sharp depth?
+    Variant("recipe_gt_prior", "the recipe, ground-truth input depth", RECIPE + ("data.depth_prior=gt",)),
+    Variant("pixel_only_gt_prior", "pixel branch only, ground-truth input depth", ("data.depth_prior=gt",), kind="pixel"),
     Variant("volume_only_cylindrical", "volume only, cylindrical, surface colour", VOLUME_ONLY + SURFACE, kind="volume"),
     Variant("volume_only_spherical", "volume only, spherical, surface colour",
             VOLUME_ONLY + SURFACE + ("model.volume.coordinates=spherical",), kind="volume"),
@@ -52,28 +55,33 @@ VARIANTS = [
 ]
 
 
+def hidden_targets(data: Path):
+    """``(sample, hidden mask, latitude weights on it)`` of every held-out target with enough hidden pixels."""
+    from cylindersplat.data import SyntheticDataset
+    from cylindersplat.data.occlusion import occluded_mask
+    from cylindersplat.evaluation.masked import MIN_OCCLUDED_PIXELS
+    from cylindersplat.metrics.image import ws_weights
+
+    for sample in SyntheticDataset(data, views="two_view", scenes=SyntheticDataset(data).scenes[-8:]):
+        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths,
+                             sample.context_poses)
+        if int(mask.sum()) >= MIN_OCCLUDED_PIXELS:
+            yield sample, mask, ws_weights(mask.shape[0])[:, None] * mask
+
+
 @torch.no_grad()
 def branch_report(weights: Path, data: Path) -> dict[str, float]:
     """On the held-out targets' hidden pixels (robust mask), one checkpoint: the mean alpha of the pixel Gaussians
     as fused (after any clearing) and with clearing off, of the volume Gaussians, and the WS-PSNR of the fused render
     and of the volume branch's own render (its Gaussians alone, before fusion)."""
-    from cylindersplat.data import SyntheticDataset
-    from cylindersplat.data.occlusion import occluded_mask
-    from cylindersplat.evaluation.masked import MIN_OCCLUDED_PIXELS, masked_ws_psnr
-    from cylindersplat.metrics.image import ws_weights
+    from cylindersplat.evaluation.masked import masked_ws_psnr
     from cylindersplat.model import load_model
     from cylindersplat.render import render_equirect
 
     model = load_model(weights).eval()
-    dataset = SyntheticDataset(data, views="two_view", scenes=SyntheticDataset(data).scenes[-8:])
     acc: dict[str, list[float]] = {}
-    for sample in dataset:
-        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths,
-                             sample.context_poses)
-        if int(mask.sum()) < MIN_OCCLUDED_PIXELS:
-            continue
+    for sample, mask, weight in hidden_targets(data):
         h, w = mask.shape
-        weight = ws_weights(h)[:, None] * mask
         truth = sample.target_images[0]
 
         def render(gaussians):
@@ -105,17 +113,12 @@ def clearing_probe(weights: Path, data: Path) -> dict[str, dict[str, float]]:
     """Test-time settings on one checkpoint, scored on the held-out hidden pixels: pixel clearing at several sigmas,
     clearing against the contexts' *true* depth (an oracle: which pixel Gaussians sit in space an input truly saw
     empty), and stronger edge fading. Per setting: the pixel Gaussians' mean alpha there and the fused WS-PSNR."""
-    from cylindersplat.data import SyntheticDataset
-    from cylindersplat.data.occlusion import occluded_mask
-    from cylindersplat.evaluation.masked import MIN_OCCLUDED_PIXELS, masked_ws_psnr
-    from cylindersplat.gaussians import Gaussians
-    from cylindersplat.metrics.image import ws_weights
+    from cylindersplat.evaluation.masked import masked_ws_psnr
     from cylindersplat.model import load_model
     from cylindersplat.model.fusion import hidden_confidence
     from cylindersplat.render import render_equirect
     from dataclasses import replace
 
-    dataset = SyntheticDataset(data, views="two_view", scenes=SyntheticDataset(data).scenes[-8:])
     settings = {"as trained": {}, "no clearing": {"fusion.pixel_clearing": "none"},
                 "clearing sigma 0.03": {"fusion.sigma": 0.03}, "clearing sigma 0.3": {"fusion.sigma": 0.3},
                 "edge sigma 0.1": {"pixel.edge_sigma": 0.1}, "edge sigma 0.05": {"pixel.edge_sigma": 0.05},
@@ -127,13 +130,8 @@ def clearing_probe(weights: Path, data: Path) -> dict[str, dict[str, float]]:
             if key != "oracle":
                 section, field = key.split(".")
                 setattr(getattr(model.config, section), field, value)
-        for sample in dataset:
-            mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths,
-                                 sample.context_poses)
-            if int(mask.sum()) < MIN_OCCLUDED_PIXELS:
-                continue
+        for sample, mask, weight in hidden_targets(data):
             h, w = mask.shape
-            weight = ws_weights(h)[:, None] * mask
             c2w = sample.context_poses[None]
             out = model(sample.context_images[None], sample.context_priors[None], c2w)
             fused, n = out.gaussians, out.pixel_gaussians.num_gaussians
