@@ -77,18 +77,15 @@ STUDY_THREADS = 2
 
 # The paper's volume-only rows: the volume branch alone renders every pixel (no fusion, no pruning).
 VOLUME_ONLY = ("model.fusion.strategy=concat", "train.stage2_render=volume")
-# The tiny preset before issue 23's recipe: Eq. 6 colour, no loss on the volume render, no pixel clearing.
-PREVIOUS_RECIPE = ("model.volume.color=retrieval", "loss.volume_weight=0", "model.fusion.pixel_clearing=none")
 
 
 def default_variants() -> list[Variant]:
     """The paper's ablation rows (and the switches issue 11 asks for), in table order."""
     return [
         Variant("full", "pixel + cylindrical volume branch, curriculum 1-2-3 (the tiny preset's recipe: stage 2 "
-                "beside the frozen pixel branch, volume Gaussians only where no input view saw empty space, colours "
-                "from the nearest observed surface, a loss on the volume render, pixel clearing)"),
-        Variant("full_paper_recipe", "full, the paper's recipe: Eq. 6 colour, volume-only stage 2, concatenated Gaussians",
-                ("model.fusion.strategy=concat", "train.stage2_render=volume") + PREVIOUS_RECIPE),
+                "beside the frozen pixel branch, volume Gaussians only where no input view saw empty space)"),
+        Variant("full_paper_recipe", "full, the paper's recipe: volume-only stage 2, concatenated Gaussians",
+                ("model.fusion.strategy=concat", "train.stage2_render=volume")),
         Variant("pixel_only", "pixel branch only", kind="pixel"),
         # Edge fading leaves holes a pixel-only model cannot fill; without it the pixel branch is the stronger
         # baseline on occluded pixels, so the study scores both.
@@ -118,8 +115,9 @@ def extra_variants() -> list[Variant]:
     """Named variants outside the default study (it must fit 75 minutes on a 2-core CPU); run them with
     ``cylindersplat ablate --variants NAME ...``."""
     return [
-        Variant("full_previous_recipe", "full, the tiny preset before issue 23: Eq. 6 colour, no volume loss, no "
-                "pixel clearing", PREVIOUS_RECIPE),
+        Variant("full_surface_recipe", "full, issue 23's recipe: nearest-surface colour, the released volume loss, "
+                "pixel clearing", ("model.volume.color=surface", "loss.volume_loss=released", "loss.volume_weight=1",
+                                   "model.fusion.pixel_clearing=seen_through")),
         Variant("depth_fusion_own_view", "full, depth-guided fusion against each Gaussian's own view only",
                 ("model.fusion.strategy=depth_prune", "model.fusion.side=front")),
         Variant("retrieval_window_2", "full, volume colours from the nearest observed surface points in 5x5 pixels",
