@@ -61,15 +61,24 @@ def true_points(sample) -> torch.Tensor:
     return camera_to_world(cam.reshape(-1, 3), sample.target_poses[0]).reshape(1, -1, 3)
 
 
-def region_fill(truth: np.ndarray, hidden: np.ndarray, regions: str) -> np.ndarray:
+def region_fill(truth: np.ndarray, hidden: np.ndarray, regions: str, depth: np.ndarray | None = None) -> np.ndarray:
     """The true target with its hidden pixels replaced by their true latitude-weighted mean colour, per target
-    (``"target"``) or per connected hidden region (``"component"``)."""
+    (``"target"``), per connected hidden region (``"component"``) or per region and 10 %-wide depth band
+    (``"component_depth"``, roughly one surface each; needs the target's ``depth``)."""
     from scipy import ndimage
 
     from cylindersplat.metrics.image import ws_weights
 
     weight = ws_weights(truth.shape[1])[:, None].numpy() * hidden
-    labels = hidden.astype(int) if regions == "target" else ndimage.label(hidden, structure=np.ones((3, 3)))[0]
+    if regions == "target":
+        labels = hidden.astype(int)
+    elif regions in ("component", "component_depth"):
+        labels = ndimage.label(hidden, structure=np.ones((3, 3)))[0]
+        if regions == "component_depth":
+            band = np.floor(np.log(np.maximum(depth, 1e-3)) / 0.1).astype(int)
+            labels = np.where(hidden, labels * 10_000 + (band - band.min()), 0)
+    else:
+        raise ValueError(f"unknown regions {regions!r}")
     fill = truth.copy()
     for label in np.unique(labels[hidden]):
         region = labels == label

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from colour_rule_oracle import nearest_visible, region_fill  # the fills of the true target, shared
 from cylindersplat.data import SyntheticDataset
 from cylindersplat.data.occlusion import occluded_mask
 from cylindersplat.data.synth import profile_config, write_synthetic_dataset
@@ -149,32 +150,20 @@ def oracle_mean_fill(dataset, regions: str = "target") -> float:
     all the target's occluded pixels (``regions="target"``), of each connected hidden region (``"component"``),
     or of each region split into 10 %-wide depth bands (``"component_depth"``, roughly one surface each).
     Oracles that know what colour hidden regions have on average but nothing of their texture."""
-    from scipy import ndimage
-
     values = []
     for sample in dataset:
         mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths, sample.context_poses)
         if not mask.any():
             continue
         truth = sample.target_images[0].double().numpy()
-        hidden = mask.numpy()
-        weight = ws_weights(truth.shape[1])[:, None].numpy() * hidden
-        if regions == "target":
-            labels = hidden.astype(int)
-        else:
-            labels, _ = ndimage.label(hidden, structure=np.ones((3, 3)))
-            if regions == "component_depth":
-                band = np.floor(np.log(np.maximum(sample.target_depths[0].numpy(), 1e-3)) / 0.1).astype(int)
-                labels = np.where(hidden, labels * 10_000 + (band - band.min()), 0)
-            elif regions != "component":
-                raise ValueError(f"unknown regions {regions!r}")
-        fill = truth.copy()
-        for label in np.unique(labels[hidden]):
-            region = labels == label
-            fill[:, region] = (truth[:, region] * weight[region]).sum(1, keepdims=True) / weight[region].sum()
-        mse = float((((fill - truth) ** 2).mean(0) * weight).sum() / weight.sum())
-        values.append(-10 * np.log10(mse))
+        fill = region_fill(truth, mask.numpy(), regions, sample.target_depths[0].numpy())
+        values.append(_hidden_psnr(fill, truth, mask.numpy()))
     return float(np.mean(values))
+
+
+def _hidden_psnr(fill: np.ndarray, truth: np.ndarray, hidden: np.ndarray) -> float:
+    weight = ws_weights(truth.shape[1])[:, None].numpy() * hidden
+    return float(-10 * np.log10((((fill - truth) ** 2).mean(0) * weight).sum() / weight.sum()))
 
 
 @torch.no_grad()
@@ -206,18 +195,13 @@ def completion_figure(checkpoints: dict[str, Path], dataset, path: Path, example
 def nearest_visible_fill(dataset) -> float:
     """WS-PSNR on occluded pixels of the *true* target with every occluded pixel replaced by its nearest
     visible one: what copying the surroundings (a 2D inpainting with perfect neighbours) would score."""
-    from scipy import ndimage
-
     values = []
     for sample in dataset:
         mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths, sample.context_poses)
         if not mask.any():
             continue
-        truth = sample.target_images[0].double()
-        rows, cols = ndimage.distance_transform_edt(mask.numpy(), return_distances=False, return_indices=True)
-        weight = ws_weights(truth.shape[1])[:, None] * mask
-        mse = float((((truth[:, rows, cols] - truth) ** 2).mean(0) * weight).sum() / weight.sum())
-        values.append(-10 * np.log10(mse))
+        truth = sample.target_images[0].double().numpy()
+        values.append(_hidden_psnr(nearest_visible(truth, mask.numpy()), truth, mask.numpy()))
     return float(np.mean(values))
 
 

@@ -21,13 +21,14 @@ from pathlib import Path
 import torch
 
 from cylindersplat.data.synth import profile_config, write_synthetic_dataset
-from cylindersplat.experiments.ablation import VOLUME_ONLY, Schedule, Variant, run_study
+from cylindersplat.experiments.ablation import SURFACE_RECIPE, VOLUME_ONLY, Schedule, Variant, run_study
 
 WIDE_HOLES = dict(target_offset=(1.5, 2.5), occluders=10)
 SURFACE = ("model.volume.color=surface",)
 VOLUME_LOSS = ("loss.volume_loss=released", "loss.volume_weight=1")
 CLEARING = ("model.fusion.pixel_clearing=seen_through",)
 RECIPE = SURFACE + VOLUME_LOSS + CLEARING
+assert set(RECIPE) == set(SURFACE_RECIPE)  # the study's recipe is the ablation's full_surface_recipe
 
 VARIANTS = [
     Variant("pixel_only", "pixel branch only (tiny preset: edge fading)", kind="pixel"),

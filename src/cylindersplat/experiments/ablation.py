@@ -26,7 +26,7 @@ from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
 
-__all__ = ["Schedule", "Variant", "default_variants", "extra_variants", "all_variants", "VARIANT_NAMES", "run_study",
+__all__ = ["SURFACE_RECIPE", "Schedule", "Variant", "default_variants", "extra_variants", "all_variants", "VARIANT_NAMES", "run_study",
            "study_table", "study_sequence_config"]
 
 
@@ -77,6 +77,9 @@ STUDY_THREADS = 2
 
 # The paper's volume-only rows: the volume branch alone renders every pixel (no fusion, no pruning).
 VOLUME_ONLY = ("model.fusion.strategy=concat", "train.stage2_render=volume")
+# Issue 23's recipe on top of the tiny preset: nearest-surface colour, the released volume loss, pixel clearing.
+SURFACE_RECIPE = ("model.volume.color=surface", "loss.volume_loss=released", "loss.volume_weight=1",
+                  "model.fusion.pixel_clearing=seen_through")
 
 
 def default_variants() -> list[Variant]:
@@ -116,8 +119,7 @@ def extra_variants() -> list[Variant]:
     ``cylindersplat ablate --variants NAME ...``."""
     return [
         Variant("full_surface_recipe", "full, issue 23's recipe: nearest-surface colour, the released volume loss, "
-                "pixel clearing", ("model.volume.color=surface", "loss.volume_loss=released", "loss.volume_weight=1",
-                                   "model.fusion.pixel_clearing=seen_through")),
+                "pixel clearing", SURFACE_RECIPE),
         Variant("depth_fusion_own_view", "full, depth-guided fusion against each Gaussian's own view only",
                 ("model.fusion.strategy=depth_prune", "model.fusion.side=front")),
         Variant("retrieval_window_2", "full, volume colours from the nearest observed surface points in 5x5 pixels",

@@ -110,18 +110,16 @@ def fuse(
 ) -> tuple[Gaussians, Float[Tensor, "B N"]]:
     """The model's output Gaussians ``(B, N, ...)`` (pixel then volume) and keep mask from the branches' outputs
     (either may be ``None``: curriculum stages 1 and 2) and every input view's refined depth."""
+    if cfg.pixel_clearing not in ("none", "seen_through"):
+        raise ValueError(f"unknown fusion.pixel_clearing {cfg.pixel_clearing!r}; expected 'none' or 'seen_through'")
     volume_gaussians = points = check_depth = None
     if volume is not None:
         volume_gaussians, points, check_depth = volume.gaussians, volume.points_cam, refined_depth
-        if cfg.side == "hidden":
-            pass  # every view's depth, for every Gaussian
-        elif volume.depth_view is not None:  # central triplane: its Gaussians are checked against one view
+        # side="hidden" checks every Gaussian against every view's depth; a central triplane's only against one view
+        if cfg.side != "hidden" and volume.depth_view is not None:
             check_depth = refined_depth[:, volume.depth_view : volume.depth_view + 1]
         if pixel is not None and cfg.pixel_clearing == "seen_through":
             pixel = replace(pixel, opacities=pixel.opacities * hidden_confidence(pixel.means, c2w, refined_depth, cfg.sigma))
-        elif cfg.pixel_clearing != "none":
-            if pixel is not None:
-                raise ValueError(f"unknown fusion.pixel_clearing {cfg.pixel_clearing!r}; expected 'none' or 'seen_through'")
     return fuse_gaussians(pixel, volume_gaussians, cfg, points, check_depth, c2w)
 
 
