@@ -4,7 +4,8 @@
 
 Every target pixel of the study's 8 held-out scenes is lifted to its true 3D point (ground-truth target depth);
 each colour rule then colours that point from the two context panoramas, as the volume branch's colour module
-would colour a Gaussian placed there, given either the contexts' true depth or the depth prior the model gets.
+would colour a Gaussian placed there, given the contexts' true depth, the depth prior the model gets, or that prior
+rescaled per view by the photometric scale search (``model.prior_alignment=photometric``).
 Scored with WS-PSNR on the pixels no input sees (the robust mask of ``data/occlusion.py``) and on all pixels.
 If a rule fails here, at perfect geometry, no amount of training of the branch that uses it can make it colour
 hidden surfaces. Beside them, fills of the *true* target: copying the nearest visible pixel, and the true mean
@@ -27,6 +28,7 @@ from cylindersplat.data.synth import write_synthetic_dataset
 from cylindersplat.evaluation.masked import MIN_OCCLUDED_PIXELS, masked_ws_psnr
 from cylindersplat.experiments.ablation import study_sequence_config
 from cylindersplat.geometry import camera_to_world, equirect_rays
+from cylindersplat.model.prior_alignment import photometric_prior_scales
 from cylindersplat.model.rgb_retrieval import retrieve_colors, retrieve_colors_window
 from cylindersplat.utils.jsonfile import json_text
 
@@ -114,7 +116,10 @@ def run(data: Path) -> dict:
         scored = int(mask.sum()) >= MIN_OCCLUDED_PIXELS
         points = true_points(sample).double()
         images, c2w = sample.context_images[None].double(), sample.context_poses[None].double()
-        for depth_name, depth in (("true depth", sample.context_gt_depths), ("prior", sample.context_priors)):
+        aligned = sample.context_priors * photometric_prior_scales(
+            sample.context_images[None], sample.context_priors[None], sample.context_poses[None])[0, :, None, None]
+        for depth_name, depth in (("true depth", sample.context_gt_depths), ("prior", sample.context_priors),
+                                  ("prior, photometric scale", aligned)):
             depth = depth[None].double()
             rules = RULES + [(f"knn{k}", f"mean colour of the {k} nearest observed 3D points",
                               lambda p, i, d, c, k=k: knn_colours(p, i, d, c, k)) for k in (1, 8)]

@@ -28,6 +28,7 @@ SURFACE = ("model.volume.color=surface",)
 VOLUME_LOSS = ("loss.volume_loss=released", "loss.volume_weight=1")
 CLEARING = ("model.fusion.pixel_clearing=seen_through",)
 RECIPE = SURFACE + VOLUME_LOSS + CLEARING
+ALIGNED = ("model.prior_alignment=photometric",)
 assert set(RECIPE) == set(SURFACE_RECIPE)  # the study's recipe is the ablation's full_surface_recipe
 
 VARIANTS = [
@@ -47,6 +48,11 @@ VARIANTS = [
     # ground-truth depth as the input prior (an oracle input): can the recipe clear the bar with sharp depth?
     Variant("recipe_gt_prior", "the recipe, ground-truth input depth", RECIPE + ("data.depth_prior=gt",)),
     Variant("pixel_only_gt_prior", "pixel branch only, ground-truth input depth", ("data.depth_prior=gt",), kind="pixel"),
+    # the inputs' depth priors rescaled to the poses' metric scale (photometric search), for both sides of the bar
+    Variant("recipe_aligned", "the recipe, depth priors photometrically rescaled", RECIPE + ALIGNED),
+    Variant("pixel_only_aligned", "pixel branch only, depth priors photometrically rescaled", ALIGNED, kind="pixel"),
+    Variant("pixel_only_no_edge_fading_aligned", "pixel branch only, no edge fading, priors photometrically rescaled",
+            ("model.pixel.edge_sigma=0",) + ALIGNED, kind="pixel"),
     Variant("volume_only_cylindrical", "volume only, cylindrical, surface colour", VOLUME_ONLY + SURFACE, kind="volume"),
     Variant("volume_only_spherical", "volume only, spherical, surface colour",
             VOLUME_ONLY + SURFACE + ("model.volume.coordinates=spherical",), kind="volume"),

@@ -66,6 +66,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "fusion.strategy": ("concat", "depth_prune"),
     "fusion.side": ("both", "front", "hidden"),
     "fusion.pixel_clearing": ("none", "seen_through"),
+    "prior_alignment": ("none", "photometric"),
 }
 
 
@@ -182,6 +183,9 @@ class ModelConfig:
     image_height: int = 512  # nominal input size (the model itself accepts any H x 2H)
     image_width: int = 1024
     mode: BranchMode = "both"
+    # "photometric": each input's depth prior is rescaled to the poses' metric scale by a cross-view colour search
+    # before both branches read it (model/prior_alignment.py; our addition, issue 23); "none": used as given
+    prior_alignment: Literal["none", "photometric"] = "none"
     backbone: BackboneConfig = field(default_factory=BackboneConfig)
     attention: AttentionConfig = field(default_factory=AttentionConfig)
     pixel: PixelBranchConfig = field(default_factory=PixelBranchConfig)

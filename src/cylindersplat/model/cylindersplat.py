@@ -25,6 +25,7 @@ from .config import CHOICES, ModelConfig, get_config
 from .curriculum import stage_policy
 from .fusion import fuse
 from .pixel_branch import PixelBranch
+from .prior_alignment import photometric_prior_scales
 from .volume_branch import VolumeBranch
 
 __all__ = ["ModelOutput", "CylinderSplat", "from_config", "MODES"]
@@ -40,6 +41,7 @@ class ModelOutput:
     features: Float[Tensor, "B V C H W"]  # F_pano
     pixel_gaussians: Gaussians | None  # (B, V*H*W, ...), view-major then row-major pixels
     volume_gaussians: Gaussians | None  # (B, V*G, ...) camera-major then (q0, q1, q2) cells; (B, G) central
+    prior_scales: Tensor | None = None  # (B, V) factors applied to the depth priors (prior_alignment), else None
 
 
 class CylinderSplat(nn.Module):
@@ -121,6 +123,10 @@ class CylinderSplat(nn.Module):
                 f"got {tuple(depth_prior.shape)} and {tuple(c2w.shape)}"
             )
         c2w = c2w.to(images.dtype)
+        prior_scales = None
+        if self.config.prior_alignment == "photometric":
+            prior_scales = photometric_prior_scales(images, depth_prior, c2w)
+            depth_prior = depth_prior * prior_scales[..., None, None]
         frozen = not any(p.requires_grad for p in self.pixel_branch.parameters())
         no_grad = torch.no_grad() if self.mode == "volume" and frozen else contextlib.nullcontext()
         with no_grad:
@@ -140,6 +146,7 @@ class CylinderSplat(nn.Module):
             features=pixel_out.features,
             pixel_gaussians=pixel,
             volume_gaussians=None if volume is None else volume.gaussians,
+            prior_scales=prior_scales,
         )
 
 

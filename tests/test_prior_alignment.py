@@ -1,0 +1,91 @@
+"""The photometric scale search of the depth priors (model/prior_alignment.py), against known scale errors."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from cylindersplat.data import SyntheticDataset
+from cylindersplat.geometry import make_c2w
+from cylindersplat.model import from_config
+from cylindersplat.model.prior_alignment import ScaleSearch, photometric_prior_scales, scale_costs
+
+
+@pytest.fixture(scope="module")
+def wide_sample(tmp_path_factory):
+    """A procedural two-view sample at 64x128 whose views are 1-1.5 m apart (enough parallax to see the scale)."""
+    from cylindersplat.data.synth import SequenceConfig, write_synthetic_dataset
+
+    root = tmp_path_factory.mktemp("align")
+    write_synthetic_dataset(root, 1, (64, 128), SequenceConfig(frames=3, spacing=(1.0, 1.5)), seed=3, progress=False)
+    return SyntheticDataset(root, views="two_view")[0]
+
+
+def test_recovers_known_scale_errors_of_the_true_depth(wide_sample):
+    """The true depth shrunk by 0.8 in one view and stretched by 1.25 in the other: the search undoes both."""
+    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    errors = torch.tensor([0.8, 1.25])
+    found = photometric_prior_scales(images, depth * errors[:, None, None], c2w)[0]
+    torch.testing.assert_close(found * errors, torch.ones(2), atol=0.03, rtol=0)
+
+
+def test_true_depth_is_left_at_scale_one(wide_sample):
+    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    torch.testing.assert_close(photometric_prior_scales(images, depth, c2w)[0], torch.ones(2), atol=0.03, rtol=0)
+
+
+def test_cost_is_lowest_at_the_true_scale(wide_sample):
+    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    candidates = torch.tensor([[0.6, 0.8, 1.0, 1.25, 1.6]])
+    for view in (0, 1):
+        costs = scale_costs(images, depth, c2w, view, candidates)[0]
+        assert int(costs.argmin()) == 2, costs
+
+
+def test_no_parallax_keeps_the_prior(wide_sample):
+    """Both views at one centre (a rotation apart): every scale lifts to the same colours; nothing is changed."""
+    images, depth = wide_sample.context_images[None], wide_sample.context_gt_depths[None]
+    turn = torch.tensor([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+    c2w = torch.stack([make_c2w(), make_c2w(rotation=turn)])[None]
+    found = photometric_prior_scales(images, depth * 0.7, c2w)[0]
+    assert torch.equal(found, torch.ones(2))
+
+
+def test_single_view_and_missing_prior_are_left_alone(wide_sample):
+    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    assert torch.equal(photometric_prior_scales(images[:, :1], depth[:, :1], c2w[:, :1]), torch.ones(1, 1))
+    missing = depth.clone()
+    missing[:, 1] = 0
+    assert float(photometric_prior_scales(images, missing, c2w)[0, 1]) == 1.0
+
+
+def test_search_at_pooled_resolution_matches(wide_sample):
+    """Searching on images pooled to 32 rows finds the same scale as at the full 64 rows (to the fine step)."""
+    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    scaled = depth * torch.tensor([0.8, 1.25])[:, None, None]
+    full = photometric_prior_scales(images, scaled, c2w)
+    pooled = photometric_prior_scales(images, scaled, c2w, ScaleSearch(max_rows=32))
+    torch.testing.assert_close(pooled, full, atol=0.04, rtol=0)
+
+
+def test_model_applies_the_scales_before_both_branches(wide_sample):
+    """With prior_alignment=photometric the model's output equals the plain model's on the rescaled prior."""
+    images, c2w = wide_sample.context_images[None], wide_sample.context_poses[None]
+    prior = wide_sample.context_gt_depths[None] * torch.tensor([0.8, 1.25])[:, None, None]
+    torch.manual_seed(0)
+    aligned = from_config("tiny", prior_alignment="photometric").eval()
+    plain = from_config("tiny").eval()
+    plain.load_state_dict(aligned.state_dict())
+    with torch.no_grad():
+        out = aligned(images, prior, c2w)
+        reference = plain(images, prior * out.prior_scales[..., None, None], c2w)
+    assert out.prior_scales.shape == (1, 2)
+    torch.testing.assert_close(out.refined_depth, reference.refined_depth)
+    torch.testing.assert_close(out.gaussians.sh, reference.gaussians.sh)
+    torch.testing.assert_close(out.gaussians.means, reference.gaussians.means)
+    assert plain(images, prior, c2w).prior_scales is None
+
+
+def test_unknown_alignment_is_rejected():
+    with pytest.raises(ValueError, match="prior_alignment must be one of none, photometric"):
+        from_config("tiny", prior_alignment="median")
