@@ -38,7 +38,7 @@ def test_cost_is_lowest_at_the_true_scale(wide_sample):
     images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
     candidates = torch.tensor([[0.6, 0.8, 1.0, 1.25, 1.6]])
     for view in (0, 1):
-        costs = scale_costs(images, depth, c2w, view, candidates)[0]
+        costs = scale_costs(images, depth, c2w, view, candidates)[0][0]
         assert int(costs.argmin()) == 2, costs
 
 

@@ -5,8 +5,8 @@ relative Depth Anything prior's is arbitrary. With metric poses that scale is ob
 scale, a view's pixels land, in every other view, on the same colours. :func:`photometric_prior_scales`
 searches it per view: over log-spaced candidate scales ``s`` it lifts the view's valid pixels at ``s d``,
 reads every other view's colour where they land, and scores the latitude-weighted mean L1 colour difference
-over the best ``keep`` share of pixels (pixels the other view does not see, or sees differently, are the
-outliers the trimming drops). A coarse grid over ``exp(+-log_range)``, then a fine one around its best. The
+over one set of pixels for all candidates: the ``keep`` share whose best error over the candidates is lowest
+(pixels the other views do not see, or see differently, match at no scale and are left out). A coarse grid over ``exp(+-log_range)``, then a fine one around its best. The
 search runs on images pooled to at most ``max_rows`` rows: the scale is one number per image.
 
 Where the cost curve is flat (no parallax: the other views are too close for the scene's depth; no
@@ -31,7 +31,7 @@ from ..geometry import camera_to_world, equirect_rays, project_equirect, world_t
 from ..metrics.image import ws_weights
 from .sampling import sample_panorama
 
-__all__ = ["ScaleSearch", "photometric_prior_scales", "scale_costs"]
+__all__ = ["ScaleSearch", "photometric_prior_scales", "scale_costs", "pixel_errors", "matchable_pixels"]
 
 
 @dataclass(frozen=True)
@@ -57,33 +57,57 @@ def _pool(images: Tensor, depth: Tensor, max_rows: int) -> tuple[Tensor, Tensor]
     return images, torch.where(share > 0.5, mean, torch.zeros_like(mean)).view(b, v, *size)
 
 
+def pixel_errors(
+    images: Float[Tensor, "B V 3 H W"],
+    depth: Float[Tensor, "B V H W"],
+    c2w: Float[Tensor, "B V 4 4"],
+    view: int,
+    scales: Float[Tensor, "B K"],
+) -> Float[Tensor, "B K HW"]:
+    """Per candidate scale and pixel of ``view``: the mean L1 colour difference with every other view where the
+    pixel, lifted at ``scale x depth``, lands."""
+    b, v, _, h, w = images.shape
+    rays = equirect_rays(h, w, device=images.device, dtype=images.dtype).reshape(1, 1, h * w, 3)
+    points = scales[:, :, None, None] * depth[:, view].reshape(b, 1, h * w, 1) * rays  # (B, K, HW, 3)
+    world = camera_to_world(points, c2w[:, view, None])
+    colour = images[:, view].flatten(2).transpose(1, 2)[:, None]  # (B, 1, HW, 3)
+    error = torch.zeros(points.shape[:3], dtype=images.dtype, device=images.device)
+    for other in range(v):
+        if other != view:
+            uv, _ = project_equirect(world_to_camera(world, c2w[:, other, None]), h, w)
+            seen = sample_panorama(images[:, other], uv.flatten(1, 2)).view_as(points)
+            error = error + (seen - colour).abs().mean(dim=-1)
+    return error / (v - 1)
+
+
+def matchable_pixels(errors: Float[Tensor, "B K HW"], valid: Float[Tensor, "B HW"], keep: float) -> Float[Tensor, "B HW"]:
+    """The valid pixels whose best error over the candidates is among the lowest ``keep`` share: those that match
+    the other views at *some* scale. Every candidate is scored on this one set; trimming each candidate's errors
+    separately instead scores each on different pixels, which pulls the choice towards small scales."""
+    best = torch.where(valid, errors.min(dim=1).values, torch.full_like(errors[:, 0], float("inf")))
+    ranked = best.sort(dim=-1).values
+    count = (keep * valid.sum(-1)).long().clamp_min(1)  # (B,)
+    threshold = ranked.gather(1, (count - 1)[:, None])
+    return valid & (best <= threshold)
+
+
 def scale_costs(
     images: Float[Tensor, "B V 3 H W"],
     depth: Float[Tensor, "B V H W"],
     c2w: Float[Tensor, "B V 4 4"],
     view: int,
     scales: Float[Tensor, "B K"],
+    pixels: Float[Tensor, "B HW"] | None = None,
     keep: float = 0.7,
-) -> Float[Tensor, "B K"]:
-    """Trimmed latitude-weighted colour disagreement of ``view`` lifted at each candidate scale with the others."""
-    b, v, _, h, w = images.shape
-    rays = equirect_rays(h, w, device=images.device, dtype=images.dtype).reshape(1, 1, h * w, 3)
-    valid = (depth[:, view] > 0).reshape(b, 1, h * w)
-    points = scales[:, :, None, None] * depth[:, view].reshape(b, 1, h * w, 1) * rays  # (B, K, HW, 3)
-    world = camera_to_world(points, c2w[:, view, None])
-    colour = images[:, view].flatten(2).transpose(1, 2)[:, None]  # (B, 1, HW, 3)
-    error = torch.zeros(points.shape[:3], dtype=images.dtype, device=images.device)
-    for other in range(v):
-        if other == view:
-            continue
-        uv, _ = project_equirect(world_to_camera(world, c2w[:, other, None]), h, w)
-        seen = sample_panorama(images[:, other], uv.flatten(1, 2)).view_as(points)
-        error = error + (seen - colour).abs().mean(dim=-1)
-    weight = (ws_weights(h).to(images)[:, None].expand(h, w).reshape(1, 1, h * w) * valid).expand_as(error)
-    ordered, order = torch.where(valid, error, torch.full_like(error, float("inf"))).sort(dim=-1)
-    counted = torch.arange(h * w, device=images.device) < (keep * valid.sum(-1, keepdim=True))  # (B, 1, HW)
-    weight = torch.gather(weight, -1, order) * counted
-    return (torch.nan_to_num(ordered, posinf=0.0) * weight).sum(-1) / weight.sum(-1).clamp_min(1e-12)
+) -> tuple[Float[Tensor, "B K"], Float[Tensor, "B HW"]]:
+    """Latitude-weighted mean colour disagreement of ``view`` lifted at each candidate scale, over ``pixels``
+    (default: the :func:`matchable_pixels` of these candidates). Returns the costs and the pixels scored."""
+    b, _, _, h, w = images.shape
+    errors = pixel_errors(images, depth, c2w, view, scales)
+    if pixels is None:
+        pixels = matchable_pixels(errors, (depth[:, view] > 0).reshape(b, h * w), keep)
+    weight = ws_weights(h).to(images)[:, None].expand(h, w).reshape(1, h * w) * pixels
+    return (errors * weight[:, None]).sum(-1) / weight.sum(-1, keepdim=True).clamp_min(1e-12), pixels
 
 
 @torch.no_grad()
@@ -107,10 +131,10 @@ def photometric_prior_scales(
     for view in range(v):
         if not bool((depth[:, view] > 0).any()):
             continue
-        costs = scale_costs(images, depth, c2w, view, coarse, search.keep)
+        costs, pixels = scale_costs(images, depth, c2w, view, coarse, keep=search.keep)
         best = coarse.gather(1, costs.argmin(1, keepdim=True))  # (B, 1)
         fine = best * offsets  # (B, K')
-        fine_costs = scale_costs(images, depth, c2w, view, fine, search.keep)
+        fine_costs, _ = scale_costs(images, depth, c2w, view, fine, pixels)
         chosen = fine.gather(1, fine_costs.argmin(1, keepdim=True))[:, 0]
         at_one = costs[:, n // 2]
         trusted = fine_costs.min(1).values < (1 - search.min_gain) * at_one
