@@ -89,3 +89,18 @@ def test_model_applies_the_scales_before_both_branches(wide_sample):
 def test_unknown_alignment_is_rejected():
     with pytest.raises(ValueError, match="prior_alignment must be one of none, photometric"):
         from_config("tiny", prior_alignment="median")
+
+
+def test_export_cli_rescales_a_half_scale_depth(wide_sample, tiny_checkpoint, tmp_path, capsys):
+    """A folder whose depth files are half the true depth (a relative depth network's output, say): with
+    --prior-scale photometric the export command finds x2 for every view and says so."""
+    from cylindersplat.cli import main
+    from cylindersplat.inference import write_panorama_folder
+
+    folder = write_panorama_folder(tmp_path / "scene", wide_sample.context_images, wide_sample.context_poses,
+                                   wide_sample.context_gt_depths * 0.5)
+    assert main(["export", "--input", str(folder), "--checkpoint", str(tiny_checkpoint), "--resolution", "64x128",
+                 "--out", str(tmp_path / "scene.ply"), "--prior-scale", "photometric", "--skip-plausibility-checks"]) == 0
+    line = next(l for l in capsys.readouterr().out.splitlines() if l.startswith("depth rescaled"))
+    factors = [float(part.split(" x")[1]) for part in line.split(": ", 1)[1].split(", ")]
+    assert len(factors) == 2 and all(abs(f - 2.0) < 0.06 for f in factors), line

@@ -25,6 +25,11 @@ def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) 
                              "`cylindersplat data priors`), exported:NET.pt2 (any exported depth network), "
                              "unik3d:WEIGHTS, depth_anything_v2:MODEL, constant:METRES, none (zeros, on request only) "
                              "(default: every frame needs <stem>_depth.png/.npy)")
+    parser.add_argument("--prior-scale", choices=["model", "photometric", "none"], default="model",
+                        help="rescale each view's depth to the poses' metric scale by a cross-view colour search before "
+                             "the model reads it (photometric: for relative or scale-off depth networks; needs 2+ "
+                             "views some distance apart), use it as given (none), or do what the model was trained "
+                             "with (model, the default)")
     parser.add_argument("--min-opacity", type=opacity_threshold, default=0.005,
                         help="drop Gaussians at or below this opacity, in [0, 1) (default 0.005)")
     parser.add_argument("--skip-plausibility-checks", action="store_true",
@@ -64,6 +69,14 @@ def reconstruct_from_args(args: argparse.Namespace):
     inputs = load_panorama_folder(args.input, size, depth_prior=prior, poses_file=args.poses_file,
                                   allow_outside_paths=args.allow_outside_paths,
                                   check_plausibility=not args.skip_plausibility_checks)
+    if args.prior_scale != "model":
+        model.config.prior_alignment = args.prior_scale
+    if model.config.prior_alignment == "photometric":
+        from ..model.prior_alignment import photometric_prior_scales
+
+        scales = photometric_prior_scales(inputs.images[None], inputs.depths[None], inputs.c2w[None])[0]
+        print("depth rescaled to the poses' scale (photometric search): "
+              + ", ".join(f"{name} x{float(s):.3f}" for name, s in zip(inputs.names, scales)))
     start = time.perf_counter()
     # the folder's depths were checked just above, by file name: no second, nameless round of the same checks
     gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, args.min_opacity,
