@@ -29,6 +29,7 @@ VOLUME_LOSS = ("loss.volume_loss=released", "loss.volume_weight=1")
 CLEARING = ("model.fusion.pixel_clearing=seen_through",)
 RECIPE = SURFACE + VOLUME_LOSS + CLEARING
 ALIGNED = ("model.prior_alignment=photometric",)
+GRID2X = ("model.volume.grid=[8,32,16]", "model.volume.image_grid=[4,16,8]")
 assert set(RECIPE) == set(SURFACE_RECIPE)  # the study's recipe is the ablation's full_surface_recipe
 
 VARIANTS = [
@@ -50,6 +51,8 @@ VARIANTS = [
     Variant("pixel_only_gt_prior", "pixel branch only, ground-truth input depth", ("data.depth_prior=gt",), kind="pixel"),
     # the inputs' depth priors rescaled to the poses' metric scale (photometric search), for both sides of the bar
     Variant("recipe_aligned", "the recipe, depth priors photometrically rescaled", RECIPE + ALIGNED),
+    Variant("recipe_aligned_grid2x", "the recipe, priors rescaled, triplane grid 8x32x16 (tiny: 4x16x8)",
+            RECIPE + ALIGNED + GRID2X),
     Variant("pixel_only_aligned", "pixel branch only, depth priors photometrically rescaled", ALIGNED, kind="pixel"),
     Variant("pixel_only_no_edge_fading_aligned", "pixel branch only, no edge fading, priors photometrically rescaled",
             ("model.pixel.edge_sigma=0",) + ALIGNED, kind="pixel"),

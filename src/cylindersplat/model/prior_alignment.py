@@ -39,7 +39,7 @@ class ScaleSearch:
     log_range: float = 0.7  # candidates in [exp(-r), exp(r)]: factor 0.5-2
     coarse_steps: int = 29  # odd, so s = 1 is a candidate
     fine_steps: int = 11  # over +-1 coarse step around the coarse best
-    keep: float = 0.7  # share of the valid pixels scored (the lowest errors)
+    keep: float = 0.7  # share of the valid pixels scored: those whose best error over the candidates is lowest
     max_rows: int = 64  # search resolution (rows; columns = 2 x rows)
     min_gain: float = 0.01  # the best cost must beat the cost at s = 1 by this share, or the scale stays 1
 
