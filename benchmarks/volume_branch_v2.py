@@ -50,6 +50,7 @@ VARIANTS = [
     Variant("recipe_gt_prior", "the recipe, ground-truth input depth", RECIPE + ("data.depth_prior=gt",)),
     Variant("pixel_only_gt_prior", "pixel branch only, ground-truth input depth", ("data.depth_prior=gt",), kind="pixel"),
     # the inputs' depth priors rescaled to the poses' metric scale (photometric search), for both sides of the bar
+    Variant("full_aligned", "the tiny preset, depth priors photometrically rescaled", ALIGNED),
     Variant("recipe_aligned", "the recipe, depth priors photometrically rescaled", RECIPE + ALIGNED),
     Variant("recipe_aligned_grid2x", "the recipe, priors rescaled, triplane grid 8x32x16 (tiny: 4x16x8)",
             RECIPE + ALIGNED + GRID2X),
