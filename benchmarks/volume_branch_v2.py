@@ -21,16 +21,15 @@ from pathlib import Path
 import torch
 
 from cylindersplat.data.synth import profile_config, write_synthetic_dataset
-from cylindersplat.experiments.ablation import SURFACE_RECIPE, VOLUME_ONLY, Schedule, Variant, run_study
+from cylindersplat.experiments.ablation import (FINE_GRID, PRIOR_ALIGNMENT, SURFACE_RECIPE, VOLUME_ONLY, Schedule, Variant,
+                                                run_study)
 
 WIDE_HOLES = dict(target_offset=(1.5, 2.5), occluders=10)
 SURFACE = ("model.volume.color=surface",)
 VOLUME_LOSS = ("loss.volume_loss=released", "loss.volume_weight=1")
 CLEARING = ("model.fusion.pixel_clearing=seen_through",)
 RECIPE = SURFACE + VOLUME_LOSS + CLEARING
-ALIGNED = ("model.prior_alignment=photometric",)
-GRID2X = ("model.volume.grid=[8,32,16]", "model.volume.image_grid=[4,16,8]")
-GRID4X = ("model.volume.grid=[8,64,32]", "model.volume.image_grid=[4,16,8]")
+ALIGNED, GRID2X = PRIOR_ALIGNMENT, FINE_GRID
 assert set(RECIPE) == set(SURFACE_RECIPE)  # the study's recipe is the ablation's full_surface_recipe
 
 VARIANTS = [
@@ -55,8 +54,6 @@ VARIANTS = [
     Variant("recipe_aligned", "the recipe, depth priors photometrically rescaled", RECIPE + ALIGNED),
     Variant("recipe_aligned_grid2x", "the recipe, priors rescaled, triplane grid 8x32x16 (tiny: 4x16x8)",
             RECIPE + ALIGNED + GRID2X),
-    Variant("recipe_aligned_grid4x", "the recipe, priors rescaled, triplane grid 8x64x32",
-            RECIPE + ALIGNED + GRID4X),
     Variant("pixel_only_aligned", "pixel branch only, depth priors photometrically rescaled", ALIGNED, kind="pixel"),
     Variant("pixel_only_no_edge_fading_aligned", "pixel branch only, no edge fading, priors photometrically rescaled",
             ("model.pixel.edge_sigma=0",) + ALIGNED, kind="pixel"),

@@ -26,7 +26,7 @@ from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
 
-__all__ = ["SURFACE_RECIPE", "Schedule", "Variant", "default_variants", "extra_variants", "all_variants", "VARIANT_NAMES", "run_study",
+__all__ = ["SURFACE_RECIPE", "PRIOR_ALIGNMENT", "FINE_GRID", "Schedule", "Variant", "default_variants", "extra_variants", "all_variants", "VARIANT_NAMES", "run_study",
            "study_table", "study_sequence_config"]
 
 
@@ -80,6 +80,9 @@ VOLUME_ONLY = ("model.fusion.strategy=concat", "train.stage2_render=volume")
 # Issue 23's recipe on top of the tiny preset: nearest-surface colour, the released volume loss, pixel clearing.
 SURFACE_RECIPE = ("model.volume.color=surface", "loss.volume_loss=released", "loss.volume_weight=1",
                   "model.fusion.pixel_clearing=seen_through")
+# Session 12's additions to it: depth priors rescaled to the poses' scale, and a triplane fine enough for hidden strips.
+PRIOR_ALIGNMENT = ("model.prior_alignment=photometric",)
+FINE_GRID = ("model.volume.grid=[8,32,16]", "model.volume.image_grid=[4,16,8]")
 
 
 def default_variants() -> list[Variant]:
@@ -120,6 +123,8 @@ def extra_variants() -> list[Variant]:
     return [
         Variant("full_surface_recipe", "full, issue 23's recipe: nearest-surface colour, the released volume loss, "
                 "pixel clearing", SURFACE_RECIPE),
+        Variant("full_surface_recipe_aligned_grid", "issue 23's recipe, depth priors rescaled to the poses' scale, "
+                "an 8x32x16 triplane grid", SURFACE_RECIPE + PRIOR_ALIGNMENT + FINE_GRID),
         Variant("depth_fusion_own_view", "full, depth-guided fusion against each Gaussian's own view only",
                 ("model.fusion.strategy=depth_prune", "model.fusion.side=front")),
         Variant("retrieval_window_2", "full, volume colours from the nearest observed surface points in 5x5 pixels",
