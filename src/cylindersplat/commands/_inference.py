@@ -69,14 +69,16 @@ def reconstruct_from_args(args: argparse.Namespace):
     inputs = load_panorama_folder(args.input, size, depth_prior=prior, poses_file=args.poses_file,
                                   allow_outside_paths=args.allow_outside_paths,
                                   check_plausibility=not args.skip_plausibility_checks)
-    if args.prior_scale != "model":
-        model.config.prior_alignment = args.prior_scale
-    if model.config.prior_alignment == "photometric":
+    alignment = model.config.prior_alignment if args.prior_scale == "model" else args.prior_scale
+    if alignment == "photometric":
         from ..model.prior_alignment import photometric_prior_scales
 
+        # searched once, here, so the factors can be printed; the model then takes the rescaled depth as it is
         scales = photometric_prior_scales(inputs.images[None], inputs.depths[None], inputs.c2w[None])[0]
+        inputs.depths = inputs.depths * scales[:, None, None]
         print("depth rescaled to the poses' scale (photometric search): "
               + ", ".join(f"{name} x{float(s):.3f}" for name, s in zip(inputs.names, scales)))
+    model.config.prior_alignment = "none"
     start = time.perf_counter()
     # the folder's depths were checked just above, by file name: no second, nameless round of the same checks
     gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, args.min_opacity,

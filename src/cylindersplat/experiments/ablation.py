@@ -26,8 +26,8 @@ from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
 
 
-__all__ = ["SURFACE_RECIPE", "PRIOR_ALIGNMENT", "FINE_GRID", "Schedule", "Variant", "default_variants", "extra_variants", "all_variants", "VARIANT_NAMES", "run_study",
-           "study_table", "study_sequence_config"]
+__all__ = ["SURFACE_RECIPE", "PRIOR_ALIGNMENT", "FINE_GRID", "Schedule", "Variant", "default_variants",
+           "extra_variants", "all_variants", "VARIANT_NAMES", "run_study", "study_table", "study_sequence_config"]
 
 
 @dataclass(frozen=True)

@@ -6,8 +6,9 @@ scale, a view's pixels land, in every other view, on the same colours. :func:`ph
 searches it per view: over log-spaced candidate scales ``s`` it lifts the view's valid pixels at ``s d``,
 reads every other view's colour where they land, and scores the latitude-weighted mean L1 colour difference
 over one set of pixels for all candidates: the ``keep`` share whose best error over the candidates is lowest
-(pixels the other views do not see, or see differently, match at no scale and are left out). A coarse grid over ``exp(+-log_range)``, then a fine one around its best. The
-search runs on images pooled to at most ``max_rows`` rows: the scale is one number per image.
+(pixels the other views do not see, or see differently, match at no scale and are left out). A coarse grid
+over ``exp(+-log_range)``, then a fine one around its best. The search runs on images pooled to at most
+``max_rows`` rows: the scale is one number per image.
 
 Where the cost curve is flat (no parallax: the other views are too close for the scene's depth; no
 texture) the best candidate is not trusted and the scale stays 1: the best cost must beat the cost at
