@@ -63,6 +63,12 @@ VARIANTS = [
     Variant("volume_only_cartesian", "volume only, Cartesian, surface colour",
             VOLUME_ONLY + SURFACE + ("model.volume.coordinates=cartesian",), kind="volume"),
     Variant("volume_only_cylindrical_eq6", "volume only, cylindrical, Eq. 6 colour", VOLUME_ONLY, kind="volume"),
+    # the coordinate ordering again with the recipe's volume-side parts (surface colour, rescaled priors, 8x32x16
+    # cells in every coordinate system; the volume loss and clearing act on fusion, which volume-only runs skip)
+    *(Variant(f"volume_only_{coordinates}_recipe", f"volume only, {coordinates}, surface colour, priors rescaled, "
+              "8x32x16 grid", VOLUME_ONLY + SURFACE + ALIGNED + GRID2X + (f"model.volume.coordinates={coordinates}",),
+              kind="volume")
+      for coordinates in ("cylindrical", "spherical", "cartesian")),
 ]
 
 

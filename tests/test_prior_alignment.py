@@ -104,3 +104,26 @@ def test_export_cli_rescales_a_half_scale_depth(wide_sample, tiny_checkpoint, tm
     line = next(l for l in capsys.readouterr().out.splitlines() if l.startswith("depth rescaled"))
     factors = [float(part.split(" x")[1]) for part in line.split(": ", 1)[1].split(", ")]
     assert len(factors) == 2 and all(abs(f - 2.0) < 0.06 for f in factors), line
+
+
+def test_default_run_warns_about_a_half_scale_depth(wide_sample, tiny_checkpoint, tmp_path, capsys):
+    """With the default --prior-scale model and weights trained without alignment, a depth half the poses' scale is
+    used as given but named in a warning with its factor; the true depth gives none, nor does --prior-scale none."""
+    from cylindersplat.cli import main
+    from cylindersplat.inference import write_panorama_folder
+
+    def export(depth_factor: float, *extra: str) -> list[str]:
+        name = f"scene{depth_factor}{len(extra)}"
+        folder = write_panorama_folder(tmp_path / name, wide_sample.context_images, wide_sample.context_poses,
+                                       wide_sample.context_gt_depths * depth_factor)
+        capsys.readouterr()
+        assert main(["export", "--input", str(folder), "--checkpoint", str(tiny_checkpoint), "--resolution",
+                     "64x128", "--out", str(tmp_path / f"{name}.ply"), *extra]) == 0
+        return [line for line in capsys.readouterr().err.splitlines() if "poses' scale" in line]
+
+    half = export(0.5)
+    assert len(half) == 1 and "--prior-scale photometric" in half[0], half
+    factors = [float(part.split(" x")[1].rstrip(";")) for part in half[0].split("finds ")[1].split("; ")[0].split(", ")]
+    assert len(factors) == 2 and all(abs(f - 2.0) < 0.06 for f in factors), half
+    assert export(1.0) == []
+    assert export(0.5, "--prior-scale", "none") == []

@@ -49,6 +49,34 @@ def model_size(config, given: tuple[int, int] | None, option: str = "--resolutio
     return size
 
 
+# a view whose depth the colour search finds this far off the poses' scale (either way) is warned about by default
+SCALE_WARNING_FACTOR = 1.15
+
+
+def _prior_scales(inputs):
+    """(V,) factors that bring each view's depth to the poses' metric scale (photometric search; 1 where unsure)."""
+    from ..model.prior_alignment import photometric_prior_scales
+
+    return photometric_prior_scales(inputs.images[None], inputs.depths[None], inputs.c2w[None])[0]
+
+
+def _warn_if_scale_off(inputs, folder: Path) -> None:
+    """The default run does not rescale the depth, but a depth network's output a factor 2 off the poses' scale
+    would give a garbled scene without a word: search anyway (well under a second at the model's size) and warn."""
+    import math
+    import warnings
+
+    from ..validation import ScaleWarning
+
+    scales = _prior_scales(inputs)
+    off = [f"{name} x{float(s):.2f}" for name, s in zip(inputs.names, scales)
+           if abs(math.log(float(s))) > math.log(SCALE_WARNING_FACTOR)]
+    if off:
+        warnings.warn(f"{folder}: the depth looks off the poses' scale, a cross-view colour search finds "
+                      f"{', '.join(off)}; pass --prior-scale photometric to rescale it, or "
+                      "--prior-scale none to use the depth as given without this check", ScaleWarning, stacklevel=2)
+
+
 def reconstruct_from_args(args: argparse.Namespace):
     """-> (inputs, gaussians, model) for the parsed options; prints what it did."""
     from ..data.depth_prior import parse_depth_prior
@@ -71,13 +99,13 @@ def reconstruct_from_args(args: argparse.Namespace):
                                   check_plausibility=not args.skip_plausibility_checks)
     alignment = model.config.prior_alignment if args.prior_scale == "model" else args.prior_scale
     if alignment == "photometric":
-        from ..model.prior_alignment import photometric_prior_scales
-
         # searched once, here, so the factors can be printed; the model then takes the rescaled depth as it is
-        scales = photometric_prior_scales(inputs.images[None], inputs.depths[None], inputs.c2w[None])[0]
+        scales = _prior_scales(inputs)
         inputs.depths = inputs.depths * scales[:, None, None]
         print("depth rescaled to the poses' scale (photometric search): "
               + ", ".join(f"{name} x{float(s):.3f}" for name, s in zip(inputs.names, scales)))
+    elif args.prior_scale == "model" and not args.skip_plausibility_checks and len(inputs.names) > 1:
+        _warn_if_scale_off(inputs, args.input)
     model.config.prior_alignment = "none"
     start = time.perf_counter()
     # the folder's depths were checked just above, by file name: no second, nameless round of the same checks
