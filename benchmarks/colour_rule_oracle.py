@@ -40,7 +40,7 @@ RULES = [
 ] + [
     (f"surface_w{w}_T{t}", f"nearest observed surface, {2 * w + 1}x{2 * w + 1} taps per view, T = {t} m",
      lambda p, i, d, c, w=w, t=t: retrieve_colors_window(p, i, d, c, w, t)[0])
-    for w in (1, 2, 4) for t in (1.0, 0.3, 0.1, 0.03)
+    for w in (1, 2, 4, 6, 8) for t in (1.0, 0.3, 0.1, 0.03)
 ]
 
 

@@ -57,6 +57,12 @@ VARIANTS = [
     Variant("pixel_only_aligned", "pixel branch only, depth priors photometrically rescaled", ALIGNED, kind="pixel"),
     Variant("pixel_only_no_edge_fading_aligned", "pixel branch only, no edge fading, priors photometrically rescaled",
             ("model.pixel.edge_sigma=0",) + ALIGNED, kind="pixel"),
+    # the colour oracle's widest window (17x17 taps: 19.45 dB hidden with the rescaled prior vs 19.08 for 9x9) and
+    # stronger edge fading (the probe's +0.2 dB at test time), with the pixel-only row given the same edge fading
+    Variant("recipe_aligned_grid2x_w8_edge0.1", "recipe, priors rescaled, 8x32x16 grid, 17x17 colour taps, "
+            "pixel.edge_sigma 0.1", RECIPE + ALIGNED + GRID2X + ("model.volume.surface_window=8", "model.pixel.edge_sigma=0.1")),
+    Variant("pixel_only_aligned_edge0.1", "pixel branch only, priors rescaled, pixel.edge_sigma 0.1",
+            ALIGNED + ("model.pixel.edge_sigma=0.1",), kind="pixel"),
     Variant("volume_only_cylindrical", "volume only, cylindrical, surface colour", VOLUME_ONLY + SURFACE, kind="volume"),
     Variant("volume_only_spherical", "volume only, spherical, surface colour",
             VOLUME_ONLY + SURFACE + ("model.volume.coordinates=spherical",), kind="volume"),
