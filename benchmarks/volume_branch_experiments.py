@@ -35,11 +35,19 @@ from cylindersplat.data.occlusion import occluded_mask
 from cylindersplat.data.synth import profile_config, write_synthetic_dataset
 from cylindersplat.evaluation import evaluate, model_method
 from cylindersplat.evaluation.methods import reconstruct, render_views
-from cylindersplat.experiments.ablation import (VOLUME_ONLY, Schedule, Variant, default_variants, run_study,
+from cylindersplat.experiments.ablation import (VOLUME_ONLY, Schedule, Variant, default_variants, pinned_to_earlier_tiny,
                                                 study_sequence_config)
+from cylindersplat.experiments.ablation import run_study as _run_study
 from cylindersplat.metrics import DepthRange
 from cylindersplat.metrics.image import ws_weights
 from cylindersplat.model import load_model
+
+
+
+def run_study(data, out, variants, **options):
+    """The ablation's study with every variant a switch on the tiny preset of sessions 5-9 (it has changed since)."""
+    return _run_study(data, out, pinned_to_earlier_tiny(variants), **options)
+
 
 PAPER = VOLUME_ONLY  # the paper's recipe on the tiny model: concatenated Gaussians, volume-only stage 2
 RECIPES = [

@@ -22,7 +22,7 @@ import torch
 
 from cylindersplat.data.synth import profile_config, write_synthetic_dataset
 from cylindersplat.experiments.ablation import (FINE_GRID, PRIOR_ALIGNMENT, SURFACE_RECIPE, VOLUME_ONLY, Schedule, Variant,
-                                                run_study)
+                                                pinned_to_earlier_tiny, run_study)
 
 WIDE_HOLES = dict(target_offset=(1.5, 2.5), occluders=10)
 SURFACE = ("model.volume.color=surface",)
@@ -32,7 +32,8 @@ RECIPE = SURFACE + VOLUME_LOSS + CLEARING
 ALIGNED, GRID2X = PRIOR_ALIGNMENT, FINE_GRID
 assert set(RECIPE) == set(SURFACE_RECIPE)  # the study's recipe is the ablation's full_surface_recipe
 
-VARIANTS = [
+# every variant is a switch on the tiny preset as it was when this study ran (issue 23's recipe is its default now)
+VARIANTS = pinned_to_earlier_tiny([
     Variant("pixel_only", "pixel branch only (tiny preset: edge fading)", kind="pixel"),
     Variant("pixel_only_no_edge_fading", "pixel branch only, no edge fading", ("model.pixel.edge_sigma=0",), kind="pixel"),
     Variant("full", "the tiny preset (Eq. 6 colour, no volume loss)"),
@@ -75,7 +76,7 @@ VARIANTS = [
               "8x32x16 grid", VOLUME_ONLY + SURFACE + ALIGNED + GRID2X + (f"model.volume.coordinates={coordinates}",),
               kind="volume")
       for coordinates in ("cylindrical", "spherical", "cartesian")),
-]
+])
 
 
 def hidden_targets(data: Path):

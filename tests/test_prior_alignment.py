@@ -127,3 +127,26 @@ def test_default_run_warns_about_a_half_scale_depth(wide_sample, tiny_checkpoint
     assert len(factors) == 2 and all(abs(f - 2.0) < 0.06 for f in factors), half
     assert export(1.0) == []
     assert export(0.5, "--prior-scale", "none") == []
+
+
+def test_memo_searches_each_input_once(wide_sample, monkeypatch):
+    """ScaleMemo gives the search's factors, searches a repeated input (alone or inside a batch) only once, and a
+    changed depth map again."""
+    from cylindersplat.model import prior_alignment
+
+    images, depth = wide_sample.context_images[None], wide_sample.context_priors[None]
+    c2w = wide_sample.context_poses[None]
+    direct = photometric_prior_scales(images, depth * 0.7, c2w)
+    searched = []
+    real = prior_alignment.photometric_prior_scales
+    monkeypatch.setattr(prior_alignment, "photometric_prior_scales",
+                        lambda i, d, c, s: searched.append(d.shape[0]) or real(i, d, c, s))
+    memo = prior_alignment.ScaleMemo()
+    assert torch.equal(memo(images, depth * 0.7, c2w), direct)
+    assert torch.equal(memo(images, depth * 0.7, c2w), direct) and searched == [1]
+    both = memo(torch.cat([images, images]), torch.cat([depth * 0.7, depth * 1.3]), torch.cat([c2w, c2w]))
+    assert searched == [1, 1] and torch.equal(both[0], direct[0])  # only the new item searched
+    assert torch.allclose(both[1] * 1.3, direct[0] * 0.7, rtol=0.05)  # it undoes its own factor
+    small = prior_alignment.ScaleMemo(capacity=1)
+    small(images, depth, c2w), small(images, depth * 0.7, c2w)
+    assert len(small) == 1

@@ -25,7 +25,7 @@ from .config import CHOICES, ModelConfig, get_config
 from .curriculum import stage_policy
 from .fusion import fuse
 from .pixel_branch import PixelBranch
-from .prior_alignment import photometric_prior_scales
+from .prior_alignment import ScaleMemo
 from .volume_branch import VolumeBranch
 
 __all__ = ["ModelOutput", "CylinderSplat", "from_config", "MODES"]
@@ -48,6 +48,7 @@ class CylinderSplat(nn.Module):
     def __init__(self, config: ModelConfig):
         super().__init__()
         self.config = config.validate()
+        self._prior_scales = ScaleMemo()  # each distinct input's depth scale searched once (training repeats them)
         self.pixel_branch = PixelBranch(config)
         self.volume_branch = VolumeBranch(config)
         self.mode = config.mode
@@ -125,7 +126,7 @@ class CylinderSplat(nn.Module):
         c2w = c2w.to(images.dtype)
         prior_scales = None
         if self.config.prior_alignment == "photometric":
-            prior_scales = photometric_prior_scales(images, depth_prior, c2w)
+            prior_scales = self._prior_scales(images, depth_prior, c2w)
             depth_prior = depth_prior * prior_scales[..., None, None]
         frozen = not any(p.requires_grad for p in self.pixel_branch.parameters())
         no_grad = torch.no_grad() if self.mode == "volume" and frozen else contextlib.nullcontext()
