@@ -25,6 +25,22 @@ def test_every_listed_model_ships_and_loads():
         assert all(torch.isfinite(p).all() for p in model.parameters())
 
 
+def test_the_training_script_pins_the_shipped_weights_settings():
+    """scripts/train_pretrained.sh reproduces the shipped file: it pins the earlier tiny preset (EARLIER_TINY), and
+    the shipped model's stored config has exactly those settings."""
+    import shlex
+    from pathlib import Path
+
+    from cylindersplat.experiments.ablation import EARLIER_TINY
+
+    script = (Path(__file__).parents[1] / "scripts" / "train_pretrained.sh").read_text()
+    pinned = script[script.index("EARLIER=(") + len("EARLIER=("):]
+    assert tuple(shlex.split(pinned[: pinned.index(")\n")])) == EARLIER_TINY
+    config = from_pretrained(DEFAULT_PRETRAINED).config
+    assert (config.volume.color, config.prior_alignment, config.fusion.pixel_clearing) == ("retrieval", "none", "none")
+    assert tuple(config.volume.grid) == (4, 16, 8) and tuple(config.volume.image_grid) == (2, 8, 4)
+
+
 def test_from_pretrained_takes_a_file_or_a_run_folder(tmp_path):
     shutil.copy(pretrained_path(), tmp_path / "model.safetensors")
     a, b = from_pretrained(tmp_path), from_pretrained(tmp_path / "model.safetensors")
