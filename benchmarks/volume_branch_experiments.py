@@ -43,7 +43,6 @@ from cylindersplat.metrics.image import ws_weights
 from cylindersplat.model import load_model
 
 
-
 def run_study(data, out, variants, **options):
     """The ablation's study with every variant a switch on the tiny preset of sessions 5-9 (it has changed since)."""
     return _run_study(data, out, pinned_to_earlier_tiny(variants), **options)

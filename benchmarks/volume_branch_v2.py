@@ -30,7 +30,7 @@ VOLUME_LOSS = ("loss.volume_loss=released", "loss.volume_weight=1")
 CLEARING = ("model.fusion.pixel_clearing=seen_through",)
 RECIPE = SURFACE + VOLUME_LOSS + CLEARING
 ALIGNED, GRID2X = PRIOR_ALIGNMENT, FINE_GRID
-assert set(RECIPE) == set(SURFACE_RECIPE)  # the study's recipe is the ablation's full_surface_recipe
+assert set(RECIPE) == set(SURFACE_RECIPE)  # one definition of the recipe's switches, shared with the ablation
 
 # every variant is a switch on the tiny preset as it was when this study ran (issue 23's recipe is its default now)
 VARIANTS = pinned_to_earlier_tiny([
