@@ -4,13 +4,17 @@
 #   bash scripts/install_optional.sh video     # MP4 fly-throughs: imageio-ffmpeg (pip install -e ".[video]")
 #   bash scripts/install_optional.sh view      # the browser viewer: viser (pip install -e ".[view]")
 #   bash scripts/install_optional.sh formats   # .spz / .compressed.ply / .sog: PlayCanvas splat-transform from
-#                                              #   npm into ~/.local (PREFIX=... to change; needs Node.js >= 20)
-#   bash scripts/install_optional.sh browser   # for scripts/viewer_screenshot.py: Debian's chromium (apt-get,
-#                                              #   as root) and the playwright Python package (no browser download)
+#                                              #   npm into the project's .tools/ (npm's cache too; PREFIX=... to
+#                                              #   change, e.g. PREFIX=~/.local; needs Node.js >= 20)
+#   bash scripts/install_optional.sh browser   # for scripts/viewer_screenshot.py: Debian's chromium (apt-get
+#                                              #   update + install, SYSTEM-WIDE, as root; skipped when chromium
+#                                              #   is there) and the playwright Python package (no browser download)
 #   bash scripts/install_optional.sh sfm       # `data poses` (SfM on unposed panoramas): pycolmap, a CPU wheel
 #                                              #   from PyPI (pip install -e ".[sfm]")
 #   bash scripts/install_optional.sh all
 #
+# video, view, sfm and playwright go into the Python scripts/_python.sh picks (.venv under PEP 668); only browser's
+# apt-get touches the system (scripts/test.sh runs it only with --with-system-tools).
 # Measured on the 2-core dev machine: view ~5 s, formats ~10 s (215 MB of node_modules),
 # browser ~65 s (apt-get update + chromium) + ~6 s (playwright).
 set -euo pipefail
@@ -39,14 +43,16 @@ install_formats() {
         echo "formats: Node.js >= 20 is needed, found $(node --version)" >&2
         return 1
     fi
-    local prefix=${PREFIX:-$HOME/.local}
-    npm install --global --prefix "$prefix" --no-audit --no-fund --loglevel=error \
+    local prefix=${PREFIX:-$PWD/.tools}
+    # npm's cache (and its logs) in the prefix too: nothing is written to ~/.npm
+    npm install --global --prefix "$prefix" --cache "$prefix/npm-cache" --no-audit --no-fund --loglevel=error \
         "@playcanvas/splat-transform@$SPLAT_TRANSFORM_VERSION"
     "$prefix/bin/splat-transform" --version
     case ":$PATH:" in
         *":$prefix/bin:"*) ;;
         *) echo "note: $prefix/bin is not on PATH; cylindersplat still finds $prefix/bin/splat-transform when PREFIX is" \
-                "the default, otherwise set CYLINDERSPLAT_SPLAT_TRANSFORM=$prefix/bin/splat-transform" ;;
+                "the default (this clone's .tools/, or ~/.local), otherwise set" \
+                "CYLINDERSPLAT_SPLAT_TRANSFORM=$prefix/bin/splat-transform" ;;
     esac
 }
 

@@ -11,11 +11,11 @@ import pytest
 import torch
 
 from cylindersplat.cli import main
-from cylindersplat.gaussians import Gaussians, load_gaussians, save_gaussians
+from cylindersplat.gaussians import Gaussians, formats, load_gaussians, save_gaussians
 from cylindersplat.gaussians.formats import SPLAT_TRANSFORM_ENV, find_splat_transform, splat_format
 
-needs_tool = pytest.mark.skipif(find_splat_transform() is None, reason="splat-transform is not installed "
-                                "(bash scripts/install_optional.sh formats, or npm install -g @playcanvas/splat-transform)")
+needs_tool = pytest.mark.skipif(find_splat_transform() is None, reason="splat-transform is not installed: "
+                                "bash scripts/install_optional.sh formats puts it into the clone's .tools/ (Node.js >= 20)")
 
 # Largest error each format may make (its quantisation): position (m), DC colour, opacity, log-scale, SH bands 1+
 # (None: SOG stores SH as a k-means palette, lossy without a per-value bound).
@@ -55,10 +55,25 @@ def test_format_names():
         splat_format("x.obj")
 
 
+def test_splat_transform_is_found_in_the_clones_tools_folder(tmp_path, monkeypatch):
+    """Where scripts/install_optional.sh formats puts it by default: the clone's .tools/bin, after PATH."""
+    monkeypatch.delenv(SPLAT_TRANSFORM_ENV, raising=False)
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    tool = tmp_path / ".tools" / "bin" / "splat-transform"
+    tool.parent.mkdir(parents=True)
+    tool.write_text("#!/bin/sh\n")
+    tool.chmod(0o755)
+    assert (formats.PROJECT_TOOLS.parent / "pyproject.toml").is_file()  # this clone (an editable install)
+    monkeypatch.setattr(formats, "PROJECT_TOOLS", tmp_path / ".tools")
+    assert find_splat_transform() == [str(tool)]
+
+
 def test_missing_splat_transform_is_one_line_naming_the_install(tmp_path, monkeypatch, capsys):
     monkeypatch.delenv(SPLAT_TRANSFORM_ENV, raising=False)
     monkeypatch.setenv("PATH", str(tmp_path))
     monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.setattr(formats, "PROJECT_TOOLS", tmp_path / ".tools")
     with pytest.raises(FileNotFoundError, match="npm install -g @playcanvas/splat-transform"):
         save_gaussians(_scene(10), tmp_path / "x.spz")
     # export checks before reconstructing anything (input and checkpoint need not exist yet)

@@ -88,3 +88,85 @@ def test_a_real_pep668_python_gets_a_working_virtual_environment(tmp_path):
     check = subprocess.run([str(venv_python), "-c", "import sys; print(sys.prefix != sys.base_prefix)"],
                            capture_output=True, text=True)
     assert check.stdout.strip() == "True"  # pip there installs without "externally-managed-environment"
+
+
+# --- scripts/test.sh installs nothing system-wide unless asked ---------------------------------------------------
+
+STUB = """#!/usr/bin/env bash
+echo "$(basename "$0") $*" >> "$CALLS"
+{body}
+"""
+STUBS = {  # what each stand-in does besides logging its call
+    "python": "exit 0",  # pip, the torch check and pytest: all succeed
+    "apt-get": ('[ "$1" = install ] && printf \'#!/bin/sh\\necho chromium 1\\n\' > "$STUB_BIN/chromium" '
+                '&& chmod +x "$STUB_BIN/chromium"; exit 0'),
+    "npm": ('prefix=$(echo "$*" | sed -n "s/.*--prefix \\\\([^ ]*\\\\).*/\\\\1/p"); mkdir -p "$prefix/bin" && '
+            'printf \'#!/bin/sh\\necho 3.7.0\\n\' > "$prefix/bin/splat-transform" && chmod +x "$prefix/bin/splat-transform"'),
+    "node": 'echo 22',
+    "id": 'echo 0',  # root: apt-get would run
+}
+TOOLS = ("bash", "dirname", "mktemp", "grep", "tail", "rm", "timeout", "uname", "cat", "mkdir", "chmod", "sed",
+         "basename", "printf", "env")
+
+
+@pytest.fixture()
+def test_sh(tmp_path):
+    """A copy of the scripts in a stand-in clone, run with stand-ins for python, apt-get, npm and node on a PATH
+    that holds nothing else (no chromium): -> run(*args, **env) -> (result, calls, stand-in clone)."""
+    import shutil
+
+    repo = tmp_path / "repo"
+    shutil.copytree(SCRIPTS, repo / "scripts")
+    bin_dir, home = tmp_path / "bin", tmp_path / "home"
+    bin_dir.mkdir()
+    home.mkdir()
+    for name, body in STUBS.items():
+        (bin_dir / name).write_text(STUB.format(body=body))
+        (bin_dir / name).chmod(0o755)
+    for tool in TOOLS:
+        (bin_dir / tool).symlink_to(shutil.which(tool))
+    calls = tmp_path / "calls.log"
+
+    def run(*args: str, **env: str):
+        calls.write_text("")
+        result = subprocess.run(["bash", str(repo / "scripts" / "test.sh"), *args], capture_output=True, text=True,
+                                env={"PATH": str(bin_dir), "HOME": str(home), "CALLS": str(calls), "STUB_BIN": str(bin_dir),
+                                     "PYTHON": str(bin_dir / "python"), **env})
+        assert not any(home.iterdir()), list(home.iterdir())  # nothing written to the home folder
+        return result, calls.read_text().splitlines(), repo
+
+    return run
+
+
+def test_test_sh_installs_nothing_system_wide_without_the_flag(test_sh):
+    result, calls, repo = test_sh("-x")
+    assert result.returncode == 0, result.stderr
+    assert not any(call.startswith("apt-get") for call in calls), calls
+    npm = [call for call in calls if call.startswith("npm ")]
+    assert len(npm) == 1 and f"--prefix {repo}/.tools " in npm[0] and f"--cache {repo}/.tools/npm-cache" in npm[0]
+    assert calls[-1] == "python -m pytest -q -x"
+    assert result.stderr.splitlines() == [
+        "test.sh: optional part 'browser' skipped: chromium would be installed system-wide (apt-get); run "
+        "`bash scripts/test.sh --with-system-tools` (or CYLINDERSPLAT_SYSTEM_INSTALLS=1) to install it; its tests "
+        "will skip"]
+
+
+@pytest.mark.parametrize("how", ["flag", "environment"])
+def test_test_sh_installs_chromium_when_asked(test_sh, how):
+    args, env = (["--with-system-tools"], {}) if how == "flag" else ([], {"CYLINDERSPLAT_SYSTEM_INSTALLS": "1"})
+    result, calls, _ = test_sh(*args, "-m", "not slow", **env)
+    assert result.returncode == 0 and result.stderr == "", result.stderr
+    assert "apt-get update -qq" in calls and "apt-get install -y -qq chromium" in calls
+    assert calls[-1] == "python -m pytest -q -m not slow"  # the flag is test.sh's, not pytest's
+
+
+def test_test_sh_says_which_optional_part_it_skipped_and_why(test_sh, tmp_path):
+    (tmp_path / "bin" / "node").unlink()  # no Node.js: splat-transform cannot be installed
+    (tmp_path / "bin" / "npm").unlink()
+    result, calls, _ = test_sh()
+    assert result.returncode == 0 and not any(call.startswith(("npm", "apt-get")) for call in calls)
+    assert result.stderr.splitlines()[0] == (
+        "test.sh: optional part 'formats' skipped: formats: Node.js and npm are needed (Debian: apt-get install "
+        "nodejs npm; or https://nodejs.org); its tests will skip")
+    quiet, _, _ = test_sh(CYLINDERSPLAT_SKIP_OPTIONAL="1")
+    assert quiet.stderr == "test.sh: no optional part installed (CYLINDERSPLAT_SKIP_OPTIONAL is set); their tests will skip\n"

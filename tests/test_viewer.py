@@ -169,7 +169,8 @@ def _browser_skip_reason() -> str | None:
     if not _installed("playwright"):
         return "playwright is not installed (bash scripts/install_optional.sh browser)"
     if not (Path("/usr/bin/chromium").is_file() or shutil.which("chromium")):
-        return "chromium is not installed (bash scripts/install_optional.sh browser, ~65 s with apt-get)"
+        return ("chromium is not installed: `bash scripts/test.sh --with-system-tools` (or `bash "
+                "scripts/install_optional.sh browser`) installs it system-wide with apt-get, as root")
     return None
 
 

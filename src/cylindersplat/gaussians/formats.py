@@ -13,8 +13,9 @@
 ``render --ply``) goes through it.
 
 splat-transform is found through ``$CYLINDERSPLAT_SPLAT_TRANSFORM`` (its executable, or a command such
-as ``npx @playcanvas/splat-transform``), then ``splat-transform`` on ``PATH``, then
-``~/.local/bin/splat-transform`` (where ``bash scripts/install_optional.sh formats`` puts it).
+as ``npx @playcanvas/splat-transform``), then ``splat-transform`` on ``PATH``, then ``.tools/bin/splat-transform``
+in the clone of an editable install (where ``bash scripts/install_optional.sh formats`` puts it), then
+``~/.local/bin/splat-transform`` (where it put it before).
 Coordinates are written as they are (OpenCV world frame of the poses, no axis flip): splat-transform
 stores ``.spz`` with the coordinate system "unspecified" and converts nothing in either direction.
 
@@ -49,14 +50,17 @@ __all__ = [
 SPLAT_TRANSFORM_ENV = "CYLINDERSPLAT_SPLAT_TRANSFORM"
 SPLAT_TRANSFORM_PACKAGE = "@playcanvas/splat-transform@3"
 TIMEOUT_ENV = "CYLINDERSPLAT_SPLAT_TRANSFORM_TIMEOUT"
+# scripts/install_optional.sh's default prefix: the clone's own folder (src/cylindersplat/gaussians -> the clone)
+PROJECT_TOOLS = Path(__file__).resolve().parents[3] / ".tools"
 # About ten times the measured rates (200k Gaussians on 2 busy cores: .sog written in 3.7 s, its k-means on the
 # CPU being the slowest path; .spz 0.9 s; any 3 MB file read in 0.6 s), so that only a hung tool reaches them;
 # a floor for Node.js start-up on a busy machine.
 MIN_TIMEOUT_S = 120.0
 SECONDS_PER_GAUSSIAN = 2e-4  # writing: 200 s more per million Gaussians
 SECONDS_PER_BYTE = 1e-5  # reading: 10 s more per MB of file
-SPLAT_TRANSFORM_INSTALL = (f"install PlayCanvas splat-transform (Node.js >= 20): `npm install -g {SPLAT_TRANSFORM_PACKAGE}` "
-                           f"or `bash scripts/install_optional.sh formats`, or set {SPLAT_TRANSFORM_ENV} to its executable")
+SPLAT_TRANSFORM_INSTALL = (f"install PlayCanvas splat-transform (Node.js >= 20): `bash scripts/install_optional.sh formats` "
+                           f"(into the clone's .tools/) or `npm install -g {SPLAT_TRANSFORM_PACKAGE}`, or set "
+                           f"{SPLAT_TRANSFORM_ENV} to its executable")
 
 #: Output formats -> what they are. The last three need splat-transform.
 WRITE_FORMATS = {
@@ -88,7 +92,8 @@ def find_splat_transform() -> list[str] | None:
     env = os.environ.get(SPLAT_TRANSFORM_ENV, "").strip()
     if env:
         return shlex.split(env)
-    for candidate in (shutil.which("splat-transform"), Path.home() / ".local" / "bin" / "splat-transform"):
+    for candidate in (shutil.which("splat-transform"), PROJECT_TOOLS / "bin" / "splat-transform",
+                      Path.home() / ".local" / "bin" / "splat-transform"):
         if candidate and os.access(candidate, os.X_OK) and Path(candidate).is_file():
             return [str(candidate)]
     return None
