@@ -150,3 +150,67 @@ def test_memo_searches_each_input_once(wide_sample, monkeypatch):
     small = prior_alignment.ScaleMemo(capacity=1)
     small(images, depth, c2w), small(images, depth * 0.7, c2w)
     assert len(small) == 1
+
+
+# --- cost: linear in the number of views, once per distinct view ------------------------------------------------
+
+
+def _views_on_a_line(count: int, seed: int = 0):
+    """``count`` random 8x16 panoramas with depth, 0.5 m apart along x: (images, depth, c2w) with batch 1."""
+    gen = torch.Generator().manual_seed(seed)
+    images = torch.rand(1, count, 3, 8, 16, generator=gen)
+    depth = torch.rand(1, count, 8, 16, generator=gen) * 3 + 1
+    c2w = torch.stack([make_c2w(translation=torch.tensor([0.5 * i, 0.0, 0.0])) for i in range(count)])[None]
+    return images, depth, c2w
+
+
+def _count_projections(monkeypatch) -> list[int]:
+    from cylindersplat.model import prior_alignment
+
+    calls = []
+    real = prior_alignment.project_equirect
+    monkeypatch.setattr(prior_alignment, "project_equirect", lambda *a, **k: calls.append(1) or real(*a, **k))
+    return calls
+
+
+def test_search_cost_grows_linearly_with_the_views(monkeypatch, capsys):
+    """Each view is read in `neighbours` others (coarse + fine pass: 2 projections each), not in all V - 1."""
+    calls = _count_projections(monkeypatch)
+    search = ScaleSearch(neighbours=2)
+    counted = {}
+    for count in (4, 8, 16):
+        calls.clear()
+        found = photometric_prior_scales(*_views_on_a_line(count), search)
+        assert found.shape == (1, count) and bool(torch.isfinite(found).all())
+        counted[count] = len(calls)
+    assert counted == {4: 4 * 2 * 2, 8: 8 * 2 * 2, 16: 16 * 2 * 2}
+    lines = capsys.readouterr().err.splitlines()  # 16 views: progress lines where the output is not a terminal
+    assert [line.split(" (")[0] for line in lines] == [f"photometric depth-scale search: {k}/16 views" for k in (4, 8, 12, 16)]
+
+
+def test_neighbours_are_the_nearest_camera_centres():
+    from cylindersplat.model.prior_alignment import nearest_views
+
+    _, _, c2w = _views_on_a_line(6)
+    assert nearest_views(c2w, 2)[0].tolist() == [[1, 2], [0, 2], [1, 3], [2, 4], [3, 5], [3, 4]]
+    assert nearest_views(c2w[:, :3], 2) is None  # 2-3 views: every other view, as before
+
+
+def test_reading_listed_neighbours_equals_reading_every_other_view():
+    from cylindersplat.model.prior_alignment import pixel_errors
+
+    images, depth, c2w = _views_on_a_line(4)
+    scales = torch.tensor([[0.8, 1.0, 1.3]])
+    every = pixel_errors(images, depth, c2w, 1, scales)
+    listed = pixel_errors(images, depth, c2w, 1, scales, torch.tensor([[0, 2, 3]]))
+    assert torch.equal(every, listed)
+
+
+def test_the_same_frames_listed_ten_times_are_searched_once(wide_sample, monkeypatch):
+    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    depth = depth * torch.tensor([0.8, 1.25])[:, None, None]
+    calls = _count_projections(monkeypatch)
+    once = photometric_prior_scales(images, depth, c2w)
+    single = len(calls)
+    repeated = photometric_prior_scales(images.repeat(1, 10, 1, 1, 1), depth.repeat(1, 10, 1, 1), c2w.repeat(1, 10, 1, 1))
+    assert len(calls) == 2 * single and torch.equal(repeated, once.repeat(1, 10))

@@ -10,6 +10,10 @@ over one set of pixels for all candidates: the ``keep`` share whose best error o
 over ``exp(+-log_range)``, then a fine one around its best. The search runs on images pooled to at most
 ``max_rows`` rows: the scale is one number per image.
 
+Cost: each view is read in at most ``neighbours`` others, the nearest by camera centre, so the search grows
+linearly with the number of views (every pair: 200 frames took over 580 s); with 2-3 views that is every other
+view, as before. Views that are exactly alike (the same frame listed twice) are searched once.
+
 Where the cost curve is flat (no parallax: the other views are too close for the scene's depth; no
 texture) the best candidate is not trusted and the scale stays 1: the best cost must beat the cost at
 ``s = 1`` by ``min_gain`` (relative). One view alone is never rescaled.
@@ -27,14 +31,16 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
-from jaxtyping import Float
+from jaxtyping import Float, Int
 from torch import Tensor
 
 from ..geometry import camera_to_world, equirect_rays, project_equirect, world_to_camera
 from ..metrics.image import ws_weights
+from ..utils.progress import Progress
 from .sampling import sample_panorama
 
-__all__ = ["ScaleSearch", "ScaleMemo", "photometric_prior_scales", "scale_costs", "pixel_errors", "matchable_pixels"]
+__all__ = ["ScaleSearch", "ScaleMemo", "photometric_prior_scales", "scale_costs", "pixel_errors", "matchable_pixels",
+           "nearest_views", "distinct_views"]
 
 
 @dataclass(frozen=True)
@@ -45,6 +51,11 @@ class ScaleSearch:
     keep: float = 0.7  # share of the valid pixels scored: those whose best error over the candidates is lowest
     max_rows: int = 64  # search resolution (rows; columns = 2 x rows)
     min_gain: float = 0.01  # the best cost must beat the cost at s = 1 by this share, or the scale stays 1
+    neighbours: int = 4  # each view is read in this many others (nearest camera centres): cost linear in views
+
+
+# from this many distinct views on, the search reports its progress (a bar on a terminal, else a few lines)
+PROGRESS_FROM_VIEWS = 16
 
 
 def _pool(images: Tensor, depth: Tensor, max_rows: int) -> tuple[Tensor, Tensor]:
@@ -66,21 +77,24 @@ def pixel_errors(
     c2w: Float[Tensor, "B V 4 4"],
     view: int,
     scales: Float[Tensor, "B K"],
+    others: Int[Tensor, "B N"] | None = None,
 ) -> Float[Tensor, "B K HW"]:
-    """Per candidate scale and pixel of ``view``: the mean L1 colour difference with every other view where the
-    pixel, lifted at ``scale x depth``, lands."""
+    """Per candidate scale and pixel of ``view``: the mean L1 colour difference with the ``others`` views
+    (default: every other view) where the pixel, lifted at ``scale x depth``, lands."""
     b, v, _, h, w = images.shape
     rays = equirect_rays(h, w, device=images.device, dtype=images.dtype).reshape(1, 1, h * w, 3)
     points = scales[:, :, None, None] * depth[:, view].reshape(b, 1, h * w, 1) * rays  # (B, K, HW, 3)
     world = camera_to_world(points, c2w[:, view, None])
     colour = images[:, view].flatten(2).transpose(1, 2)[:, None]  # (B, 1, HW, 3)
     error = torch.zeros(points.shape[:3], dtype=images.dtype, device=images.device)
-    for other in range(v):
-        if other != view:
-            uv, _ = project_equirect(world_to_camera(world, c2w[:, other, None]), h, w)
-            seen = sample_panorama(images[:, other], uv.flatten(1, 2)).view_as(points)
-            error = error + (seen - colour).abs().mean(dim=-1)
-    return error / (v - 1)
+    if others is None:
+        others = torch.tensor([o for o in range(v) if o != view], device=images.device).expand(b, v - 1)
+    batch = torch.arange(b, device=images.device)
+    for column in others.unbind(1):  # (B,): the other view of each batch item
+        uv, _ = project_equirect(world_to_camera(world, c2w[batch, column][:, None]), h, w)
+        seen = sample_panorama(images[batch, column], uv.flatten(1, 2)).view_as(points)
+        error = error + (seen - colour).abs().mean(dim=-1)
+    return error / others.shape[1]
 
 
 def matchable_pixels(errors: Float[Tensor, "B K HW"], valid: Float[Tensor, "B HW"], keep: float) -> Float[Tensor, "B HW"]:
@@ -102,15 +116,57 @@ def scale_costs(
     scales: Float[Tensor, "B K"],
     pixels: Float[Tensor, "B HW"] | None = None,
     keep: float = 0.7,
+    others: Int[Tensor, "B N"] | None = None,
 ) -> tuple[Float[Tensor, "B K"], Float[Tensor, "B HW"]]:
     """Latitude-weighted mean colour disagreement of ``view`` lifted at each candidate scale, over ``pixels``
-    (default: the :func:`matchable_pixels` of these candidates). Returns the costs and the pixels scored."""
+    (default: the :func:`matchable_pixels` of these candidates), read in the ``others`` views (default: all).
+    Returns the costs and the pixels scored."""
     b, _, _, h, w = images.shape
-    errors = pixel_errors(images, depth, c2w, view, scales)
+    errors = pixel_errors(images, depth, c2w, view, scales, others)
     if pixels is None:
         pixels = matchable_pixels(errors, (depth[:, view] > 0).reshape(b, h * w), keep)
     weight = ws_weights(h).to(images)[:, None].expand(h, w).reshape(1, h * w) * pixels
     return (errors * weight[:, None]).sum(-1) / weight.sum(-1, keepdim=True).clamp_min(1e-12), pixels
+
+
+def _search_view(images: Tensor, depth: Tensor, c2w: Tensor, view: int, coarse: Float[Tensor, "B K"],
+                 offsets: Float[Tensor, "K2"], search: ScaleSearch, others: Tensor | None) -> Float[Tensor, "B"]:
+    """The coarse then fine search of one view's factor (1 where the best does not beat ``s = 1`` clearly)."""
+    costs, pixels = scale_costs(images, depth, c2w, view, coarse, keep=search.keep, others=others)
+    best = coarse.gather(1, costs.argmin(1, keepdim=True))  # (B, 1)
+    fine = best * offsets  # (B, K')
+    fine_costs, _ = scale_costs(images, depth, c2w, view, fine, pixels, others=others)
+    chosen = fine.gather(1, fine_costs.argmin(1, keepdim=True))[:, 0]
+    at_one = costs[:, search.coarse_steps // 2]
+    trusted = fine_costs.min(1).values < (1 - search.min_gain) * at_one
+    return torch.where(trusted, chosen, torch.ones_like(chosen))
+
+
+def nearest_views(c2w: Float[Tensor, "B V 4 4"], count: int) -> Int[Tensor, "B V N"] | None:
+    """Per view, the ``count`` other views with the nearest camera centres (in view order), or None where
+    every other view is among them (2-3 views: the search reads all, as it always did)."""
+    v = c2w.shape[1]
+    if v - 1 <= count:
+        return None
+    centres = c2w[..., :3, 3]
+    distance = torch.cdist(centres, centres)  # (B, V, V)
+    distance.diagonal(dim1=-2, dim2=-1).fill_(float("inf"))  # never itself
+    return distance.topk(count, dim=-1, largest=False).indices.sort(dim=-1).values
+
+
+def distinct_views(*tensors: Tensor) -> tuple[list[int], Int[Tensor, "V"]]:
+    """``(first, copy_of)``: the first occurrence of each distinct view (dim 1 of every ``(B, V, ...)`` tensor,
+    all batch items alike) and, per view, its index in ``first``."""
+    first: list[int] = []
+    seen: dict[bytes, int] = {}
+    copy_of = []
+    for view in range(tensors[0].shape[1]):
+        key = _fingerprint(*(t[:, view] for t in tensors))
+        if key not in seen:
+            seen[key] = len(first)
+            first.append(view)
+        copy_of.append(seen[key])
+    return first, torch.tensor(copy_of, dtype=torch.long)
 
 
 @torch.no_grad()
@@ -121,28 +177,29 @@ def photometric_prior_scales(
     search: ScaleSearch = ScaleSearch(),
 ) -> Float[Tensor, "B V"]:
     """Per view, the factor that brings its depth prior to the poses' metric scale (module docstring)."""
-    b, v = depth_prior.shape[:2]
+    b = depth_prior.shape[0]
+    first, copy_of = distinct_views(images, depth_prior, c2w)  # the same frame listed again adds nothing
+    copy_of = copy_of.to(depth_prior.device)
+    images, depth_prior, c2w = images[:, first], depth_prior[:, first], c2w[:, first]
+    v = len(first)
     result = torch.ones(b, v, dtype=depth_prior.dtype, device=depth_prior.device)
     if v < 2:
-        return result
+        return result[:, copy_of]
     images, depth = _pool(images.to(depth_prior.dtype), depth_prior, search.max_rows)
     c2w = c2w.to(depth.dtype)
+    neighbours = nearest_views(c2w, search.neighbours)
     r, n = search.log_range, search.coarse_steps
     coarse = torch.linspace(-r, r, n, dtype=depth.dtype, device=depth.device).exp().expand(b, n)
     step = 2 * r / (n - 1)
     offsets = torch.linspace(-step, step, search.fine_steps, dtype=depth.dtype, device=depth.device).exp()
+    bar = Progress(v, "photometric depth-scale search", "view", enabled=v >= PROGRESS_FROM_VIEWS)
     for view in range(v):
-        if not bool((depth[:, view] > 0).any()):
-            continue
-        costs, pixels = scale_costs(images, depth, c2w, view, coarse, keep=search.keep)
-        best = coarse.gather(1, costs.argmin(1, keepdim=True))  # (B, 1)
-        fine = best * offsets  # (B, K')
-        fine_costs, _ = scale_costs(images, depth, c2w, view, fine, pixels)
-        chosen = fine.gather(1, fine_costs.argmin(1, keepdim=True))[:, 0]
-        at_one = costs[:, n // 2]
-        trusted = fine_costs.min(1).values < (1 - search.min_gain) * at_one
-        result[:, view] = torch.where(trusted, chosen, torch.ones_like(chosen))
-    return result
+        if bool((depth[:, view] > 0).any()):
+            others = None if neighbours is None else neighbours[:, view]
+            result[:, view] = _search_view(images, depth, c2w, view, coarse, offsets, search, others)
+        bar.update()
+    bar.close()
+    return result[:, copy_of]
 
 
 def _fingerprint(*tensors: Tensor) -> bytes:
