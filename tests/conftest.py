@@ -18,17 +18,31 @@ import torch
 if not torch.cuda.is_available():
     os.environ.setdefault("TRITON_INTERPRET", "1")
 
-# Three real PanoGRF (Matterport3D) sequences at 1024x512, shared by the sessions of this project; the
-# tests that read them skip where the folder is absent (a fresh clone).
-PANO_GRF_FIXTURE = (Path(__file__).resolve().parents[1].parent
-                    / "shared/fixtures/pano_grf/png_render_test_1024x512_seq_len_3_m3d_dist_0.5")
+# The real-data fixtures: $CYLINDERSPLAT_FIXTURES, else <the clone's parent>/shared/fixtures (where this project's
+# sessions share them). They hold pano_grf/<sequence folder>/00000007: three real PanoGRF (Matterport3D)
+# panoramas at 1024x512, the sample PanSplat ships; the tests that read them skip where it is absent (a fresh clone).
+FIXTURES_ENV = "CYLINDERSPLAT_FIXTURES"
+FIXTURES_DEFAULT = Path(__file__).resolve().parents[1].parent / "shared" / "fixtures"
+FIXTURES = Path(os.environ.get(FIXTURES_ENV) or FIXTURES_DEFAULT).expanduser()
+PANO_GRF_SEQUENCE = "pano_grf/png_render_test_1024x512_seq_len_3_m3d_dist_0.5"
+PANO_GRF_FIXTURE = FIXTURES / PANO_GRF_SEQUENCE
+FIXTURE_SOURCE = f"https://github.com/chengzhag/PanSplat, folder datasets/{PANO_GRF_SEQUENCE}"
+
+
+def fixture_skip_reason(fixture: Path = PANO_GRF_FIXTURE) -> str | None:
+    """One line saying where the real fixture was looked for and how to get it, or None where it is there."""
+    if (fixture / "00000007").is_dir():
+        return None
+    return (f"real fixture missing: {fixture / '00000007'}; copy it from {FIXTURE_SOURCE} and set {FIXTURES_ENV} to "
+            "the folder holding pano_grf/")
 
 
 @pytest.fixture(scope="session")
 def pano_grf_fixture() -> Path:
-    """The real PanoGRF fixture folder (skips the test where it is missing)."""
-    if not (PANO_GRF_FIXTURE / "00000007").is_dir():
-        pytest.skip(f"real fixture missing: {PANO_GRF_FIXTURE}")
+    """The real PanoGRF fixture folder (skips the test where it is missing, saying how to get it)."""
+    reason = fixture_skip_reason()
+    if reason:
+        pytest.skip(reason)
     return PANO_GRF_FIXTURE
 
 

@@ -20,10 +20,8 @@ from cylindersplat.data import PanoGRFDataset, SyntheticDataset
 from cylindersplat.data.depth_prior import NoPrior, parse_depth_prior
 from cylindersplat.data.io import read_depth_npy, read_depth_png, read_rgb, write_depth_png
 
-FIXTURE = (
-    Path(__file__).resolve().parents[1].parent
-    / "shared/fixtures/pano_grf/png_render_test_1024x512_seq_len_3_m3d_dist_0.5"
-)
+from conftest import PANO_GRF_FIXTURE as FIXTURE  # $CYLINDERSPLAT_FIXTURES or ../shared/fixtures
+from conftest import fixture_skip_reason
 
 
 class DepthNet(torch.nn.Module):
@@ -62,8 +60,8 @@ def synth(tmp_path_factory):
 
 
 def test_priors_on_the_real_fixture(tmp_path, capsys):
-    if not (FIXTURE / "00000007").is_dir():
-        pytest.skip(f"real fixture missing: {FIXTURE}")
+    if fixture_skip_reason():
+        pytest.skip(fixture_skip_reason())
     net = export_pt2(tmp_path / "net.pt2")
     tree = tmp_path / "priors" / "mono"
     args = ["data", "priors", "--data", str(FIXTURE), "--net", f"exported:{net}", "--out", str(tree),

@@ -1,1 +1,0 @@
-"""Experiments built on the library: the ablation study (``cylindersplat ablate``)."""
