@@ -15,8 +15,8 @@ import pytest
 from PIL import Image
 
 from cylindersplat.cli import main
-from cylindersplat.data.metric_scale import scale_from_camera_height, scale_from_depth
-from cylindersplat.evaluation.pose_alignment import align_similarity, pose_errors
+from cylindersplat.data.poses.metric_scale import scale_from_camera_height, scale_from_depth
+from cylindersplat.data.poses.alignment import align_similarity, pose_errors
 
 
 def _image(path, height, width, seed=0):
@@ -97,7 +97,7 @@ def _poses(path) -> np.ndarray:
 
 def test_data_poses_on_the_real_triplet(pano_grf_fixture, tmp_path, capsys):
     pytest.importorskip("pycolmap")
-    from cylindersplat.data.pose_formats import read_colmap
+    from cylindersplat.data.poses import read_colmap
 
     fixture = pano_grf_fixture / "00000007"
     folder = tmp_path / "scene"

@@ -11,7 +11,7 @@ import sys
 import pytest
 import torch
 
-from cylindersplat.data.pose_formats import POSE_CONVENTIONS, parse_pose_matrix, to_opencv_c2w
+from cylindersplat.data.poses import POSE_CONVENTIONS, parse_pose_matrix, to_opencv_c2w
 
 
 def _camera() -> torch.Tensor:

@@ -1,4 +1,4 @@
-"""Pose files of COLMAP, Agisoft Metashape and OpenMVG -> our OpenCV c2w (cylindersplat.data.pose_formats).
+"""Pose files of COLMAP, Agisoft Metashape and OpenMVG -> our OpenCV c2w (cylindersplat.data.poses).
 
 Each reader is checked against the tool's own definition of its panorama camera (COLMAP: pycolmap's
 ``cam_ray_from_img``; Metashape: the user manual's spherical projection; OpenMVG: ``Camera_Spherical.hpp``'s
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 import torch
 
-from cylindersplat.data.colmap_model import read_colmap_model
-from cylindersplat.data.pose_formats import (PoseRecord, c2w_to_colmap, colmap_to_c2w, read_colmap, read_metashape_xml,
+from cylindersplat.data.poses.colmap_model import read_colmap_model
+from cylindersplat.data.poses import (PoseRecord, c2w_to_colmap, colmap_to_c2w, read_colmap, read_metashape_xml,
                                              read_openmvg, write_colmap, write_metashape_xml, write_openmvg)
-from cylindersplat.evaluation.pose_alignment import pose_errors
+from cylindersplat.data.poses.alignment import pose_errors
 from cylindersplat.geometry.equirect import ray_to_uv
 
 DATA = Path(__file__).parent / "data"
@@ -129,7 +129,7 @@ def _colmap_preset_rotations() -> list[np.ndarray]:
 
 def test_colmap_panorama_rig_gives_the_panorama_pose(tmp_path):
     """A model of virtual pinhole cameras cut from panoramas (COLMAP's panorama workflow) -> the panoramas' poses."""
-    from cylindersplat.data.colmap_model import ColmapCamera, ColmapImage, ColmapModel, write_colmap_model
+    from cylindersplat.data.poses.colmap_model import ColmapCamera, ColmapImage, ColmapModel, write_colmap_model
 
     panoramas = _random_poses(3, seed=4)
     images, image_id = {}, 1
@@ -219,7 +219,7 @@ def test_openmvg_layout_and_projection():
     rotation = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
     center = np.array([0.3, 0.2, 1.0])
     pose = records[1].c2w.numpy()
-    mirror = np.diag([1.0, -1.0, 1.0])  # our world is OpenMVG's seen in a y mirror (pose_formats)
+    mirror = np.diag([1.0, -1.0, 1.0])  # our world is OpenMVG's seen in a y mirror (data.poses.openmvg)
     for world in ([1.0, 2.0, 3.0], [-2.0, 0.5, 1.5], [0.4, -1.0, -2.0]):
         world = np.array(world)
         ours = _uv(np.linalg.inv(pose)[:3] @ np.append(mirror @ world, 1.0), 960, 1920)

@@ -18,15 +18,10 @@ from PIL import Image
 
 from cylindersplat.cli import main
 from cylindersplat.data.io import write_depth_png, write_rgb
+from cylindersplat.data.poses import read_kitti, read_opensfm, read_transforms_json, read_tum
 from cylindersplat.geometry import quaternion_to_matrix, uv_to_ray
+from cylindersplat.geometry.rotations import axis_angle_to_matrix
 from cylindersplat.inference import load_panorama_folder, read_poses_file
-from cylindersplat.inference.pose_formats import (
-    axis_angle_to_matrix,
-    read_kitti,
-    read_opensfm,
-    read_transforms_json,
-    read_tum,
-)
 from cylindersplat.render import render_equirect
 from cylindersplat.scenes import demo_room
 

@@ -6,26 +6,29 @@ import argparse
 import os
 from pathlib import Path
 
-FORMATS = ("opensfm", "nerfstudio", "tum", "kitti", "colmap", "metashape", "openmvg")
-NAMED_FORMATS = ("opensfm", "colmap", "metashape", "openmvg")  # their poses name their images
+
+class _FormatNames:
+    """``--from`` choices: the pose registry's names, read when ``import-poses`` parses or prints its help (the
+    registry imports torch; the rest of the command line does not wait for it)."""
+
+    def _names(self) -> tuple[str, ...]:
+        from ..data.poses.registry import POSE_FORMATS
+
+        return tuple(POSE_FORMATS)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._names()
+
+    def __iter__(self):
+        return iter(self._names())
 
 
 def _run(args: argparse.Namespace) -> int:
+    from ..data.poses import PoseRecord, match_timestamps_to_images, pose_format, write_poses_json
     from ..inference.inputs import IMAGE_SUFFIXES
-    from ..data.pose_formats import (
-        PoseRecord,
-        match_timestamps_to_images,
-        read_colmap,
-        read_kitti,
-        read_metashape_xml,
-        read_openmvg,
-        read_opensfm,
-        read_transforms_json,
-        read_tum,
-        write_poses_json,
-    )
 
     source, out = args.source, args.out
+    source_format = pose_format(args.source_format)
     if out.is_dir() or out.suffix.lower() != ".json":
         raise ValueError(f"--out must be a .json file (e.g. my_scene/poses.json), got {out}")
     if args.fps is not None and args.source_format != "tum":
@@ -33,23 +36,10 @@ def _run(args: argparse.Namespace) -> int:
                          f"{args.source_format}")
     if args.start_time is not None and args.fps is None:
         raise ValueError("--start-time is the timestamp of the first image when matching by --fps; give --fps too")
-    if args.source_format == "opensfm":
-        records = read_opensfm(source, args.scale, args.reconstruction)
-    elif args.source_format == "nerfstudio":
-        records = read_transforms_json(source, args.scale)
-    elif args.source_format == "tum":
-        records = read_tum(source, args.scale)
-    elif args.source_format == "colmap":
-        records = read_colmap(source, args.scale)
-    elif args.source_format == "metashape":
-        records = read_metashape_xml(source, args.scale)
-    elif args.source_format == "openmvg":
-        records = read_openmvg(source, args.scale)
-    else:
-        records = read_kitti(source, args.scale)
+    records = source_format.read(source, args.scale, **{name: getattr(args, name) for name in source_format.options})
     base = out.parent.resolve()
     depth_scale = None
-    if args.source_format == "nerfstudio":  # its file names are relative to transforms.json: keep them findable
+    if source_format.images == "relative":  # nerfstudio: names relative to transforms.json: keep them findable
         folder = source.parent.resolve()
         records = [PoseRecord(os.path.relpath(folder / r.image, base), r.c2w,
                               r.depth and os.path.relpath(folder / r.depth, base)) for r in records]
@@ -62,19 +52,19 @@ def _run(args: argparse.Namespace) -> int:
             raise FileNotFoundError(f"--images: folder not found: {args.images}")
         # Each frame keeps its own name: only the folder is resolved, a symlinked image is not followed to its target.
         folder = args.images.resolve()
-        if args.source_format in ("tum", "kitti"):
+        if source_format.images == "ordered":
             images = sorted(p.name for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES
                             and not p.stem.endswith("_depth"))
             records = match_timestamps_to_images(records, [os.path.relpath(folder / name, base) for name in images],
                                                  args.fps, source, _start_time(args.start_time))
-        elif args.source_format in NAMED_FORMATS:
+        elif source_format.images == "named":
             records = [PoseRecord(os.path.relpath(folder / _image_file(folder, r.image), base), r.c2w) for r in records]
         else:
-            raise ValueError("--images does not apply to --from nerfstudio (its frames name their images)")
+            raise ValueError(f"--images does not apply to --from {args.source_format} (its frames name their images)")
         missing = [r.image for r in records if not Path(os.path.normpath(base / r.image)).is_file()]  # out may not exist yet
         if missing:
             raise FileNotFoundError(f"{len(missing)} image(s) of the poses are not there, e.g. {base / missing[0]}")
-    elif args.source_format in ("tum", "kitti"):
+    elif source_format.images == "ordered":
         records = [PoseRecord(None, r.c2w, None, r.timestamp) for r in records]
     path = write_poses_json(out, records, depth_scale=depth_scale, source=f"{args.source_format}: {source}",
                             scale=args.scale)
@@ -118,7 +108,7 @@ def register(sub) -> None:
         "intrinsics). SfM/SLAM results have an arbitrary scale: --scale gives metres per unit. See docs/inference.md.")
     parser.add_argument("source", type=Path, help="reconstruction.json, transforms.json, a trajectory text file, a COLMAP "
                         "model folder (sparse/0), a Metashape cameras .xml or an OpenMVG sfm_data.json")
-    parser.add_argument("--from", dest="source_format", required=True, choices=FORMATS, help="the source's format")
+    parser.add_argument("--from", dest="source_format", required=True, choices=_FormatNames(), help="the source's format")
     parser.add_argument("--out", type=Path, required=True, help="poses.json to write (in the input folder)")
     parser.add_argument("--scale", type=float, default=1.0,
                         help="metres per source unit: multiplies every camera position (default 1)")

@@ -60,8 +60,8 @@ def _depth_maps(args, folder: Path, names: list[str]) -> tuple[dict[str, np.ndar
 
 def _metric_scale(args, folder: Path, result, c2w: dict[str, np.ndarray]):
     """``(metres per SfM unit, description or None)`` as --scale / --camera-height / the depth ask."""
-    from ..data.metric_scale import scale_from_camera_height, scale_from_depth
-    from ..data.sfm import observations
+    from ..data.poses.metric_scale import scale_from_camera_height, scale_from_depth
+    from ..data.poses.sfm import observations
 
     if isinstance(args.scale, float):
         return args.scale, f"{args.scale:g} m per SfM unit (--scale)"
@@ -92,8 +92,8 @@ def _metric_scale(args, folder: Path, result, c2w: dict[str, np.ndarray]):
 
 def _run(args: argparse.Namespace) -> int:
     from ..data.folder import _folder_images
-    from ..data.pose_formats import PoseRecord, write_poses_json
-    from ..data.sfm import check_panoramas, require_pycolmap, run_sfm
+    from ..data.poses import PoseRecord, write_poses_json
+    from ..data.poses.sfm import check_panoramas, require_pycolmap, run_sfm
 
     folder = args.folder
     if not folder.is_dir():

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     from ..gaussians import save_ply
     from ..inference import depth_limits, flythrough_path, midpoint_poses, read_poses_file, write_flythrough, write_view
     from ..inference.pipeline import iter_views, sampled_depth_limits, write_metric_depth
-    from ..data.pose_formats import PoseRecord, write_poses_json
+    from ..data.poses import PoseRecord, write_poses_json
     from ..inference.video import video_path_with_fallback
 
     if args.frames < 0:

@@ -22,7 +22,7 @@ or gives only poses, matched to the folder's images in name order::
 Poses are OpenCV camera-to-world (+x right, +y down, +z forward; 3x4 or 4x4) in metres, unless
 ``"convention"`` says ``opengl_c2w``/``blender_c2w`` (+y up, +z back), ``opencv_w2c`` or ``opengl_w2c``. A folder
 with a nerfstudio ``transforms.json`` (``"camera_model": "EQUIRECTANGULAR"``) instead of ``poses.json`` is read
-as well (:mod:`cylindersplat.data.pose_formats`, which owns every pose convention). Every problem (missing/corrupt file, non-2:1 image, count
+as well (:mod:`cylindersplat.data.poses`, which owns every pose convention). Every problem (missing/corrupt file, non-2:1 image, count
 mismatch, non-finite or non-rigid pose, depth of the wrong size) raises an error naming the file.
 
 :class:`FolderDataset` reads such folders through the machinery every dataset shares
@@ -48,8 +48,7 @@ from .confine import confined_path
 from .depth_prior.base import DepthPrior, MissingPrior, StoredDepthPrior
 from .depth_prior.files import PRIORS_DIR
 from .io import DEPTH_PNG_SCALE
-from .pose_formats import (POSE_CONVENTIONS, is_transforms_json, parse_pose_matrix, read_transforms_json,
-                           to_opencv_c2w)
+from .poses import POSE_CONVENTIONS, is_transforms_json, parse_pose_matrix, read_transforms_json, to_opencv_c2w
 from .views import ViewSplit, select_views
 from ..utils.jsonfile import read_json_file
 from ..validation import check_translation_plausible
@@ -69,7 +68,7 @@ FOLDER_VIEWS = ("all_inputs", "held_out", "two_view", "one_view", "n_view")
 
 
 def _parse_pose(value, where: str, convention: str = "opencv_c2w") -> Tensor:
-    """One pose of a poses file as OpenCV c2w (float32); the conversion is :mod:`.pose_formats`'."""
+    """One pose of a poses file as OpenCV c2w (float32); the conversion is :mod:`.poses.conventions`'."""
     return to_opencv_c2w(parse_pose_matrix(value, where), convention).float()
 
 

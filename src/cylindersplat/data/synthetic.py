@@ -12,7 +12,7 @@ from .base import ExampleRef, FrameRef, PanoramaDataset
 from .depth_prior.base import DepthPrior
 from .depth_prior.simulated import SimulatedPrior
 from .io import DEPTH_PNG_SCALE
-from .pose_formats import parse_pose_matrix
+from .poses.conventions import parse_pose_matrix
 from .views import select_views
 
 __all__ = ["SyntheticDataset"]

@@ -1,14 +1,21 @@
-"""Unit quaternions (``w, x, y, z``, Hamilton convention) <-> rotation matrices, and their product.
+"""Rotations: unit quaternions (``w, x, y, z``, Hamilton convention) <-> matrices, their product, angle-axis
+vectors and the nearest rotation to a matrix.
 
-Shared by the renderer (Gaussian covariances) and the model (Gaussian frames in world space)."""
+Shared by the renderer (Gaussian covariances), the model (Gaussian frames in world space) and the pose readers
+(:mod:`cylindersplat.data.poses`: float64 poses from other tools' quaternion orders and angle-axis vectors)."""
 
 from __future__ import annotations
 
+import math
+from typing import Sequence
+
+import numpy as np
 import torch
 from jaxtyping import Float
 from torch import Tensor
 
-__all__ = ["quaternion_multiply", "matrix_to_quaternion", "quaternion_to_matrix"]
+__all__ = ["quaternion_multiply", "matrix_to_quaternion", "quaternion_to_matrix", "quaternion_wxyz_to_matrix",
+           "quaternion_xyzw_to_matrix", "axis_angle_to_matrix", "nearest_rotation"]
 
 
 def quaternion_multiply(a: Float[Tensor, "*B 4"], b: Float[Tensor, "*B 4"]) -> Float[Tensor, "*B 4"]:
@@ -61,3 +68,36 @@ def matrix_to_quaternion(m: Float[Tensor, "*B 3 3"]) -> Float[Tensor, "*B 4"]:
     q = torch.gather(candidates, -2, best[..., None, None].expand(*best.shape, 1, 4)).squeeze(-2)
     q = torch.nn.functional.normalize(q, dim=-1)
     return torch.where(q[..., :1] < 0, -q, q)
+
+
+def quaternion_wxyz_to_matrix(q: Sequence[float]) -> Float[Tensor, "3 3"]:
+    """One quaternion ``(qw, qx, qy, qz)`` (COLMAP's order; normalised here) -> 3x3 rotation (float64);
+    ``ValueError`` for a zero or non-finite one (:func:`quaternion_to_matrix` would give 0 or NaN)."""
+    values = [float(v) for v in q]
+    if len(values) != 4 or not all(math.isfinite(v) for v in values) or not math.hypot(*values) > 1e-9:
+        raise ValueError(f"quaternion {q} has no length")
+    return quaternion_to_matrix(torch.tensor(values, dtype=torch.float64))
+
+
+def quaternion_xyzw_to_matrix(q: Sequence[float]) -> Float[Tensor, "3 3"]:
+    """One quaternion ``(qx, qy, qz, qw)`` (TUM's order; normalised here) -> 3x3 rotation (float64)."""
+    x, y, z, w = q
+    return quaternion_wxyz_to_matrix((w, x, y, z))
+
+
+def axis_angle_to_matrix(r: Sequence[float]) -> Float[Tensor, "3 3"]:
+    """Rodrigues: rotation vector (axis * angle in radians) -> 3x3 rotation (float64)."""
+    r = torch.as_tensor(r, dtype=torch.float64)
+    angle = float(torch.linalg.vector_norm(r))
+    if angle < 1e-12:
+        return torch.eye(3, dtype=torch.float64)
+    k = r / angle
+    kx = torch.tensor([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]], dtype=torch.float64)
+    return torch.eye(3, dtype=torch.float64) + math.sin(angle) * kx + (1 - math.cos(angle)) * kx @ kx
+
+
+def nearest_rotation(m: Float[np.ndarray, "3 3"]) -> Float[np.ndarray, "3 3"]:
+    """The rotation nearest to ``m`` in the Frobenius sense (SVD, determinant +1): the chordal mean of a sum of
+    rotations."""
+    u, _, vt = np.linalg.svd(m)
+    return u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt

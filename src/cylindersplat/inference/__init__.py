@@ -15,7 +15,7 @@ from .pipeline import (
     write_metric_depth,
     write_view,
 )
-from ..data.pose_formats import (
+from ..data.poses import (
     PoseRecord,
     read_kitti,
     read_opensfm,

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...geometry.rotations import nearest_rotation
+
 __all__ = ["Similarity", "PoseErrors", "align_similarity", "pose_errors"]
 
 
@@ -45,15 +47,10 @@ class PoseErrors:
         return max(self.centre) / self.baseline
 
 
-def _nearest_rotation(m: np.ndarray) -> np.ndarray:
-    u, _, vt = np.linalg.svd(m)
-    return u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
-
-
 def align_similarity(estimated: np.ndarray, reference: np.ndarray) -> Similarity:
     """``estimated``, ``reference``: c2w ``(N, 4, 4)`` of the same cameras (N >= 2, distinct reference centres)."""
     est, ref = np.asarray(estimated, dtype=np.float64), np.asarray(reference, dtype=np.float64)
-    rotation = _nearest_rotation(sum(r[:3, :3] @ e[:3, :3].T for e, r in zip(est, ref)))
+    rotation = nearest_rotation(sum(r[:3, :3] @ e[:3, :3].T for e, r in zip(est, ref)))
     ce = est[:, :3, 3] @ rotation.T
     cr = ref[:, :3, 3]
     de, dr = ce - ce.mean(0), cr - cr.mean(0)

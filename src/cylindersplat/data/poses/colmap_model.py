@@ -1,7 +1,7 @@
 """COLMAP sparse models on disk (``cameras``, ``images``, ``points3D`` as ``.txt`` or ``.bin``), without pycolmap.
 
 Only the file layout lives here; what the numbers mean as poses (``cam_from_world``, the camera models) is
-:mod:`cylindersplat.data.pose_formats`'. The layout, as COLMAP 3.x/4.x writes it (checked against files written by
+:mod:`.colmap`'s. The layout, as COLMAP 3.x/4.x writes it (checked against files written by
 pycolmap 4.2.1; ``rigs``/``frames`` files of COLMAP >= 3.12 are not needed: every image keeps its own pose):
 
 * ``cameras.txt``: ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS...``; ``cameras.bin``: ``uint64`` count, then per camera
@@ -16,13 +16,14 @@ pycolmap 4.2.1; ``rigs``/``frames`` files of COLMAP >= 3.12 are not needed: ever
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..utils.atomic import atomic_path
+from ...utils.atomic import atomic_path
 
 __all__ = ["ColmapCamera", "ColmapImage", "ColmapModel", "read_colmap_model", "write_colmap_model",
            "CAMERA_MODEL_PARAMS", "find_colmap_model"]
@@ -120,23 +121,39 @@ def _read_cameras_txt(path: Path) -> dict[int, ColmapCamera]:
 
 def _read_images_txt(path: Path) -> dict[int, ColmapImage]:
     # Not _data_lines: an image without keypoints has an empty second line, which must still count.
-    lines = [line for line in path.read_text().splitlines() if not line.lstrip().startswith("#")]
-    while lines and not lines[-1].strip():
+    lines = [(number, line) for number, line in enumerate(path.read_text().splitlines(), 1)
+             if not line.lstrip().startswith("#")]
+    while lines and not lines[-1][1].strip():
         lines.pop()
     images = {}
     for i in range(0, len(lines), 2):
-        parts = lines[i].split(maxsplit=9)
+        number, line = lines[i]
+        parts = line.split(maxsplit=9)
         try:
             image_id, camera_id = int(parts[0]), int(parts[8])
             values = [float(p) for p in parts[1:8]]
             name = parts[9].strip()
         except (IndexError, ValueError):
-            raise ValueError(f"{path}: image line expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, "
-                             f"got {lines[i][:80]!r}") from None
-        row = np.array(lines[i + 1].split() if i + 1 < len(lines) else [], dtype=np.float64).reshape(-1, 3)
+            raise ValueError(f"{path} line {number}: expected IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME, "
+                             f"got {line[:80]!r}") from None
+        _check_pose_numbers(values, f"{path} line {number} (image {name!r})")
+        try:
+            row = np.array(lines[i + 1][1].split() if i + 1 < len(lines) else [], dtype=np.float64).reshape(-1, 3)
+        except ValueError:
+            raise ValueError(f"{path} line {lines[i + 1][0]}: expected X Y POINT3D_ID triples (the keypoints of image "
+                             f"{name!r}), got {lines[i + 1][1][:80]!r}") from None
         images[image_id] = ColmapImage(name, camera_id, np.array(values[:4]), np.array(values[4:]),
                                        row[:, :2], row[:, 2].astype(np.int64))
     return images
+
+
+def _check_pose_numbers(values, where: str) -> None:
+    """``QW QX QY QZ TX TY TZ`` must be finite, the quaternion not zero: ``ValueError`` naming ``where``."""
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{where}: the pose QW QX QY QZ TX TY TZ holds a non-finite number "
+                         f"({' '.join(map(repr, values))}); fix or remove this image")
+    if not math.hypot(*values[:4]) > 1e-9:
+        raise ValueError(f"{where}: the quaternion QW QX QY QZ is zero, not a rotation; fix or remove this image")
 
 
 def _read_points_txt(path: Path) -> dict[int, np.ndarray]:
@@ -151,16 +168,30 @@ def _read_points_txt(path: Path) -> dict[int, np.ndarray]:
 
 
 class _Reader:
-    def __init__(self, data: bytes) -> None:
-        self.data, self.at = data, 0
+    """Little-endian values of a binary model file; every count is checked against the bytes left, so a corrupt
+    count (2^64 keypoints) is one error naming the file, not an allocation or a loop that never ends."""
+
+    def __init__(self, path: Path) -> None:
+        self.path, self.data, self.at = path, path.read_bytes(), 0
 
     def take(self, fmt: str):
         values = struct.unpack_from("<" + fmt, self.data, self.at)
         self.at += struct.calcsize("<" + fmt)
         return values
 
+    def count(self, item_bytes: int, what: str) -> int:
+        """A ``uint64`` count of items at least ``item_bytes`` long each, checked against the rest of the file."""
+        (n,) = self.take("Q")
+        left = len(self.data) - self.at
+        if n * item_bytes > left:
+            raise ValueError(f"{self.path}: truncated or corrupt COLMAP binary model: {n} {what} of at least "
+                             f"{item_bytes} bytes each do not fit in the {left} bytes left of the file")
+        return n
+
     def name(self) -> str:
-        end = self.data.index(b"\0", self.at)
+        end = self.data.find(b"\0", self.at)
+        if end < 0:
+            raise ValueError(f"{self.path}: truncated or corrupt COLMAP binary model: an image name has no end")
         text = self.data[self.at:end].decode("utf-8")
         self.at = end + 1
         return text
@@ -173,9 +204,9 @@ class _Reader:
 
 
 def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
-    r = _Reader(path.read_bytes())
+    r = _Reader(path)
     cameras = {}
-    for _ in range(r.take("Q")[0]):
+    for _ in range(r.count(struct.calcsize("<iiQQ"), "cameras")):
         camera_id, model_id, width, height = r.take("iiQQ")
         if model_id not in CAMERA_MODEL_PARAMS:
             raise ValueError(f"{path}: camera {camera_id} has unknown model id {model_id}")
@@ -185,27 +216,29 @@ def _read_cameras_bin(path: Path) -> dict[int, ColmapCamera]:
 
 
 _KEYPOINT = np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<i8")])
+_IMAGE_BYTES = struct.calcsize("<idddddddi") + 1 + 8  # pose, camera, an empty name's NUL, the keypoint count
 
 
 def _read_images_bin(path: Path) -> dict[int, ColmapImage]:
-    r = _Reader(path.read_bytes())
+    r = _Reader(path)
     images = {}
-    for _ in range(r.take("Q")[0]):
+    for _ in range(r.count(_IMAGE_BYTES, "images")):
         image_id, *pose, camera_id = r.take("idddddddi")
         name = r.name()
-        keypoints = r.array(_KEYPOINT, r.take("Q")[0])
+        _check_pose_numbers(pose, f"{path} image {image_id} ({name!r})")
+        keypoints = r.array(_KEYPOINT, r.count(_KEYPOINT.itemsize, f"keypoints of image {name!r}"))
         images[image_id] = ColmapImage(name, camera_id, np.array(pose[:4]), np.array(pose[4:]),
                                        np.stack([keypoints["x"], keypoints["y"]], -1), keypoints["id"].astype(np.int64))
     return images
 
 
 def _read_points_bin(path: Path) -> dict[int, np.ndarray]:
-    r = _Reader(path.read_bytes())
+    r = _Reader(path)
     points = {}
-    for _ in range(r.take("Q")[0]):
+    for _ in range(r.count(struct.calcsize("<QdddBBBdQ"), "points")):
         point_id, x, y, z = r.take("Qddd")
         r.take("BBBd")
-        r.array("<i4", 2 * r.take("Q")[0])
+        r.array("<i4", 2 * r.count(8, f"track entries of point {point_id}"))
         points[point_id] = np.array([x, y, z])
     return points
 

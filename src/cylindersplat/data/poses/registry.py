@@ -1,0 +1,30 @@
+"""The pose formats ``data import-poses --from NAME`` reads: one line each, the module that reads it and how.
+
+A new format is one new module of this package (a header table like :mod:`.conventions`' and a reader
+``read_x(path, scale=1.0, **options) -> list[PoseRecord]`` ending in :func:`~.conventions.check_pose`) and one line
+here; ``tests/test_pose_registry.py`` checks every line, and docs/poses.md walks through an example. Importing this
+module imports no reader (the command line lists the names without loading torch).
+"""
+
+from __future__ import annotations
+
+from .conventions import PoseFormat
+
+__all__ = ["POSE_FORMATS", "pose_format"]
+
+POSE_FORMATS: dict[str, PoseFormat] = {
+    "opensfm": PoseFormat("opensfm", "read_opensfm", "named", options=("reconstruction",)),
+    "nerfstudio": PoseFormat("nerfstudio", "read_transforms_json", "relative"),
+    "tum": PoseFormat("trajectories", "read_tum", "ordered"),
+    "kitti": PoseFormat("trajectories", "read_kitti", "ordered"),
+    "colmap": PoseFormat("colmap", "read_colmap", "named"),
+    "metashape": PoseFormat("metashape", "read_metashape_xml", "named"),
+    "openmvg": PoseFormat("openmvg", "read_openmvg", "named"),
+}
+
+
+def pose_format(name: str) -> PoseFormat:
+    """The registry entry ``name``; ``ValueError`` listing the formats otherwise."""
+    if name not in POSE_FORMATS:
+        raise ValueError(f"unknown pose format {name!r}; use one of {', '.join(POSE_FORMATS)}")
+    return POSE_FORMATS[name]
