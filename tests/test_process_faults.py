@@ -20,7 +20,7 @@ def test_a_closed_pipe_ends_print_config_quietly():
                             stderr=subprocess.PIPE, env=env)
     proc.stdout.close()  # what `head -0` does
     err = proc.stderr.read().decode()
-    assert proc.wait(timeout=300) == 141
+    assert proc.wait(timeout=300) == 0  # the reader took what it wanted
     assert err == ""
 
 

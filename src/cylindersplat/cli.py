@@ -34,6 +34,33 @@ class OneLineErrorParser(argparse.ArgumentParser):
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
+    def parse_args(self, args=None, namespace=None):
+        """Unknown options are reported by the subcommand's parser (its --help), with the nearest known option."""
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            parser = self._subcommand_parser(getattr(parsed, "command", None)) or self
+            parser.error(f"unrecognized arguments: {' '.join(extras)}{_did_you_mean(parser, extras)}")
+        return parsed
+
+    def _subcommand_parser(self, name: str | None) -> argparse.ArgumentParser | None:
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction) and name in action.choices:
+                return action.choices[name]
+        return None
+
+
+def _did_you_mean(parser: argparse.ArgumentParser, extras: list[str]) -> str:
+    """`` (did you mean --frames?)`` for the first unknown option close to one of ``parser``'s, else ``""``."""
+    import difflib
+
+    known = [option for action in parser._actions for option in action.option_strings if option.startswith("--")]
+    for word in extras:
+        if word.startswith("--"):
+            close = difflib.get_close_matches(word.split("=", 1)[0], known, n=1)
+            if close:
+                return f" (did you mean {close[0]}?)"
+    return ""
+
 
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
@@ -54,8 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command; process faults end in one line (or none) instead of a traceback: Ctrl-C at any
     moment, the start-up imports included, prints ``interrupted`` and exits 130 (files are written atomically,
     so none is left half-written; an error a library made of the interrupt counts as one, see
-    :mod:`cylindersplat.interrupt`); a reader that stops early (``| head``) ends the output quietly (141)."""
+    :mod:`cylindersplat.interrupt`); a reader that stops early (``| head``) ends the output quietly (exit 0: the command did its job)."""
     previous = interrupt.remember()
+    _closed_streams_to_devnull()
     try:
         code = _run_command(argv)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's own flush at exit
@@ -64,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         return _interrupted(argv)
     except BrokenPipeError:
         _silence_stdout()
-        return 141  # as if killed by SIGPIPE, what `| head` expects of a producer
+        return 0  # the reader took what it wanted (`| head`): the command itself did its job
     except Exception:
         if interrupt.received():  # e.g. numpy's ImportError when Ctrl-C hits its C extensions' import
             return _interrupted(argv)
@@ -76,6 +104,13 @@ def main(argv: list[str] | None = None) -> int:
 def _interrupted(argv: list[str] | None) -> int:
     print(f"{interrupt.command_name(argv)}: interrupted", file=sys.stderr)
     return 130
+
+
+def _closed_streams_to_devnull() -> None:
+    """Started with stdout or stderr closed (``>&-``), Python has ``None`` there: print into /dev/null instead."""
+    for name in ("stdout", "stderr"):
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(os.devnull, "w"))  # noqa: SIM115 - lives as long as the process
 
 
 def _silence_stdout() -> None:
@@ -108,6 +143,9 @@ def _run_command(argv: list[str] | None) -> int:
         message = None if args.debug else expected_failure(exc)
         if message is None:
             raise  # a bug (or --debug): the traceback is what we need
+        note = getattr(exc, "output_note", None)  # a failed set of outputs: what was kept, what was not written
+        if note:
+            message = f"{message.rstrip('.')}; {note}"
         # Expected failures: one clear line, no traceback.
         message = " ".join(line.strip() for line in message.splitlines() if line.strip())
         print(f"cylindersplat {args.command}: error: {message}", file=sys.stderr)

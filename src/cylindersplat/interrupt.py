@@ -9,15 +9,21 @@ Two phases (stdlib only here, so that importing this module is the first thing t
   ``finally`` blocks remove half-written files, and is remembered, because some libraries turn it into an error
   of their own (numpy's C extensions, interrupted while importing, raise an ``ImportError``); :func:`received`
   tells the command line that such an error is an interrupt.
+
+:func:`held` keeps Ctrl-C back for a few lines that must run whole (a training step's optimizer update): the
+interrupt is raised when the block ends, so a checkpoint written then holds a consistent state.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
+import threading
+from typing import Iterator
 
-__all__ = ["command_name", "exit_at_once", "remember", "received", "restore"]
+__all__ = ["command_name", "exit_at_once", "remember", "received", "restore", "held"]
 
 _received = False
 
@@ -64,3 +70,22 @@ def restore(previous) -> None:
 def received() -> bool:
     """Whether Ctrl-C was pressed since :func:`remember`."""
     return _received
+
+
+@contextlib.contextmanager
+def held() -> Iterator[None]:
+    """Ctrl-C inside the block is raised (as ``KeyboardInterrupt``) only when the block has run whole. Where
+    handlers cannot be set (not the main thread) the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pressed = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: pressed.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if pressed and previous is not signal.SIG_IGN:
+        global _received
+        _received = True
+        raise KeyboardInterrupt

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from ..utils.atomic import atomic_write_text
+from ..utils.atomic import atomic_write_text, output_set, written_at_once
 from ..utils.jsonfile import json_text
 
 from ._arguments import device, model_resolution, positive_int
@@ -68,8 +68,12 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     data = generate_data(args)
     checkpoint = train_or_reuse(args, data)
-    results = score_held_out(args, data, checkpoint)
-    reconstruct_held_out(args, data, checkpoint)
+    # Scores, pictures, PLY and fly-through replace an earlier demo's only when all of them are written.
+    planned = [args.out / name for name in ("results.md", "results.json", "novel_view_rgb.png", "comparison.png",
+                                            "gaussians.ply")] + ([args.out / "flythrough.gif"] if args.frames else [])
+    with output_set(args.out, planned=planned):
+        results = score_held_out(args, data, checkpoint)
+        reconstruct_held_out(args, data, checkpoint)
     print(results)
     print(f"demo finished in {time.perf_counter() - start:.0f} s; everything is in {args.out}/ "
           "(comparison.png, novel_view_*.png, flythrough.gif, gaussians.ply, results.md)")
@@ -94,15 +98,14 @@ def _scene_ids(args) -> tuple[list[str], list[str]]:
 
 
 def generate_data(args) -> Path:
-    from ..experiments.ablation import study_sequence_config
-    from ..data.synth import write_synthetic_dataset
+    from ..data.synth import profile_config, write_synthetic_dataset
 
     print(f"[1/4] procedural panoramas: {args.scenes} scenes x 3 frames at {args.resolution[0]}x{args.resolution[1]}")
     root = args.out / "data"
     # Baselines 1-2 m between the outer frames; the target is off their line and occluders stand near the
     # path (the "occlusion" profile), so part of every target is hidden from both inputs: only the volume
     # branch can complete it.
-    write_synthetic_dataset(root, args.scenes, args.resolution, study_sequence_config(), seed=0)
+    write_synthetic_dataset(root, args.scenes, args.resolution, profile_config("occlusion"), seed=0)
     return root
 
 
@@ -110,6 +113,7 @@ def train_or_reuse(args, data: Path) -> Path:
     """The weights file the demo scores: ``--checkpoint``, the shipped model, or its own training run."""
     from ..model.pretrained import DEFAULT_PRETRAINED, PRETRAINED, resolve_weights
     from ..training import Trainer, load_config
+    from ..training.resume import has_checkpoint, remove_run_outputs, unresumable_run
 
     if args.checkpoint:
         weights = resolve_weights(args.checkpoint)  # missing, a pickle, ...: one line, before any work
@@ -138,9 +142,12 @@ def train_or_reuse(args, data: Path) -> Path:
     })
     print(f"[2/4] training the tiny model on {len(train_ids)} scenes: stages {stages}, steps {steps} "
           f"(a few minutes on CPU; logs and image grids in {run_dir})")
-    if (run_dir / "checkpoints").is_dir() and not args.retrain:
+    if has_checkpoint(run_dir) and not args.retrain:
         trainer = Trainer(config, resume=run_dir)  # a killed demo continues where it stopped
     else:
+        if unresumable_run(run_dir) and not args.retrain:
+            print(f"  {run_dir} holds a training run that stopped before its first checkpoint: starting it over")
+        remove_run_outputs(run_dir)  # no log lines or pictures of another run beside this one's
         trainer = Trainer(config)
     summary = trainer.fit()
     return Path(summary["weights"])
@@ -196,8 +203,9 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
     print(f"[4/4] reconstructing held-out scene {held_out[0]} from 2 panoramas "
           f"({sample.metadata.get('baseline', float('nan')):.2f} m apart)")
     # The two inputs are written as a user input folder and read back: the same path as `cylindersplat render`.
-    folder = write_panorama_folder(args.out / "input", sample.context_images, sample.context_poses, sample.context_priors,
-                                   names=["left", "right"])
+    with written_at_once():  # read back at once, so not held back with the demo's other outputs
+        folder = write_panorama_folder(args.out / "input", sample.context_images, sample.context_poses,
+                                       sample.context_priors, names=["left", "right"])
     inputs = load_panorama_folder(folder, args.resolution)
     model = load_model(checkpoint, map_location=args.device)
     gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, min_opacity=0.005)

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from ..dataset_layouts import DATASET_LAYOUTS
-from ..utils.atomic import atomic_write_text
+from ..utils.atomic import atomic_write_text, output_set
 from ..utils.jsonfile import json_text
 
 from ._arguments import NearFar, device, equirect_resolution, fill_list, memory_advice, nonnegative_int, positive_int
@@ -216,13 +216,18 @@ def run(args: argparse.Namespace) -> int:
     table = results_to_markdown(results, title="Evaluation", backgrounds=backgrounds)
     if notes:  # the table's file carries what the run printed about it
         table += "\nNotes:\n" + "".join(f"- {note}\n" for note in notes)
-    atomic_write_text(args.out / "results.md", table)
-    atomic_write_text(args.out / "results.json",
-                      json_text({"means": results, "views": details, "settings": settings, "notes": notes,
-                                 "backgrounds": backgrounds}))
+    write_tables(args.out, table, {"means": results, "views": details, "settings": settings, "notes": notes,
+                                   "backgrounds": backgrounds})
     print(table)
     print(f"wrote {args.out}/results.md, results.json and examples/")
     return 0
+
+
+def write_tables(out: Path, table: str, data: dict) -> None:
+    """``out/results.md`` and ``results.json``: both replace the earlier ones, or neither does."""
+    with output_set(out, planned=[out / "results.md", out / "results.json"]):
+        atomic_write_text(out / "results.md", table)
+        atomic_write_text(out / "results.json", json_text(data))
 
 
 def register(subparsers) -> None:

@@ -6,6 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
+from ..utils.atomic import output_set
 from ._arguments import check_output, image_resolution, memory_advice, positive_int
 from ._inference import add_input_arguments, reconstruct_from_args
 
@@ -60,19 +61,24 @@ def _memory_advice(refusal) -> str:
     return f"use {fewer}a smaller --output-resolution, or a GPU (--device cuda)"
 
 
-def _remove_earlier_render(out: Path, keep) -> None:
-    """Delete what an earlier render wrote into ``out`` (views, their poses.json, gaussians.ply, a fly-through):
-    this render's files must never stand beside another's, whatever subset of them it writes. ``keep``: paths
-    not to touch (the --ply being rendered, which may lie there)."""
+def _earlier_render(out: Path, keep) -> list[Path]:
+    """What an earlier render wrote into ``out`` (views, their poses.json, gaussians.ply, a fly-through): this
+    render's files must never stand beside another's, whatever subset of them it writes, so those it does not
+    replace are deleted once its own are all in place. ``keep``: paths not to touch (the --ply being rendered,
+    which may lie there)."""
     kept = {Path(p).resolve() for p in keep if p is not None}
     view_dir = out / "views"
     stale = [p for pattern in VIEW_PATTERNS for p in view_dir.glob(pattern)] if view_dir.is_dir() else []
     stale += [out / name for name in RENDER_PATTERNS if (out / name).is_file()]
-    stale = [p for p in stale if p.resolve() not in kept]
-    for path in stale:
-        path.unlink()
-    if stale:
-        print(f"removed {len(stale)} files of an earlier render in {out}")
+    return [p for p in stale if p.resolve() not in kept]
+
+
+def _planned(args, view_poses, video) -> list[Path]:
+    """The files this render still has to write, named when one of them fails (none is then written)."""
+    planned = [args.out / "views" / "poses.json"] if view_poses is not None else []
+    planned += [args.out / "gaussians.ply"] if not args.no_ply and not args.ply else []
+    planned += [video, args.out / "flythrough_poses.json"] if video is not None else []
+    return planned
 
 
 @memory_advice(_memory_advice)
@@ -139,44 +145,49 @@ def run(args: argparse.Namespace) -> int:
     else:  # colours fixed before rendering, so views and frames are written as they come
         near, far = sampled_depth_limits(gaussians, (view_poses if view_poses is not None else path_poses) @ turn)
     view_dir = args.out / "views"
-    _remove_earlier_render(args.out, keep=[args.ply])
-    if view_poses is not None:
-        view_poses = view_poses @ turn
-        view_dir.mkdir(exist_ok=True)
-        records, index = [], 0
-        for out in iter_views(gaussians, view_poses, h, w, background, args.view_batch, progress=True, desc="novel views",
-                              camera=camera):
-            for k in range(len(out.rgb)):  # written as rendered: memory holds one chunk of views
-                stem = f"view_{index:03d}"
-                write_view(view_dir / f"{stem}_rgb.png", view_dir / f"{stem}_depth.png", out.rgb[k], out.depth[k],
-                           out.alpha[k], near, far)
-                if args.metric_depth:  # metres along each ray (0 where less than half covered), for measuring
-                    write_metric_depth(view_dir / f"{stem}_depth.npy", view_dir / f"{stem}_depth_mm.png",
-                                       out.depth[k], out.alpha[k])
-                records.append(PoseRecord(f"{stem}_rgb.png", view_poses[index],
-                                          f"{stem}_depth.npy" if args.metric_depth else None))
-                index += 1
-        extra = {"camera": record}
-        if args.metric_depth:
-            extra["depth_type"] = ("radial distance along each pixel's ray: view_NNN_depth.npy float32 metres, "
-                                   "view_NNN_depth_mm.png 16-bit depth_scale units per metre; 0 = no surface")
-        write_poses_json(view_dir / "poses.json", records, depth_scale=1000 if args.metric_depth else None, **extra)
-        what = "RGB + depth colormap" + (" + metric depth (.npy metres, 16-bit PNG mm)" if args.metric_depth else "")
-        print(f"wrote {index} {record['model']} views ({what}, {h}x{w}) and their poses.json to {view_dir}")
+    said = []  # printed once every file is in place: a failure part-way writes (and says) none of them
+    stale = lambda: _earlier_render(args.out, keep=[args.ply])  # noqa: E731
+    with output_set(args.out, planned=_planned(args, view_poses, video), stale=stale) as outputs:
+        if view_poses is not None:
+            view_poses = view_poses @ turn
+            view_dir.mkdir(exist_ok=True)
+            records, index = [], 0
+            for out in iter_views(gaussians, view_poses, h, w, background, args.view_batch, progress=True,
+                                  desc="novel views", camera=camera):
+                for k in range(len(out.rgb)):  # written as rendered: memory holds one chunk of views
+                    stem = f"view_{index:03d}"
+                    write_view(view_dir / f"{stem}_rgb.png", view_dir / f"{stem}_depth.png", out.rgb[k], out.depth[k],
+                               out.alpha[k], near, far)
+                    if args.metric_depth:  # metres along each ray (0 where less than half covered), for measuring
+                        write_metric_depth(view_dir / f"{stem}_depth.npy", view_dir / f"{stem}_depth_mm.png",
+                                           out.depth[k], out.alpha[k])
+                    records.append(PoseRecord(f"{stem}_rgb.png", view_poses[index],
+                                              f"{stem}_depth.npy" if args.metric_depth else None))
+                    index += 1
+            extra = {"camera": record}
+            if args.metric_depth:
+                extra["depth_type"] = ("radial distance along each pixel's ray: view_NNN_depth.npy float32 metres, "
+                                       "view_NNN_depth_mm.png 16-bit depth_scale units per metre; 0 = no surface")
+            write_poses_json(view_dir / "poses.json", records, depth_scale=1000 if args.metric_depth else None, **extra)
+            what = "RGB + depth colormap" + (" + metric depth (.npy metres, 16-bit PNG mm)" if args.metric_depth else "")
+            said.append(f"wrote {index} {record['model']} views ({what}, {h}x{w}) and their poses.json to {view_dir}")
 
-    if not args.no_ply and not args.ply:
-        ply = save_ply(gaussians.to("cpu"), args.out / "gaussians.ply")
-        print(f"wrote {ply}")
-    if video is not None:
-        if path_poses is not None:
-            frames = path_poses @ turn
-        else:
-            frames = flythrough_path(keys, args.frames) @ turn
-        written = write_flythrough(video, gaussians, None, h, w, fps=args.fps, near=near, far=far, background=background,
-                                   camera=camera, poses=frames, chunk=args.view_batch)
-        poses_file = write_poses_json(args.out / "flythrough_poses.json", [PoseRecord(None, p) for p in frames],
-                                      fps=args.fps, camera=record)
-        print(f"wrote {written} ({len(frames)} frames, RGB above depth) and {poses_file.name}")
+        if not args.no_ply and not args.ply:
+            ply = save_ply(gaussians.to("cpu"), args.out / "gaussians.ply")
+            said.append(f"wrote {ply}")
+        if video is not None:
+            if path_poses is not None:
+                frames = path_poses @ turn
+            else:
+                frames = flythrough_path(keys, args.frames) @ turn
+            written = write_flythrough(video, gaussians, None, h, w, fps=args.fps, near=near, far=far,
+                                       background=background, camera=camera, poses=frames, chunk=args.view_batch)
+            poses_file = write_poses_json(args.out / "flythrough_poses.json", [PoseRecord(None, p) for p in frames],
+                                          fps=args.fps, camera=record)
+            said.append(f"wrote {written} ({len(frames)} frames, RGB above depth) and {poses_file.name}")
+    print("\n".join(said))
+    if outputs.removed:
+        print(f"removed {len(outputs.removed)} files of an earlier render in {args.out}")
     return 0
 
 

@@ -3,16 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import shutil
 from pathlib import Path
 
 from ._arguments import check_output, count_list, positive_int, stage_list
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..training import Trainer, load_config
+    from ..training import load_config
 
-    overrides = list(args.overrides)
+    overrides, resume = list(args.overrides), None
     if args.data:
         overrides.append(f"data.root={args.data}")
     if args.stages:
@@ -29,6 +28,8 @@ def run(args: argparse.Namespace) -> int:
         config = load_config(args.config or "tiny", overrides)
     else:
         resume = _resume_point(args)
+        if args.stages and not args.steps:  # the run's own steps of the stages asked for
+            overrides.insert(0, _steps_of(resume, args.stages))
         # The run keeps writing into its own folder (wherever it lies now) unless --out forks it elsewhere.
         overrides.append(f"output_dir={args.out or resume.run_folder}")
         config = resume.config(overrides)
@@ -39,8 +40,17 @@ def run(args: argparse.Namespace) -> int:
 
         print(yaml.safe_dump(config_as_dict(config), sort_keys=False))
         return 0
+    from ..training.run_lock import run_folder_lock
+
     check_output(config.output_dir, folder=True)
-    if args.resume is None:
+    with run_folder_lock(config.output_dir):  # before anything is written: one run per folder
+        return _train(args, config, resume)
+
+
+def _train(args: argparse.Namespace, config, resume) -> int:
+    from ..training import Trainer
+
+    if resume is None:
         _refuse_to_trample(Path(config.output_dir), args.overwrite)
     else:
         if resume.finished(config):
@@ -72,6 +82,15 @@ def _resume_point(args: argparse.Namespace):
     return resume
 
 
+def _steps_of(resume, stages: str) -> str:
+    """``train.steps_per_stage=[...]`` for ``stages`` from the run's own schedule (one entry per stage there)."""
+    steps = list(resume.saved.get("train", {}).get("steps_per_stage", []))
+    if len(steps) == len(resume.saved_stages) > 1:
+        by_stage = dict(zip(resume.saved_stages, steps))
+        steps = [by_stage.get(int(s), steps[-1]) for s in stages.split(",")]
+    return f"train.steps_per_stage=[{','.join(str(s) for s in steps)}]"
+
+
 def _say_resume(resume, config) -> None:
     """One line: where the run continues, and every setting the command line changed (e.g. the schedule)."""
     from ..training.resume import config_changes
@@ -81,22 +100,21 @@ def _say_resume(resume, config) -> None:
     print(f"resuming {resume.checkpoint} at step {resume.global_step} with the run's own config{said}", flush=True)
 
 
-# What a run writes into its folder (``--overwrite`` removes exactly these, nothing else of the user's).
-RUN_OUTPUTS = ("checkpoints", "images", "tensorboard", "metrics.jsonl", "config.yaml", "model.safetensors",
-               "model_stage1.safetensors", "model_stage2.safetensors", "model_stage3.safetensors")
-
-
 def _refuse_to_trample(folder: Path, overwrite: bool) -> None:
-    """A folder that holds a run is resumed (``--resume``) or replaced on request, never mixed."""
-    present = [name for name in RUN_OUTPUTS if (folder / name).exists()]
+    """A folder that holds a run is resumed (``--resume``) or replaced on request, never mixed. A run that stopped
+    before its first checkpoint has nothing to resume: it starts over, said in one line."""
+    from ..training.resume import remove_run_outputs, run_outputs, unresumable_run
+
+    present = run_outputs(folder)
     if not present:
         return
+    if unresumable_run(folder) and not overwrite:
+        print(f"{folder} holds a run that stopped before its first checkpoint (nothing to resume): starting it over")
+        overwrite = True
     if not overwrite:
         raise ValueError(f"{folder} already holds a training run ({', '.join(present[:3])}...); continue it with "
                          f"--resume {folder}, start anew with --overwrite, or choose another --out")
-    for name in present:
-        path = folder / name
-        shutil.rmtree(path) if path.is_dir() else path.unlink()
+    remove_run_outputs(folder)
 
 
 def register(subparsers) -> None:

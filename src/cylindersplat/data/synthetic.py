@@ -27,9 +27,10 @@ def _read_json(path: Path, kind: type = dict):
     return data
 
 
-def _depth_scale(meta: dict, path: Path) -> float:
-    """``depth_scale`` of a scene's meta.json (depth PNG units per metre; absent: millimetres)."""
-    scale = meta.get("depth_scale", DEPTH_PNG_SCALE)
+def _depth_scale(meta: dict, path: Path, default: float = DEPTH_PNG_SCALE) -> float:
+    """``depth_scale`` of a meta.json (depth PNG units per metre; absent: ``default``, the dataset's own
+    ``depth_scale`` for a scene, millimetres for the dataset)."""
+    scale = meta.get("depth_scale", default)
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
         raise ValueError(f"{path}: depth_scale must be a positive number (PNG units per metre), got {scale!r}")
     return float(scale)
@@ -64,6 +65,7 @@ class SyntheticDataset(PanoramaDataset):
         super().__init__(resolution, depth_prior or SimulatedPrior(), stored_size=stored, depth_resize=depth_resize)
         self.root = self.data_root = root
         self.views = views
+        self.depth_scale = _depth_scale(meta, root / "meta.json")  # for scenes whose meta.json names none
         listed = meta.get("scenes", [])
         if not isinstance(listed, list) or not all(isinstance(s, str) for s in listed):
             raise ValueError(f'{root / "meta.json"}: "scenes" must be a list of scene ids, got {listed!r:.80}')
@@ -93,7 +95,7 @@ class SyntheticDataset(PanoramaDataset):
         names = meta.get("frames")
         if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
             raise ValueError(f'{meta_path}: "frames" must be a non-empty list of frame names, got {names!r:.80}')
-        scale = _depth_scale(meta, meta_path)
+        scale = _depth_scale(meta, meta_path, default=self.depth_scale)
         frames = []
         for name in names:
             if name not in poses:

@@ -55,12 +55,18 @@ def save_checkpoint(folder: str | Path, model: CylinderSplat, state: dict[str, A
     """Write ``folder/step_<global_step>/`` and point ``folder/latest`` at it."""
     root = Path(folder)
     target = root / f"step_{state['global_step']:07d}"
+    new = not target.exists()
     target.mkdir(parents=True, exist_ok=True)
-    save_model(model, target / MODEL_FILE)
-    buffer = io.BytesIO()  # in memory first: a full disk is then an OSError naming the file, and nothing half-written
-    torch.save(state, buffer)
-    atomic_write_bytes(target / STATE_FILE, buffer.getbuffer())
-    atomic_write_text(root / "latest", target.name + "\n")
+    try:
+        save_model(model, target / MODEL_FILE)
+        buffer = io.BytesIO()  # in memory first: a full disk is then an OSError naming the file, nothing half-written
+        torch.save(state, buffer)
+        atomic_write_bytes(target / STATE_FILE, buffer.getbuffer())
+        atomic_write_text(root / "latest", target.name + "\n")
+    except BaseException:
+        if new:  # no half checkpoint beside the earlier ones; `latest` still names the last complete one
+            shutil.rmtree(target, ignore_errors=True)
+        raise
     return target
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -27,6 +28,7 @@ import torch
 import yaml
 from torch import Tensor
 
+from .. import interrupt
 from ..data import Sample
 from ..model import CylinderSplat, load_model, save_model
 from ..model.curriculum import volume_stage_follows
@@ -38,6 +40,7 @@ from .config import ExperimentConfig, config_as_dict
 from .data import ResumableBatchSampler, build_dataset, build_loader
 from .distributed import cleanup_distributed, init_distributed, unwrap, wrap_ddp
 from .logger import MetricLogger
+from .resume import curriculum_position
 from .losses import LossTerms, RenderLoss, reference_depths
 from .schedule import cosine_schedule
 
@@ -121,6 +124,8 @@ class Trainer:
         self.skipped_steps = 0
         self.consecutive_skips = 0
         self._gaussian_grad_ok: dict[str, Tensor] = {}  # filled by backward hooks, read only on a bad step
+        self._saved_step: int | None = None  # global step of the last checkpoint written or resumed from
+        self._rng_after_step: dict[str, Any] | None = None  # RNG states after the last whole step (Ctrl-C's checkpoint)
         if resume is not None:
             self._load(resolve_checkpoint(resume))
         elif tcfg.init:
@@ -258,7 +263,6 @@ class Trainer:
 
     def train_step(self, batch: Sample) -> dict[str, float]:
         self.model.train()
-        tcfg = self.config.train
         terms = self.compute_loss(batch_to_device(batch, self.device))
         self.optimizer.zero_grad(set_to_none=True)
         # Backward even for a NaN loss: under DDP every rank must join the gradient all-reduce.
@@ -273,6 +277,13 @@ class Trainer:
         terms.parts["grad_norm"] = float(grad_norm)
         terms.parts["lr"] = self.optimizer.param_groups[0]["lr"]
         terms.parts["skipped"] = float(skip)
+        with interrupt.held():  # the update runs whole: a checkpoint after Ctrl-C holds the state of one step
+            self._update(skip, params, grad_norm, loss_ok)
+        return terms.parts
+
+    def _update(self, skip: bool, params: list[Tensor], grad_norm: Tensor, loss_ok: Tensor) -> None:
+        """The optimizer and schedule step (or the skip of a non-finite step) and the step counters."""
+        tcfg = self.config.train
         if skip:
             source = self._nonfinite_source()  # before zeroing: it reads the grads
             self.optimizer.zero_grad(set_to_none=True)
@@ -281,7 +292,7 @@ class Trainer:
             step = self.global_step + 1
             warnings.warn(
                 f"step {step} (stage {self.stage}) skipped: loss {'finite' if bool(loss_ok) else 'non-finite'}, "
-                f"grad norm {float(grad_norm)}; {source}", RuntimeWarning, stacklevel=2,
+                f"grad norm {float(grad_norm)}; {source}", RuntimeWarning, stacklevel=3,
             )
             if 0 < tcfg.max_nonfinite_steps < self.consecutive_skips:
                 raise RuntimeError(
@@ -300,7 +311,6 @@ class Trainer:
             self.scheduler.step()
         self.stage_step += 1
         self.global_step += 1
-        return terms.parts
 
     # -- loop ---------------------------------------------------------------------------------
     def fit(self, max_steps: int | None = None) -> dict[str, Any]:
@@ -316,6 +326,7 @@ class Trainer:
         history: list[dict[str, float]] = []
         step_times: list[float] = []
         budget = max_steps
+        self._rng_after_step = capture_rng()
         try:
             while self.stage_index < len(tcfg.stages):
                 total = self.stage_steps()
@@ -345,6 +356,7 @@ class Trainer:
                         self.log_images()
                     if tcfg.checkpoint_every > 0 and self.global_step % tcfg.checkpoint_every == 0 and self.stage_step < total:
                         self.save_checkpoint()
+                    self._rng_after_step = capture_rng()
                 bar.close()
                 if budget is not None:
                     budget -= todo
@@ -360,6 +372,9 @@ class Trainer:
             finished = self.stage_index >= len(tcfg.stages)
             if finished and self.dist.is_main:
                 save_model(self.model, self.output_dir / "model.safetensors")
+        except KeyboardInterrupt:
+            self._save_interrupted()
+            raise
         finally:
             self.logger.close()
             cleanup_distributed()
@@ -395,7 +410,17 @@ class Trainer:
         self.optimizer = self.scheduler = None
 
     # -- checkpoints --------------------------------------------------------------------------
-    def state_dict(self) -> dict[str, Any]:
+    def _save_interrupted(self) -> None:
+        """Ctrl-C: checkpoint the last whole step (unless one was just written), and say how to continue."""
+        if not self.dist.is_main or self.global_step == 0 or self._saved_step == self.global_step:
+            return
+        if self.stage_index < len(self.config.train.stages) and self.stage_step == 0:
+            return  # between stages: the end-of-stage checkpoint is the latest state
+        path = self.save_checkpoint(rng=self._rng_after_step)
+        print(f"interrupted after step {self.global_step}: saved {path}; continue with --resume {self.output_dir}",
+              file=sys.stderr, flush=True)
+
+    def state_dict(self, rng: dict[str, Any] | None = None) -> dict[str, Any]:
         return {
             "global_step": self.global_step,
             "stage_index": self.stage_index,
@@ -406,30 +431,28 @@ class Trainer:
             "stages": list(self.config.train.stages),
             "optimizer": self.optimizer.state_dict() if self.optimizer is not None else None,
             "scheduler": self.scheduler.state_dict() if self.scheduler is not None else None,
-            "rng": capture_rng(),
+            "rng": rng if rng is not None else capture_rng(),
             "config": config_as_dict(self.config),
         }
 
-    def save_checkpoint(self) -> Path | None:
+    def save_checkpoint(self, rng: dict[str, Any] | None = None) -> Path | None:
         if not self.dist.is_main:
             return None
         folder = self.output_dir / "checkpoints"
-        path = save_checkpoint(folder, unwrap(self.model), self.state_dict())
+        path = save_checkpoint(folder, unwrap(self.model), self.state_dict(rng))
+        self._saved_step = self.global_step
         prune_checkpoints(folder, self.config.train.keep_checkpoints)
         return path
 
     def _load(self, folder: Path) -> None:
         state = read_state(folder)
-        if list(state["stages"]) != list(self.config.train.stages):
-            raise ValueError(
-                f"checkpoint {folder} was trained with train.stages={state['stages']}, "
-                f"this run has {list(self.config.train.stages)}; they must match to resume"
-            )
         weights = load_model(folder / "model.safetensors", map_location=self.device)
         self.model.load_state_dict(weights.state_dict())
-        self.global_step = state["global_step"]
-        self.stage_index = state["stage_index"]
-        self.stage_step = state["stage_step"]
+        self.global_step = self._saved_step = state["global_step"]
+        # Other train.stages than the run's (e.g. --stages 2 after a stage-1 run) continue from these weights
+        # with the first stage the run has not finished.
+        self.stage_index, self.stage_step = curriculum_position(state["stages"], state["stage_index"],
+                                                                state["stage_step"], self.config.train.stages)
         self.skipped_steps = state.get("skipped_steps", 0)  # absent in older checkpoints
         self.consecutive_skips = state.get("consecutive_skips", 0)
         if state["optimizer"] is not None and self.stage_step > 0:

@@ -4,17 +4,27 @@ A failure part-way (disk full, file-size limit, a crash) then leaves the previou
 untouched instead of a truncated one, and no half-written file appears under the final name. An
 ``OSError`` raised while writing names the final path (not the temporary one), so the command line
 can say which output did not fit (``cylindersplat.cli.expected_failure``).
+
+A command that writes several files (a render's views, PLY and fly-through) wraps its writing in
+:func:`output_set`: every :func:`atomic_path` inside then keeps its finished temporary file, and the whole
+set is renamed into place only when the block succeeds. A failure part-way leaves every earlier output as it
+was (none of the new files appears) and the exception carries a note naming the files that were not written
+(``output_note``, appended to the command's one-line error). Files of an earlier run that the new set does not
+replace are removed only after the new set is in place (``stale``).
 """
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import os
+import re
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterable, Iterator
 
-__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes"]
+__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "output_set", "OutputSet", "written_at_once",
+           "remove_temporaries"]
 
 
 def _umask() -> int:
@@ -72,7 +82,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         yield tmp
         os.chmod(tmp, _final_mode(path))
-        os.replace(tmp, path)
+        staging = _current_set.get()
+        if staging is None:
+            os.replace(tmp, path)
+        else:
+            staging.stage(tmp, path)  # renamed with the rest of its set
     except BaseException as exc:
         tmp.unlink(missing_ok=True)
         if isinstance(exc, OSError):
@@ -97,3 +111,110 @@ def atomic_write_bytes(path: str | Path, data: bytes | bytearray | memoryview) -
         with open(tmp, "wb") as f:
             f.write(data)
     return Path(path)
+
+
+_current_set: contextvars.ContextVar["OutputSet | None"] = contextvars.ContextVar("output_set", default=None)
+_TEMPORARY = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp(\.[^/]*)?$")  # what atomic_path's mkstemp names look like
+
+
+class OutputSet:
+    """Finished temporary files waiting to replace their final paths together (see :func:`output_set`)."""
+
+    def __init__(self, folder: Path, planned: Iterable[str | Path] = ()) -> None:
+        self.folder = folder
+        self.planned = [Path(p) for p in planned]
+        self.staged: dict[Path, Path] = {}  # final path -> its finished temporary file
+        self.removed: list[Path] = []  # files of an earlier run deleted after the commit
+
+    def stage(self, tmp: Path, final: Path) -> None:
+        earlier = self.staged.pop(final, None)
+        if earlier is not None and earlier != tmp:
+            earlier.unlink(missing_ok=True)  # written twice in one run: the later one counts
+        self.staged[final] = tmp
+
+    def commit(self) -> list[Path]:
+        for final, tmp in self.staged.items():
+            os.replace(tmp, final)
+        return list(self.staged)
+
+    def discard(self) -> None:
+        for tmp in self.staged.values():
+            tmp.unlink(missing_ok=True)
+
+    def note(self, failed: Path | None) -> str:
+        """``nothing in OUT was changed (not written: a, b, ...)``."""
+        names = [*self.staged, *([failed] if failed is not None else []), *self.planned]
+        shown: list[str] = []
+        for path in names:
+            name = self._name(path)
+            if name not in shown:
+                shown.append(name)
+        listed = ", ".join(shown[:6]) + (f" and {len(shown) - 6} more" if len(shown) > 6 else "")
+        return f"nothing in {self.folder} was changed" + (f" (not written: {listed})" if shown else "")
+
+    def _name(self, path: Path) -> str:
+        try:
+            return str(Path(os.path.abspath(path)).relative_to(os.path.abspath(self.folder)))
+        except ValueError:
+            return str(path)
+
+
+def _failed_path(exc: BaseException) -> Path | None:
+    filename = getattr(exc, "filename", None)
+    return Path(os.fsdecode(filename)) if isinstance(filename, (str, bytes, os.PathLike)) else None
+
+
+@contextlib.contextmanager
+def output_set(folder: str | Path, planned: Iterable[str | Path] = (),
+               stale: Callable[[], Iterable[Path]] | None = None) -> Iterator[OutputSet]:
+    """``with output_set(OUT): write(...)``: all files written with :func:`atomic_path` in the block replace
+    their final paths only when the whole block succeeds.
+
+    A failure discards the new files, leaves ``folder`` as it was and adds ``output_note`` to the exception
+    (``nothing in OUT was changed (not written: ...)``, naming the files written so far, the one that failed and
+    ``planned``: those the command had still to write). After a success, ``stale()`` (called before the new files
+    are renamed into place) lists files of an earlier run; those the new set did not replace are deleted. A set
+    opened inside another joins it.
+    """
+    if _current_set.get() is not None:
+        yield _current_set.get()
+        return
+    staging = OutputSet(Path(folder), planned)
+    token = _current_set.set(staging)
+    try:
+        yield staging
+    except BaseException as exc:
+        staging.discard()
+        if isinstance(exc, Exception) and not hasattr(exc, "output_note"):
+            with contextlib.suppress(AttributeError, TypeError):  # some exception types take no attributes
+                exc.output_note = staging.note(_failed_path(exc))
+        raise
+    finally:
+        _current_set.reset(token)
+    earlier = [Path(p) for p in stale()] if stale is not None else []
+    written = {Path(os.path.abspath(p)) for p in staging.commit()}
+    staging.removed = [p for p in earlier if Path(os.path.abspath(p)) not in written and p.is_file()]
+    for path in staging.removed:
+        path.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def written_at_once() -> Iterator[None]:
+    """Files written in this block go to their final paths at once, also inside an :func:`output_set` (an
+    intermediate a command reads back, e.g. the demo's input folder)."""
+    token = _current_set.set(None)
+    try:
+        yield
+    finally:
+        _current_set.reset(token)
+
+
+def remove_temporaries(folder: str | Path) -> int:
+    """Delete the temporary files :func:`atomic_path` leaves behind when its process is killed (``kill -9``)
+    anywhere under ``folder``; returns how many. Only for folders no other process is writing into."""
+    count = 0
+    for path in Path(folder).rglob(".*.tmp*"):
+        if path.is_file() and _TEMPORARY.match(path.name):
+            path.unlink(missing_ok=True)
+            count += 1
+    return count

@@ -7,7 +7,8 @@
     DIR/<id>/NN/depth.png              16-bit radial depth in millimetres, 0 = sky / none
 
 A scene's ``meta.json`` is written last, so an interrupted run is resumed by running it again:
-complete scenes are skipped.
+complete scenes are skipped, an incomplete one is written anew, and the temporary files a killed run leaves
+(``kill -9``: no clean-up ran) are removed, so the result is byte for byte that of an uninterrupted run.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from ...utils.atomic import atomic_write_text
+from ...utils.atomic import atomic_write_text, remove_temporaries
 from ..io import DEPTH_PNG_SCALE, write_depth_png, write_rgb
 from .sequence import SequenceConfig, generate_sequence, render_sequence, target_offset
 
@@ -88,6 +89,7 @@ def write_synthetic_dataset(
     }
     _check_same_settings(out / "meta.json", settings)
     out.mkdir(parents=True, exist_ok=True)
+    remove_temporaries(out)  # left by a killed run
     atomic_write_text(out / "meta.json", json.dumps(settings, indent=1))
     for index in tqdm(range(scenes), desc="synth scenes", unit="scene", disable=None if progress else True):  # None: no bar when output is not a terminal
         folder = out / ids[index]
