@@ -5,8 +5,9 @@
 that rasterizes them. A backend is a function ``(projected, settings, background) -> (rgb, depth,
 alpha)`` on the flattened layout of :class:`.projection.ProjectedGaussians` (cameras flattened to
 ``C``); backends work for every camera model. ``"torch"`` is the PyTorch reference (CPU and CUDA);
-``"triton"`` is the fast GPU backend, registered when Triton imports. :func:`register_backend`
-adds others.
+``"triton"`` is the fast GPU backend, registered when Triton imports; ``"numba"`` the fast CPU
+backend, registered when numba is installed. ``"auto"`` picks the fast backend of the device and
+falls back to the reference (with one warning) where it cannot run. :func:`register_backend` adds others.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from ..gaussians import Gaussians
 from ..geometry.poses import validate_c2w
 from ..validation import MAX_TRANSLATION_M, farthest_camera
 from .cameras import CameraModel, Equirect
+from .numba_backend import numba_available, numba_backend
 from .projection import DenseProjection, ProjectedGaussians, RasterSettings, UnsupportedSettings, flatten_cameras, project_gaussians
 from .rasterize import rasterize
 from .triton_backend import triton_available, triton_backend
@@ -48,17 +50,20 @@ Backend = Callable[[ProjectedGaussians, RasterSettings, "Tensor | None"], tuple[
 _reference_backend: Backend = rasterize
 _BACKENDS: dict[str, Backend] = {"torch": _reference_backend}
 _PROJECTIONS: dict = {}  # backend -> its own dense projection (projection.project_dense's signature)
-_AUTO_ORDER: list[str] = []  # fast backends "auto" tries on CUDA, in order, before the reference
+_AUTO_ORDER: dict[str, list[str]] = {}  # device type -> fast backends "auto" tries there, in order, before the reference
 _AUTO_DISABLED: set = set()  # fast backends that failed here; "auto" skips them
+_WARNED_NO_NUMBA: list[bool] = [False]
 
 
-def register_backend(name: str, fn: Backend, auto: bool = False, projection: DenseProjection | None = None) -> None:
+def register_backend(name: str, fn: Backend, auto: bool = False, projection: DenseProjection | None = None,
+                     devices: tuple[str, ...] = ("cuda",)) -> None:
     """Make ``fn`` available as ``backend=name``.
 
     ``fn(projected, settings, background)`` gets :class:`ProjectedGaussians` of any camera model
     and returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``, differentiable w.r.t. the
     projected tensors. It may raise :class:`UnsupportedSettings` for inputs it cannot honour.
-    ``auto=True`` lets ``backend="auto"`` pick it on CUDA (before those registered earlier).
+    ``auto=True`` lets ``backend="auto"`` pick it on the device types ``devices`` (default CUDA), before
+    those registered earlier.
     ``projection`` (optional) replaces the reference's per-pair projection math for this backend
     (:func:`.projection.project_dense`'s signature); it may raise :class:`UnsupportedSettings` for a
     camera model or input it does not handle, and the reference's is used for that call.
@@ -70,12 +75,16 @@ def register_backend(name: str, fn: Backend, auto: bool = False, projection: Den
     _BACKENDS[name] = fn
     if projection is not None:
         _PROJECTIONS[fn] = projection
-    if auto and name not in _AUTO_ORDER:
-        _AUTO_ORDER.insert(0, name)
+    for device_type in devices if auto else ():
+        order = _AUTO_ORDER.setdefault(device_type, [])
+        if name not in order:
+            order.insert(0, name)
 
 
 if triton_available():
     register_backend("triton", triton_backend, auto=True, projection=project_dense_triton)
+if numba_available():
+    register_backend("numba", numba_backend, auto=True, devices=("cpu",))
 
 
 def available_backends() -> list[str]:
@@ -87,14 +96,21 @@ def _pick_backend(name: str, device: torch.device) -> Backend:
         # Triton compiles for GPUs only (its CPU interpreter, TRITON_INTERPRET=1, is for tests)
         raise InputError(f"backend='triton' needs a CUDA GPU, but the Gaussians are on {device.type}; use "
                          "backend='torch' (or 'auto'), or move the Gaussians to CUDA")
+    if name == "numba" and device.type != "cpu":
+        raise InputError(f"backend='numba' renders on the CPU, but the Gaussians are on {device.type}; use "
+                         "backend='auto' (or 'triton' on CUDA), or move the Gaussians to the CPU")
     if name == "auto":
-        if device.type == "cuda":
-            for cand in _AUTO_ORDER:
-                if cand in _BACKENDS and _BACKENDS[cand] not in _AUTO_DISABLED:
-                    return _BACKENDS[cand]
+        for cand in _AUTO_ORDER.get(device.type, []):
+            if cand in _BACKENDS and _BACKENDS[cand] not in _AUTO_DISABLED:
+                return _BACKENDS[cand]
+        if device.type == "cpu" and "numba" not in _BACKENDS and not _WARNED_NO_NUMBA[0]:
+            _WARNED_NO_NUMBA[0] = True
+            warnings.warn("numba is not installed: CPU renders use the PyTorch reference, many times slower "
+                          "(pip install numba)", RuntimeWarning, stacklevel=3)
         return _reference_backend
     if name not in _BACKENDS:
-        needs = " (needs the triton package: pip install triton)" if name == "triton" else ""
+        package = {"triton": "triton", "numba": "numba"}.get(name)
+        needs = f" (needs the {package} package: pip install {package})" if package else ""
         raise InputError(f"unknown render backend {name!r}{needs}; available: {', '.join(available_backends())} or auto")
     return _BACKENDS[name]
 
@@ -117,8 +133,11 @@ def _run_fast(fn: Backend, backend: str, fast: Callable, reference: Callable, un
         if backend != "auto" or fn is _reference_backend:
             raise
         _AUTO_DISABLED.add(fn)
-        warnings.warn(f"fast render backend failed ({type(exc).__name__}: {exc}); using the PyTorch reference from "
-                      "now on (pass backend='triton' to see the error)", RuntimeWarning, stacklevel=4)
+        name = next((k for k, v in _BACKENDS.items() if v is fn), None)
+        detail = (str(exc).splitlines() or [""])[0][:200]
+        see = f" (pass backend={name!r} to see the error)" if name else ""
+        warnings.warn(f"fast render backend{f' {name!r}' if name else ''} failed ({type(exc).__name__}: {detail}); "
+                      f"using the PyTorch reference from now on{see}", RuntimeWarning, stacklevel=4)
         return reference()
 
 
@@ -155,8 +174,8 @@ def render(
             Gaussians, ``(B, V, 4, 4)`` for batched ones.
         camera: e.g. ``Equirect(512, 1024)``, ``Pinhole(K, 480, 640)``, ``cubemap_face(256)``.
         background: RGB in [0, 1] added behind the Gaussians (default black); ``(3,)`` or one per camera.
-        backend: ``"auto"`` (fast GPU backend on CUDA when available, else ``"torch"``), or a name
-            from :func:`available_backends`.
+        backend: ``"auto"`` (the fast backend of the device: ``"triton"`` on CUDA, ``"numba"`` on the CPU,
+            else ``"torch"``), or a name from :func:`available_backends`.
         settings: rasterisation constants (:class:`RasterSettings`, 3DGS conventions).
 
     Returns:
@@ -221,8 +240,8 @@ def render_equirect(
             Gaussians, ``(B, V, 4, 4)`` for batched ones.
         height, width: panorama size, ``width == 2 * height``.
         background: RGB in [0, 1] added behind the Gaussians (default black); ``(3,)`` or per camera.
-        backend: ``"auto"`` (fast GPU backend on CUDA when available, else ``"torch"``), or a name
-            from :func:`available_backends`.
+        backend: ``"auto"`` (the fast backend of the device: ``"triton"`` on CUDA, ``"numba"`` on the CPU,
+            else ``"torch"``), or a name from :func:`available_backends`.
         settings: rasterisation constants (:class:`RasterSettings`, 3DGS conventions).
 
     Returns:

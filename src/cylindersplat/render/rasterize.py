@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from ..utils.memory import available_memory  # a name of this module too: tests patch rasterize.available_memory
 from .projection import ProjectedGaussians, RasterSettings
 
 __all__ = ["TileBins", "TileSpans", "tile_spans", "bin_to_tiles", "expand_fragments", "composite", "rasterize", "pack_projected", "unpack_composited"]
@@ -192,20 +193,6 @@ class RenderMemoryError(MemoryError):
         return RenderMemoryError(self.need, self.free, self.fragments, self.cameras, self.device, advice, self.what)
 
 
-def available_memory(device: torch.device) -> int | None:
-    """Free bytes on ``device`` (CUDA: the driver's count; CPU: ``MemAvailable``), or None if unknown."""
-    if device.type == "cuda":
-        return torch.cuda.mem_get_info(device)[0]
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
-
-
 def check_fragment_memory(num_fragments: int, device: torch.device, cameras: int = 1) -> None:
     """Refuse, with numbers and what to do, a render whose fragments would not fit in free memory
     (instead of swapping the machine to a halt or failing deep in the allocator)."""
@@ -220,6 +207,15 @@ def check_span_memory(num_spans: int, device: torch.device, cameras: int = 1) ->
     """:func:`check_fragment_memory` for the row spans fragments are cut from: Gaussians as large as the panorama
     make billions of them before a single fragment is counted."""
     _check_memory(num_spans, BYTES_PER_ROW_SPAN, "row spans", device, cameras)
+
+
+# Bytes per (Gaussian, tile) pair of the CPU backend (.numba_backend): its int64 entry and ten gradients, with margin.
+BYTES_PER_PAIR = 128
+
+
+def check_pair_memory(num_pairs: int, device: torch.device, cameras: int = 1) -> None:
+    """:func:`check_fragment_memory` for the CPU backend, whose memory grows with (Gaussian, tile) pairs."""
+    _check_memory(num_pairs, BYTES_PER_PAIR, "tile pairs", device, cameras)
 
 
 def _check_memory(count: int, per_item: int, what: str, device: torch.device, cameras: int) -> None:
