@@ -79,10 +79,11 @@ def test_config_overrides_and_errors(tmp_path):
         load_config("no_such_preset")
 
 
-def test_resume_with_other_stages_is_refused(synth_root, tmp_path):
+def test_resume_with_other_stages_starts_the_first_unfinished_one(synth_root, tmp_path):
+    """``train --resume RUN --stages 3`` after a stage-1 run: stage 3 from the run's weights (issue 37)."""
     Trainer(_config(synth_root, tmp_path / "run", "train.stages=[1]", "train.steps_per_stage=[1]")).fit()
-    with pytest.raises(ValueError, match="must match to resume"):
-        Trainer(_config(synth_root, tmp_path / "run", "train.stages=[3]"), resume=tmp_path / "run")
+    resumed = Trainer(_config(synth_root, tmp_path / "run", "train.stages=[3]"), resume=tmp_path / "run")
+    assert (resumed.stage_index, resumed.stage_step, resumed.global_step) == (0, 0, 1)
 
 
 @pytest.mark.slow

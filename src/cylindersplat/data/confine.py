@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import OutsideFolderError
+from ..errors import InputError, OutsideFolderError
 
 __all__ = ["confined_path", "ALLOW_OUTSIDE_OPTION"]
 
@@ -27,7 +27,12 @@ def confined_path(folder: str | Path, name: str | Path, where: str, allow_outsid
     if Path(name).is_absolute():
         raise OutsideFolderError(f"{where}: {name} is an absolute path; name files relative to {folder} "
                                  f"(or pass {ALLOW_OUTSIDE_OPTION} to read it anyway)")
-    if not path.resolve().is_relative_to(folder.resolve()):
+    try:
+        resolved = path.resolve()
+    except (RuntimeError, OSError) as exc:  # Python < 3.13 raises RuntimeError for a loop, later ones OSError
+        raise InputError(f"{where}: {name} is a symlink loop (a link that leads back to itself); replace it with the "
+                         "file or a link to it") from exc
+    if not resolved.is_relative_to(folder.resolve()):
         raise OutsideFolderError(f"{where}: {name} is outside the input folder {folder}; move the file into it "
                                  f"(or pass {ALLOW_OUTSIDE_OPTION} to read it anyway)")
     return path

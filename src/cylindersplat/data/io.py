@@ -62,12 +62,20 @@ def _too_large(path: Path, width: int, height: int) -> ValueError:
                       f"{MAX_IMAGE_PIXELS / 1e6:.3g} MP this reads; downscale it first (e.g. to 4096x2048)")
 
 
+def _missing(path: Path):
+    """Raise the error of a file that is not there: a symlink that leads nowhere (a loop, a missing target) says so."""
+    if path.is_symlink():
+        raise FileNotFoundError(f"{path} is a symlink that leads to no file (a loop, or its target is missing); "
+                                "replace it with the file")
+    raise FileNotFoundError(f"missing file: {path}")
+
+
 def open_image(path: Path | str) -> Image.Image:
     """Open and fully decode an image file; corrupt or truncated files raise ``ValueError``, and so do images of
     more than ``MAX_IMAGE_PIXELS`` pixels (checked from the header, before decoding)."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"missing file: {path}")
+        _missing(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # our limit below decides
@@ -155,11 +163,15 @@ def read_depth_npy(path: Path | str, size: tuple[int, int] | None = None, resize
     stored at ``expected`` (H, W) when given; NaN/Inf/negative become 0 (invalid)."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"missing file: {path}")
+        _missing(path)
     try:
         arr = np.load(path)
     except (ValueError, OSError) as exc:
         raise ValueError(f"{path}: cannot read .npy ({exc})") from exc
+    if not isinstance(arr, np.ndarray):  # np.load opens a .npz archive whatever the file is named
+        arr.close()
+        raise ValueError(f"{path}: a .npz archive, not a .npy array; save the depth map alone with numpy.save "
+                         "(float32 metres, H x W)")
     if arr.dtype.kind not in "fiu":  # bool masks, structured records, strings: not a depth map
         raise ValueError(f"{path}: depth must be a float array of metres, got dtype {arr.dtype}")
     arr = np.squeeze(arr)

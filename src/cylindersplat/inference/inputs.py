@@ -19,6 +19,7 @@ from ..data.depth_prior import DepthPrior
 from ..data.folder import (IMAGE_SUFFIXES, POSE_CONVENTIONS, POSES_FILE, TRANSFORMS_FILE, FolderDataset,
                            list_panoramas, poses_path, read_poses_file)
 from ..data.io import DEPTH_PNG_SCALE
+from ..data.poses.poses_json import warn_if_not_metric
 from ..utils.atomic import atomic_write_text
 from ..validation import PLAUSIBILITY_OVERRIDE, check_depth_plausible, check_scene_scale
 
@@ -63,9 +64,13 @@ def load_panorama_folder(
     the depth) is warned about (:func:`cylindersplat.validation.check_scene_scale`, naming the folder).
     """
     folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"input {folder} is a file, not a folder: give the folder that holds the panoramas and "
+                         f"their poses file (here perhaps {folder.parent})")
     if not folder.is_dir():
         raise FileNotFoundError(f"input folder not found: {folder}")
-    poses_path(folder, poses_file)  # one folder of panoramas, not a folder of them: its poses file must be there
+    # One folder of panoramas, not a folder of them: its poses file must be there (and say metres: a warning if not).
+    warn_if_not_metric(poses_path(folder, poses_file))
     dataset = FolderDataset(folder, resolution=resolution, depth_prior=depth_prior, poses_file=poses_file,
                             allow_outside_paths=allow_outside_paths, check_plausibility=check_plausibility)
     dataset.plausibility_override = PLAUSIBILITY_OVERRIDE  # the depth files' bounds are checked on loading
