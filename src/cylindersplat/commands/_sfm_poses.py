@@ -90,9 +90,90 @@ def _metric_scale(args, folder: Path, result, c2w: dict[str, np.ndarray]):
     return estimate.scale, estimate.describe()
 
 
+# What a COLMAP sparse model folder holds (COLMAP >= 3.12 adds rigs and frames): the only files --sparse-dir replaces.
+COLMAP_MODEL_FILES = {f"{stem}.{kind}" for stem in ("cameras", "images", "points3D", "rigs", "frames")
+                      for kind in ("txt", "bin")} | {"project.ini"}
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    """Whether ``path`` is ``folder`` or lies in it, links followed (``realpath``: a symlink loop does not raise)."""
+    path, folder = Path(os.path.realpath(path)), Path(os.path.realpath(folder))
+    return path == folder or folder in path.parents
+
+
+def _check_outputs(folder: Path, images: list[Path], out: Path, sparse: Path, overwrite: bool) -> None:
+    """Refuse outputs that would lose what the user has (one line each, before any work): an existing poses file or
+    model without ``--overwrite``, and, even with it, a ``--sparse-dir`` that is a file, holds the panoramas or the
+    poses file, or holds anything but a COLMAP model (it is replaced as a whole)."""
+    if _inside(folder, sparse) or any(_inside(image, sparse) for image in images):
+        raise ValueError(f"--sparse-dir {sparse} holds the input panoramas ({folder}), and the COLMAP model replaces "
+                         "that folder as a whole: give a new folder (default: sparse/0 beside the poses file)")
+    if _inside(out, sparse):
+        raise ValueError(f"--sparse-dir {sparse} would hold the poses file {out}: give a folder beside it, not "
+                         "above it")
+    if sparse.exists() and not sparse.is_dir():
+        raise ValueError(f"--sparse-dir {sparse} is a file, not a folder: give a new folder for the COLMAP model")
+    if sparse.is_dir():
+        foreign = sorted(p.name for p in sparse.iterdir() if p.name not in COLMAP_MODEL_FILES or not p.is_file())
+        if foreign:
+            shown = ", ".join(foreign[:4]) + (f" and {len(foreign) - 4} more" if len(foreign) > 4 else "")
+            raise ValueError(f"--sparse-dir {sparse} holds files that are not a COLMAP model ({shown}), and the model "
+                             "replaces that folder as a whole: give a new or empty folder")
+    if overwrite:
+        return
+    if out.exists():
+        raise ValueError(f"{out} already exists (poses of an earlier run, imported or written by hand) and is kept: "
+                         "give --overwrite to replace it and its COLMAP model, or --out another file")
+    if sparse.is_dir() and any(sparse.iterdir()):
+        raise ValueError(f"{sparse} already holds a COLMAP model and is kept: give --overwrite to replace it, or "
+                         "--sparse-dir another folder")
+
+
+def _write_outputs(out: Path, sparse: Path, write_model, write_poses) -> None:
+    """Write the model (``write_model(folder)``) and the poses file (``write_poses(path)``) beside their final
+    places, then swap both in; on any failure the earlier ones stay as they were and no temporary is left.
+    ``sparse`` gets the permissions of a folder made with ``mkdir`` (umask honoured)."""
+    sparse.parent.mkdir(parents=True, exist_ok=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{sparse.name}.", suffix=".tmp", dir=sparse.parent))
+    fd, poses_tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    os.close(fd)
+    poses_tmp, backup = Path(poses_tmp), None
+    try:
+        umask = os.umask(0o022)
+        os.umask(umask)
+        os.chmod(staging, 0o777 & ~umask)  # mkdtemp makes 0700
+        write_model(str(staging))
+        write_poses(poses_tmp)
+        os.chmod(poses_tmp, 0o666 & ~umask)
+        if sparse.exists():
+            backup = Path(tempfile.mkdtemp(prefix=f".{sparse.name}.old.", suffix=".tmp", dir=sparse.parent))
+            os.replace(sparse, backup)
+        os.replace(staging, sparse)
+        try:
+            os.replace(poses_tmp, out)
+        except BaseException:
+            os.replace(sparse, staging)  # the earlier model back where it was
+            if backup is not None:
+                os.replace(backup, sparse)
+                backup = None
+            raise
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        poses_tmp.unlink(missing_ok=True)
+        if backup is not None and not sparse.exists():
+            os.replace(backup, sparse)
+            backup = None
+        raise
+    finally:
+        if backup is not None:
+            shutil.rmtree(backup, ignore_errors=True)
+
+
 def _run(args: argparse.Namespace) -> int:
     from ..data.folder import _folder_images
     from ..data.poses import PoseRecord, write_poses_json
+    from ..data.poses.poses_json import SFM_UNITS
     from ..data.poses.sfm import check_panoramas, require_pycolmap, run_sfm
 
     folder = args.folder
@@ -103,6 +184,7 @@ def _run(args: argparse.Namespace) -> int:
         raise ValueError(f"--out must be a .json file (e.g. {folder / 'poses.json'}), got {out}")
     sparse = args.sparse_dir if args.sparse_dir is not None else out.parent / "sparse" / "0"
     images = _folder_images(folder)
+    _check_outputs(folder, images, out, sparse, args.overwrite)  # before the minutes of SfM, not after
     check_panoramas(images, folder)
     pycolmap = require_pycolmap()
     result = run_sfm(images, folder, args.matcher, threads=args.threads)
@@ -122,22 +204,13 @@ def _run(args: argparse.Namespace) -> int:
     records = [PoseRecord(os.path.relpath(folder.resolve() / n, base), torch.from_numpy(posed[n])) for n in names]
     summary = {"registered": names, "not_registered": result.unregistered, "points": result.points,
                "mean_reprojection_error_px": round(result.reprojection_error, 4), "matcher": result.matcher,
-               "metres_per_sfm_unit": scale, "scale": how or "none (SfM units)", "colmap": pycolmap.__version__}
+               "metres_per_sfm_unit": scale, "scale": how or SFM_UNITS, "colmap": pycolmap.__version__}
     # The sparse model in the same frame and units as the poses, so that a user can open both together.
     rec = result.reconstruction
     rec.transform(pycolmap.Sim3d(scale, pycolmap.Rotation3d(anchor[:3, :3]), scale * anchor[:3, 3]))
-    sparse.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{sparse.name}.", dir=sparse.parent))
-    try:
-        rec.write_text(str(staging))
-        write_poses_json(out, records, depth_scale=args.depth_scale, source="cylindersplat data poses (COLMAP SfM, "
-                         "equirectangular camera)", sfm=summary)
-        if sparse.exists():
-            shutil.rmtree(sparse)
-        os.replace(staging, sparse)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
+    _write_outputs(out, sparse, rec.write_text, lambda path: write_poses_json(
+        path, records, depth_scale=args.depth_scale, source="cylindersplat data poses (COLMAP SfM, equirectangular "
+        "camera)", sfm=summary))
     total = len(names) + len(result.unregistered)
     print(f"registered {len(names)} of {total} panoramas, {result.points} points, mean reprojection error "
           f"{result.reprojection_error:.2f} px ({result.matcher} matching, {result.seconds:.1f} s)")
@@ -172,7 +245,8 @@ def register(sub) -> None:
                         help="auto (default): metres from the depth files or --depth-prior (or --camera-height); "
                         "none: keep SfM units; a number: metres per SfM unit")
     parser.add_argument("--depth-scale", type=positive_float, default=1000.0,
-                        help="units per metre of 16-bit depth PNGs (default 1000 = millimetres); also written to poses.json")
+                        help="units per metre of 16-bit depth PNGs (default 1000 = millimetres); also written to "
+                        "poses.json")
     parser.add_argument("--depth-prior", metavar="SPEC",
                         help="depth for the scale from a prior instead of depth files (file:NAME, exported:NET.pt2, "
                         "unik3d:..., as render --depth-prior)")
@@ -182,4 +256,7 @@ def register(sub) -> None:
                         help="keep COLMAP's world frame (scaled) instead of putting the first panorama at the origin")
     parser.add_argument("--threads", type=positive_int, default=None, help="CPU threads for COLMAP (default: up to 8)")
     parser.add_argument("--device", type=device, default="cpu", help="device of a network --depth-prior (default cpu)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing poses file and COLMAP model (kept by default); a --sparse-dir that "
+                        "holds anything but a COLMAP model is never replaced")
     parser.set_defaults(func=_run)

@@ -270,7 +270,8 @@ def _cameras_txt(model: ColmapModel) -> str:
 
 
 def _images_txt(model: ColmapModel) -> str:
-    lines = ["# Image list with two lines of data per image:", "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
+    lines = ["# Image list with two lines of data per image:",
+             "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME",
              "#   POINTS2D[] as (X, Y, POINT3D_ID)"]
     for i, im in sorted(model.images.items()):
         lines.append(" ".join([str(i), *map(repr, map(float, im.qvec)), *map(repr, map(float, im.tvec)),

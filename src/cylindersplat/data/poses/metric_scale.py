@@ -107,4 +107,5 @@ def scale_from_camera_height(observations: Mapping[str, tuple[np.ndarray, np.nda
                          "--camera-height: is the floor visible and textured? give --scale or a depth instead")
     low, floor, high = np.percentile(heights, [floor_quantile - 5, floor_quantile, min(floor_quantile + 5, 100)])
     return ScaleEstimate(float(height / floor), float(height / high), float(height / low), int(heights.size),
-                         f"a camera height of {height:g} m (floor: the {floor_quantile:g}th percentile of points below)")
+                         f"a camera height of {height:g} m (floor: the {floor_quantile:g}th percentile of points "
+                         "below)")

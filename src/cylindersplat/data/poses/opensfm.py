@@ -54,8 +54,8 @@ def read_opensfm(path: str | Path, scale: float = 1.0, reconstruction: int = 0) 
         camera = camera if isinstance(camera, dict) else {}
         projection = camera.get("projection_type")
         if projection not in OPENSFM_SPHERICAL:
-            raise ValueError(f"{where}: camera {shot.get('camera')!r} has projection_type {projection!r}; cylindersplat "
-                             "needs 360° panoramas (projection_type spherical or equirectangular)")
+            raise ValueError(f"{where}: camera {shot.get('camera')!r} has projection_type {projection!r}; "
+                             "cylindersplat needs 360° panoramas (projection_type spherical or equirectangular)")
         try:
             rot = axis_angle_to_matrix(shot["rotation"])
             t = torch.tensor(shot["translation"], dtype=torch.float64)

@@ -1,8 +1,10 @@
-"""Writing our ``poses.json`` (:mod:`.conventions` says what its numbers mean; ``data.folder`` reads it)."""
+"""Writing our ``poses.json`` (:mod:`.conventions` says what its numbers mean; ``data.folder`` reads it), and the
+warning for one whose poses are in SfM units (``data poses --scale none``)."""
 
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +14,9 @@ from torch import Tensor
 from ...utils.atomic import atomic_write_text
 from .conventions import PoseRecord, check_pose
 
-__all__ = ["write_poses_json"]
+__all__ = ["write_poses_json", "SFM_UNITS", "warn_if_not_metric"]
+
+SFM_UNITS = "none (SfM units)"  # the "scale" data poses writes when it could not make the poses metric
 
 
 def write_poses_json(path: str | Path, records: list[PoseRecord], depth_scale: float | None = None, **extra) -> Path:
@@ -66,3 +70,24 @@ def _dumps(value, indent: str = "") -> str:
             return "[" + (",\n" + inner).join(json.dumps(list(v)) for v in value) + "]"  # a matrix
         return "[\n" + ",\n".join(inner + _dumps(v, inner) for v in value) + "\n" + indent + "]"
     return json.dumps(value)
+
+
+def warn_if_not_metric(path: str | Path) -> None:
+    """Warn once (:class:`~cylindersplat.validation.ScaleWarning`, one line naming ``path``) when a ``poses.json``
+    says its poses are in SfM units (``"scale": "none (SfM units)"``, top level or in ``"sfm"``): depth in metres
+    and such poses disagree, so a render or a depth-scale search from them is unreliable. Unreadable files are
+    left to the reader that follows."""
+    from ...validation import ScaleWarning
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return
+    if not isinstance(data, dict):
+        return
+    sfm = data.get("sfm") if isinstance(data.get("sfm"), dict) else {}
+    if SFM_UNITS not in (data.get("scale"), sfm.get("scale")):
+        return
+    warnings.warn(f"{path}: the poses are in SfM units, not metres (data poses found no depth, --depth-prior, "
+                  "--camera-height or --scale to fix the scale), so renders and the depth-scale search from them are "
+                  "unreliable: run data poses again with one of those (and --overwrite)", ScaleWarning, stacklevel=2)

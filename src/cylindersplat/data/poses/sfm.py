@@ -9,7 +9,13 @@ for panorama walks:
   optical axis, which for a perspective camera means a poor triangulation angle, but a panorama sees all around
   and walking forward is the usual capture;
 * ``min_model_size = 2``, so two or three photos make a model;
-* no intrinsics refinement (an equirectangular camera has none).
+* no intrinsics refinement (an equirectangular camera has none);
+* one camera per image size (an equirectangular camera's parameters are its width and height).
+
+COLMAP runs in a child process (:mod:`._colmap_worker`): where it aborts (a full temporary disk, a file-size limit)
+the command still says so in one line and removes its temporary folder ``cylindersplat-sfm-*``, and
+:func:`check_room` refuses to start when the room is plainly too small. Every panorama is checked first
+(:func:`check_panoramas`): a regular file (no FIFO, symlink loop), a UTF-8 name, complete pixels.
 
 pycolmap is an optional dependency (``pip install 'cylindersplat[sfm]'``); its absence is one
 ``ModuleNotFoundError`` line naming that command.
@@ -17,7 +23,13 @@ pycolmap is an optional dependency (``pip install 'cylindersplat[sfm]'``); its a
 
 from __future__ import annotations
 
+import json
 import os
+import resource
+import shutil
+import signal
+import stat
+import subprocess
 import sys
 import tempfile
 import time
@@ -27,10 +39,14 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["SFM_INSTALL", "SfmResult", "require_pycolmap", "check_panoramas", "run_sfm", "EXHAUSTIVE_UP_TO", "observations"]
+__all__ = ["SFM_INSTALL", "SfmResult", "require_pycolmap", "check_panoramas", "panorama_sizes", "run_sfm",
+           "EXHAUSTIVE_UP_TO", "observations"]
 
 SFM_INSTALL = "pip install 'cylindersplat[sfm]'"
 EXHAUSTIVE_UP_TO = 50  # matcher "auto": all pairs up to this many photos, else sequential (video frames)
+# Room COLMAP's temporary database needs, roughly: SIFT features and matches of one panorama take a few MB.
+ROOM_PER_PANORAMA = 8 * 2**20
+ROOM_BASE = 16 * 2**20
 
 
 def require_pycolmap():
@@ -46,24 +62,77 @@ def require_pycolmap():
     return pycolmap
 
 
-def check_panoramas(images: list[Path], folder: Path) -> tuple[int, int]:
-    """Refuse fewer than two images and non-2:1 ones (one line each, saying what to do); ``(H, W)`` of the first."""
-    from PIL import Image
+def _regular_file(path: Path) -> None:
+    """Refuse what COLMAP cannot read or would hang on: a FIFO, device or folder named like an image, a symlink
+    loop or a dangling link, a file name that is not UTF-8 (one line each)."""
+    try:
+        path.name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ValueError(f"{path.parent}: the file name {path.name!r} is not valid UTF-8, which COLMAP needs: rename "
+                         "it (or move it out of the folder)") from None
+    try:
+        mode = os.stat(path).st_mode  # follows links: a loop or a dangling link fails here
+    except OSError as exc:
+        what = "a symlink loop" if exc.errno == 40 else f"unreadable ({exc.strerror})"
+        raise ValueError(f"{path} is {what}: fix or remove it from the folder") from None
+    if not stat.S_ISREG(mode):
+        raise ValueError(f"{path} is not a regular file (a FIFO, device or folder named like an image): remove it "
+                         "from the folder")
 
+
+def panorama_sizes(images: list[Path]) -> dict[Path, tuple[int, int]]:
+    """``(width, height)`` of each image, each checked to be a regular file that decodes completely (a truncated or
+    empty PNG is one ``ValueError`` line naming it, not a panorama registered from half its pixels)."""
+    from PIL import Image, UnidentifiedImageError
+
+    sizes = {}
+    for path in images:
+        _regular_file(path)
+        try:
+            with Image.open(path) as image:
+                image.load()  # decodes every pixel: a truncated file fails here
+                sizes[path] = image.size
+        except UnidentifiedImageError:
+            empty = " (0 bytes)" if path.stat().st_size == 0 else ""
+            raise ValueError(f"{path} is not an image file{empty}: fix or remove it from the folder") from None
+        except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as exc:
+            raise ValueError(f"{path} is damaged or truncated ({' '.join(str(exc).split())[:120]}): fix or remove it "
+                             "from the folder") from None
+    return sizes
+
+
+def check_panoramas(images: list[Path], folder: Path) -> tuple[int, int]:
+    """Refuse fewer than two images, non-2:1 ones and files that are no complete image (one line each, saying
+    what to do); ``(H, W)`` of the first."""
     if not images:
         raise FileNotFoundError(f"no panoramas in {folder} (.jpg/.png/...; <stem>_depth.* files are depth)")
     if len(images) < 2:
         raise ValueError(f"only one panorama in {folder} ({images[0].name}): poses need at least two overlapping "
                          "panoramas (a single one is at the origin: write its poses.json by hand, identity c2w)")
-    size = None
-    for path in images:
-        with Image.open(path) as image:
-            width, height = image.size
+    sizes = panorama_sizes(images)
+    for path, (width, height) in sizes.items():
         if width != 2 * height:
             raise ValueError(f"{path} is {width}x{height}, not an equirectangular 360° panorama (width = 2 x height); "
                              "data poses reconstructs 360° panoramas only: for perspective photos run COLMAP itself")
-        size = size or (height, width)
-    return size
+    width, height = sizes[images[0]]
+    return height, width
+
+
+def check_room(count: int, work_root: str | None = None) -> None:
+    """Refuse to start when the temporary folder's disk or the file-size limit (``ulimit -f``) leaves too little
+    room for COLMAP's database of ``count`` panoramas (COLMAP would abort part-way)."""
+    root = work_root or tempfile.gettempdir()
+    need = ROOM_BASE + ROOM_PER_PANORAMA * count
+    free = shutil.disk_usage(root).free
+    if free < need:
+        raise ValueError(f"the temporary folder {root} has {free / 2**20:.0f} MB free; structure from motion on "
+                         f"{count} panoramas needs about {need / 2**20:.0f} MB there: free space or set TMPDIR to a "
+                         "folder on a disk with room")
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    if limit != resource.RLIM_INFINITY and limit < need:
+        raise ValueError(f"the file-size limit (ulimit -f) is {limit / 2**20:.1f} MB; structure from motion on {count} "
+                         f"panoramas writes a database of about {need / 2**20:.0f} MB: raise the limit (ulimit -f "
+                         "unlimited)")
 
 
 @dataclass
@@ -104,6 +173,8 @@ def run_sfm(images: list[Path], folder: Path, matcher: str = "auto", threads: in
     registered images is a ``ValueError`` naming the images and what to try. Nothing is written outside a
     temporary folder (the database); the caller writes the results.
     """
+    from PIL import Image
+
     pycolmap = require_pycolmap()
     _quiet_colmap(pycolmap)
     if matcher not in ("auto", "exhaustive", "sequential"):
@@ -112,44 +183,88 @@ def run_sfm(images: list[Path], folder: Path, matcher: str = "auto", threads: in
         matcher = "exhaustive" if len(images) <= EXHAUSTIVE_UP_TO else "sequential"
     threads = threads or max(1, min(os.cpu_count() or 1, 8))
     names = [p.relative_to(folder).as_posix() for p in images]
+    groups: dict[tuple[int, int], list[str]] = {}  # (width, height) -> names: one camera per image size
+    for path, name in zip(images, names):
+        _regular_file(path)
+        with Image.open(path) as image:
+            groups.setdefault(image.size, []).append(name)
+    check_room(len(names))
     start = time.perf_counter()
-    pycolmap.set_random_seed(seed)
     with tempfile.TemporaryDirectory(prefix="cylindersplat-sfm-") as work:
-        database = Path(work) / "database.db"
-        progress(f"sfm: features of {len(names)} panoramas (SIFT, equirectangular camera)")
-        reader = pycolmap.ImageReaderOptions()
-        reader.camera_model = "EQUIRECTANGULAR"
-        extraction = pycolmap.FeatureExtractionOptions()
-        extraction.num_threads = threads
-        pycolmap.extract_features(database, folder, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
-                                  reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
-        progress(f"sfm: matching ({matcher}) [{time.perf_counter() - start:.1f} s]")
-        matching = pycolmap.FeatureMatchingOptions()
-        matching.num_threads = threads
-        if matcher == "exhaustive":
-            pycolmap.match_exhaustive(database, matching_options=matching, device=pycolmap.Device.cpu)
-        else:
-            pycolmap.match_sequential(database, matching_options=matching, device=pycolmap.Device.cpu)
-        progress(f"sfm: incremental mapping [{time.perf_counter() - start:.1f} s]")
-        options = pycolmap.IncrementalPipelineOptions()
-        options.mapper.init_max_forward_motion = 1.0  # a panorama walk moves along the "optical axis": fine here
-        options.min_model_size = 2
-        options.num_threads = threads
-        options.ba_refine_focal_length = options.ba_refine_principal_point = options.ba_refine_extra_params = False
+        job = {"work": work, "folder": str(folder), "groups": [[w, h, group] for (w, h), group in groups.items()],
+               "matcher": matcher, "threads": threads, "seed": seed}
+        sizes = "" if len(groups) == 1 else f", one camera per size: {_size_mix(groups)}"
+        progress(f"sfm: features of {len(names)} panoramas (SIFT, equirectangular camera{sizes})")
+        _run_worker(Path(work), job, progress, start)
         out = Path(work) / "sparse"
-        out.mkdir()
-        models = pycolmap.incremental_mapping(database, folder, out, options)
+        models = [pycolmap.Reconstruction(str(d)) for d in sorted(out.iterdir()) if d.is_dir()] if out.is_dir() else []
     seconds = time.perf_counter() - start
-    models = sorted(models.values(), key=lambda r: r.num_reg_images(), reverse=True)
+    models = sorted(models, key=lambda r: r.num_reg_images(), reverse=True)
     registered = _registered(models[0]) if models else {}
     if len(registered) < 2:
-        raise ValueError(_too_few(names, registered, folder))
+        raise ValueError(_too_few(names, registered, folder, groups))
     others = [sorted(_registered(m)) for m in models[1:]]
     in_model = set(registered)
     unregistered = [n for n in names if n not in in_model]
     rec = models[0]
-    return SfmResult(rec, registered, unregistered, others, rec.num_points3D(), float(rec.compute_mean_reprojection_error()),
-                     matcher, seconds)
+    return SfmResult(rec, registered, unregistered, others, rec.num_points3D(),
+                     float(rec.compute_mean_reprojection_error()), matcher, seconds)
+
+
+def _size_mix(groups: dict[tuple[int, int], list[str]]) -> str:
+    return ", ".join(f"{len(names)} of {w}x{h}" for (w, h), names in sorted(groups.items(), key=lambda g: -len(g[1])))
+
+
+def _run_worker(work: Path, job: dict, progress: Callable[[str], None], start: float) -> None:
+    """COLMAP's steps in a child process (:mod:`._colmap_worker`): its progress lines are passed on; a Python
+    error there, or an abort (full disk, file-size limit), is one ``ValueError`` line naming the step."""
+    (work / "job.json").write_text(json.dumps(job))
+    log = work / "colmap.log"
+    stage, error = "starting COLMAP", None
+    worker = Path(__file__).with_name("_colmap_worker.py")
+    with open(log, "wb") as stderr:
+        child = subprocess.Popen([sys.executable, str(worker), str(work / "job.json")], stdout=subprocess.PIPE,
+                                 stderr=stderr, text=True, errors="replace")
+        try:
+            for line in child.stdout:
+                line = line.rstrip("\n")
+                if line.startswith("stage: "):
+                    stage = line[len("stage: "):]
+                    if not stage.startswith(("extracting", "done")):
+                        progress(f"sfm: {stage} [{time.perf_counter() - start:.1f} s]")
+                elif line.startswith("error: "):
+                    error = line[len("error: "):]
+            code = child.wait()
+        finally:
+            if child.poll() is None:  # Ctrl-C or an error here: the child must not outlive us
+                child.kill()
+                child.wait()
+    if code == 0:
+        return
+    if code < 0:
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = f"signal {-code}"
+        what = f"COLMAP stopped with {name}"
+    else:
+        what = f"COLMAP failed ({error})" if error else f"COLMAP exited with status {code}"
+    detail = _last_colmap_error(log)
+    raise ValueError(f"structure from motion failed while {stage}: {what}{detail}; is the disk of the temporary "
+                     f"folder {tempfile.gettempdir()} full or a file-size limit (ulimit -f) reached? free space, set "
+                     "TMPDIR to a disk with room or raise the limit")
+
+
+def _last_colmap_error(log: Path) -> str:
+    """`` (COLMAP: <its last check or error line>)`` from the child's stderr, or ``""``."""
+    try:
+        lines = [line.strip() for line in log.read_text(errors="replace").splitlines() if line.strip()]
+    except OSError:
+        return ""
+    for line in reversed(lines):
+        if "Check failed" in line or line.startswith(("E", "F")) and "]" in line:
+            return f" (COLMAP: {line.split('] ', 1)[-1][:160]})"
+    return ""
 
 
 def _registered(rec) -> dict[str, np.ndarray]:
@@ -162,9 +277,14 @@ def _registered(rec) -> dict[str, np.ndarray]:
     return out
 
 
-def _too_few(names: list[str], registered: dict, folder: Path) -> str:
-    placed = f"only {', '.join(sorted(registered))} could be placed" if registered else "no two could be placed together"
+def _too_few(names: list[str], registered: dict, folder: Path, groups: dict | None = None) -> str:
+    placed = (f"only {', '.join(sorted(registered))} could be placed" if registered
+              else "no two could be placed together")
     shown = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+    if groups is not None and len(groups) > 1:
+        return (f"structure from motion failed on the {len(names)} panoramas of {folder} ({shown}): {placed}; they "
+                f"come in {len(groups)} sizes ({_size_mix(groups)}), and panoramas of different sizes match poorly: "
+                "resize them to one size (e.g. the largest), or give poses from another tool (data import-poses)")
     return (f"structure from motion failed on the {len(names)} panoramas of {folder} ({shown}): {placed}; they share "
             "too few matching features (no overlap, or textureless walls): take panoramas closer together (1-2 m "
             "indoors, each seeing what the previous one saw), or give poses from another tool (data import-poses)")
@@ -182,5 +302,6 @@ def observations(rec) -> dict[str, tuple[np.ndarray, np.ndarray]]:
             if point.has_point3D():
                 xy.append(point.xy)
                 xyz.append(rec.points3D[point.point3D_id].xyz)
-        out[image.name] = (np.array(xy, dtype=np.float64).reshape(-1, 2), np.array(xyz, dtype=np.float64).reshape(-1, 3))
+        out[image.name] = (np.array(xy, dtype=np.float64).reshape(-1, 2),
+                           np.array(xyz, dtype=np.float64).reshape(-1, 3))
     return out

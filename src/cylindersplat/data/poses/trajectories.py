@@ -82,8 +82,8 @@ def match_timestamps_to_images(records: list[PoseRecord], images: list[str], fps
     with the clock). Without ``fps``, poses and images pair up in order (the counts must agree)."""
     if fps is None:
         if len(images) != len(records):
-            raise ValueError(f"{source} has {len(records)} poses but {len(images)} images were given; pass --fps to match "
-                             "timestamps to frame numbers, or give exactly one image per pose")
+            raise ValueError(f"{source} has {len(records)} poses but {len(images)} images were given; pass --fps to "
+                             "match timestamps to frame numbers, or give exactly one image per pose")
         return [PoseRecord(name, r.c2w, r.depth, r.timestamp) for name, r in zip(images, records)]
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
