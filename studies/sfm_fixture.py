@@ -4,7 +4,7 @@ From the three panoramas alone (no poses), with and without depth:
 
 1. `data poses` with the fixture's depth files (`--scale auto`): registered images, points, reprojection error;
    rotation and centre errors after a similarity alignment to the dataset's poses
-   (cylindersplat.evaluation.pose_alignment); the automatic scale against the true one (the scale of that
+   (cylindersplat.data.poses.alignment); the automatic scale against the true one (the scale of that
    alignment from the SfM-unit poses).
 2. The same with a depth prior instead: the fixture's depth blurred (Gaussian, sigma 8 px at 1024 wide, holes
    kept) stored as `priors/blur/<stem>.png` and passed as `--depth-prior file:blur`.
@@ -81,7 +81,7 @@ def poses_of(data: dict) -> np.ndarray:
 
 def render_middle(folder: Path, poses: np.ndarray, size: tuple[int, int]) -> tuple[float, torch.Tensor]:
     """WS-PSNR of panorama 01 rendered from 00 and 02 at ``poses`` (3 c2w, the frame of ``poses``), and the render."""
-    from cylindersplat.data.pose_formats import PoseRecord, write_poses_json
+    from cylindersplat.data.poses import PoseRecord, write_poses_json
     from cylindersplat.data.io import read_rgb
     from cylindersplat.inference import load_panorama_folder, reconstruct_gaussians, render_views
     from cylindersplat.metrics.image import ws_psnr
@@ -110,7 +110,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/sfm_fixture.json")
     parser.add_argument("--resolution", default="128x256", help="render size HxW (default 128x256)")
     args = parser.parse_args()
-    from cylindersplat.evaluation.pose_alignment import pose_errors
+    from cylindersplat.data.poses.alignment import pose_errors
 
     torch.set_num_threads(1)
     size = tuple(int(v) for v in args.resolution.split("x"))
