@@ -27,6 +27,7 @@ from ..geometry.poses import validate_c2w
 from ..validation import MAX_TRANSLATION_M, farthest_camera
 from .cameras import CameraModel, Equirect
 from .numba_backend import numba_available, numba_backend
+from .numba_projection import project_dense_numba
 from .projection import DenseProjection, ProjectedGaussians, RasterSettings, UnsupportedSettings, flatten_cameras, project_gaussians
 from .rasterize import rasterize
 from .triton_backend import triton_available, triton_backend
@@ -84,7 +85,7 @@ def register_backend(name: str, fn: Backend, auto: bool = False, projection: Den
 if triton_available():
     register_backend("triton", triton_backend, auto=True, projection=project_dense_triton)
 if numba_available():
-    register_backend("numba", numba_backend, auto=True, devices=("cpu",))
+    register_backend("numba", numba_backend, auto=True, projection=project_dense_numba, devices=("cpu",))
 
 
 def available_backends() -> list[str]:
