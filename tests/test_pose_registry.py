@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import pkgutil
+from pathlib import Path
 
 import pytest
 
@@ -56,3 +57,31 @@ def test_import_poses_offers_exactly_the_registry():
 def test_unknown_format_is_one_line():
     with pytest.raises(ValueError, match="unknown pose format 'ply'; use one of opensfm, nerfstudio"):
         pose_format("ply")
+
+
+def test_the_worked_example_of_docs_poses_md_reads_poses(tmp_path):
+    """docs/poses.md's new format (its module and registry line) works as the docs say."""
+    import re
+    import types
+
+    import numpy as np
+
+    from cylindersplat.data.poses.conventions import PoseFormat
+
+    text = (Path(__file__).parents[1] / "docs" / "poses.md").read_text()
+    module_code, registry_line = re.findall(r"```python\n(.*?)```", text, re.S)[:2]
+    module = types.ModuleType("cylindersplat.data.poses.pano_csv", module_code.split('"""')[1])
+    module.__package__ = "cylindersplat.data.poses"
+    exec(compile(module_code, "docs/poses.md", "exec"), module.__dict__)
+    entry = eval(registry_line.strip().rstrip(",").split(": ", 1)[1], {"PoseFormat": PoseFormat})
+    assert entry.module == "pano_csv" and callable(getattr(module, entry.reader))
+    for row in HEADER_ROWS:
+        assert f"\n{row} " in module.__doc__
+    csv = tmp_path / "poses.csv"
+    csv.write_text("# name,qw,qx,qy,qz,tx,ty,tz\nb.jpg,0,0,0,1,1,2,3\na.jpg,1,0,0,0,0,0,0\n")
+    a, b = getattr(module, entry.reader)(csv, scale=2.0)
+    assert (a.image, b.image) == ("a.jpg", "b.jpg")
+    np.testing.assert_allclose(b.c2w.numpy(), [[-1, 0, 0, 2], [0, -1, 0, 4], [0, 0, 1, -6], [0, 0, 0, 1]], atol=1e-12)
+    csv.write_text("a.jpg,1,0,0,0,nan,0,0\n")
+    with pytest.raises(ValueError, match=r"poses.csv line 1 contains non-finite values"):
+        getattr(module, entry.reader)(csv)
