@@ -1,6 +1,6 @@
 """Colour rules for hidden points at the *true* geometry (issue 23's oracle test), and the fill oracles.
 
-    python benchmarks/colour_rule_oracle.py [--data DIR] [--json benchmarks/results/colour_rule_oracle.json]
+    python studies/colour_rule_oracle.py [--data DIR] [--json studies/results/colour_rule_oracle.json]
 
 Every target pixel of the study's 8 held-out scenes is lifted to its true 3D point (ground-truth target depth);
 each colour rule then colours that point from the two context panoramas, as the volume branch's colour module
@@ -24,9 +24,8 @@ import torch
 
 from cylindersplat.data import SyntheticDataset
 from cylindersplat.data.occlusion import occluded_mask
-from cylindersplat.data.synth import write_synthetic_dataset
+from cylindersplat.data.synth import profile_config, write_synthetic_dataset
 from cylindersplat.evaluation.masked import MIN_OCCLUDED_PIXELS, masked_ws_psnr
-from cylindersplat.experiments.ablation import study_sequence_config
 from cylindersplat.geometry import camera_to_world, equirect_rays
 from cylindersplat.model.prior_alignment import photometric_prior_scales
 from cylindersplat.model.rgb_retrieval import retrieve_colors, retrieve_colors_window
@@ -98,7 +97,7 @@ def nearest_visible(truth: np.ndarray, hidden: np.ndarray) -> np.ndarray:
 @torch.no_grad()
 def run(data: Path) -> dict:
     if not (data / "meta.json").is_file():
-        write_synthetic_dataset(data, 28, (64, 128), study_sequence_config(), seed=0)
+        write_synthetic_dataset(data, 28, (64, 128), profile_config("occlusion"), seed=0)
     scenes = SyntheticDataset(data).scenes[-8:]
     dataset = SyntheticDataset(data, views="two_view", scenes=scenes)
     scores: dict[str, dict[str, list[float]]] = {}
@@ -146,7 +145,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, default=Path("outputs/study28"),
                         help="the study's data (generated there if absent: 28 scenes, occlusion profile, 64x128)")
-    parser.add_argument("--json", type=Path, default=Path("benchmarks/results/colour_rule_oracle.json"))
+    parser.add_argument("--json", type=Path, default=Path("studies/results/colour_rule_oracle.json"))
     args = parser.parse_args()
     report = run(args.data)
     args.json.parent.mkdir(parents=True, exist_ok=True)

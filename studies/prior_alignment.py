@@ -1,6 +1,6 @@
 """How well the photometric scale search (``model.prior_alignment=photometric``) finds each depth prior's scale.
 
-    python benchmarks/prior_alignment.py [--synthetic DIR ...] [--json benchmarks/results/prior_alignment.json]
+    python studies/prior_alignment.py [--synthetic DIR ...] [--json studies/results/prior_alignment.json]
 
 1. The real Matterport3D triplet (``../shared/fixtures``, 256x512, contexts 1 m apart): its true depth multiplied
    by known per-view factors; the search should find their inverses.
@@ -64,7 +64,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fixture", type=Path, default=FIXTURE)
     parser.add_argument("--synthetic", type=Path, nargs="*", default=[], help="procedural dataset folders")
-    parser.add_argument("--json", type=Path, default=Path("benchmarks/results/prior_alignment.json"))
+    parser.add_argument("--json", type=Path, default=Path("studies/results/prior_alignment.json"))
     args = parser.parse_args()
     torch.set_num_threads(1)
     report: dict = {"threads": 1}

@@ -1,10 +1,10 @@
 """Is a study run reproducible? Train one ablation variant/seed several times on the same data and compare.
 
-    python benchmarks/rerun_check.py --data outputs/ablation/data --out outputs/rerun --threads 2 2 1 --steps 30 15 15
+    python studies/rerun_check.py --data outputs/ablation/data --out outputs/rerun --threads 2 2 1 --steps 30 15 15
 
 Each run trains ``--variant`` (default ``full``) with ``--seed`` from scratch into its own folder, with the
 given torch intra-op thread count, exactly as ``cylindersplat ablate`` does (same schedule, same held-out
-scenes), then scores it. The report (``--json``, default ``benchmarks/results/rerun_check.json``) lists every
+scenes), then scores it. The report (``--json``, default ``studies/results/rerun_check.json``) lists every
 run's weights hash and scores and says which runs are bit-identical.
 """
 
@@ -38,7 +38,7 @@ def one_run(data: str, out: str, variant: str, seed: int, threads: int, steps: t
     code = f"""
 import hashlib, json, torch
 torch.set_num_threads({threads})
-from cylindersplat.experiments.ablation import Schedule, all_variants, run_study
+from cylindersplat.study import Schedule, all_variants, run_study
 variant = [v for v in all_variants() if v.name == {variant!r}]
 report = run_study({data!r}, {out!r}, variant, seeds=({seed},), schedule=Schedule(*{tuple(steps)!r}), fills=(),
                    log=lambda *_: None)
@@ -62,7 +62,7 @@ def main() -> int:
     parser.add_argument("--threads", type=int, nargs="+", default=[2, 2, 1], help="torch threads of each run")
     parser.add_argument("--steps", type=int, nargs=3, default=[300, 150, 150], metavar=("S1", "S2", "S3"),
                         help="curriculum steps (default the study's 300 150 150)")
-    parser.add_argument("--json", type=Path, default=ROOT / "benchmarks/results/rerun_check.json")
+    parser.add_argument("--json", type=Path, default=ROOT / "studies/results/rerun_check.json")
     args = parser.parse_args()
     runs = []
     for i, threads in enumerate(args.threads):

@@ -12,7 +12,7 @@ From the three panoramas alone (no poses), with and without depth:
    one, once with the dataset's poses and once with the recovered ones; WS-PSNR of each against the real
    panorama 01, and their difference.
 
-    python benchmarks/sfm_fixture.py                     # -> benchmarks/results/sfm_fixture.json
+    python studies/sfm_fixture.py                     # -> studies/results/sfm_fixture.json
 """
 
 from __future__ import annotations
@@ -107,7 +107,7 @@ def render_middle(folder: Path, poses: np.ndarray, size: tuple[int, int]) -> tup
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--fixture", type=Path, default=FIXTURE)
-    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/sfm_fixture.json")
+    parser.add_argument("--out", type=Path, default=ROOT / "studies/results/sfm_fixture.json")
     parser.add_argument("--resolution", default="128x256", help="render size HxW (default 128x256)")
     args = parser.parse_args()
     from cylindersplat.data.poses.alignment import pose_errors

@@ -1,6 +1,6 @@
 """The volume-branch experiments of benchmarks/RESULTS.md ("Volume branch"); one seed unless said.
 
-    python benchmarks/volume_branch_experiments.py OUT_DIR [--suite NAME]
+    python studies/volume_branch_experiments.py OUT_DIR [--suite NAME]
 
 ``recipes`` (session 5, about 35 min on the 2-core CPU machine): fusion strategies and curricula.
 ``coverage`` (session 7, about 50 min): triplane bounds, the windowed colour retrieval, the auxiliary
@@ -35,12 +35,11 @@ from cylindersplat.data.occlusion import occluded_mask
 from cylindersplat.data.synth import profile_config, write_synthetic_dataset
 from cylindersplat.evaluation import evaluate, model_method
 from cylindersplat.evaluation.methods import reconstruct, render_views
-from cylindersplat.experiments.ablation import (VOLUME_ONLY, Schedule, Variant, default_variants, pinned_to_earlier_tiny,
-                                                study_sequence_config)
-from cylindersplat.experiments.ablation import run_study as _run_study
 from cylindersplat.metrics import DepthRange
 from cylindersplat.metrics.image import ws_weights
 from cylindersplat.model import load_model
+from cylindersplat.study import Schedule, Variant, change_set, default_variants, pinned_to_earlier_tiny
+from cylindersplat.study import run_study as _run_study
 
 
 def run_study(data, out, variants, **options):
@@ -48,6 +47,7 @@ def run_study(data, out, variants, **options):
     return _run_study(data, out, pinned_to_earlier_tiny(variants), **options)
 
 
+VOLUME_ONLY = change_set("volume_only")
 PAPER = VOLUME_ONLY  # the paper's recipe on the tiny model: concatenated Gaussians, volume-only stage 2
 RECIPES = [
     Variant("pixel_only", "pixel branch only", PAPER, kind="pixel"),
@@ -237,7 +237,7 @@ def ensure_dataset(root: Path, cfg) -> Path:
 
 
 def recipes(out: Path) -> None:
-    data = ensure_dataset(out / "data", study_sequence_config())
+    data = ensure_dataset(out / "data", profile_config("occlusion"))
     run_study(data, out / "study", RECIPES, seeds=(0,), schedule=Schedule(300, 150, 150), held_out=8)
     test = held_out(data)
     for v in RECIPES[1:]:
@@ -249,7 +249,7 @@ def recipes(out: Path) -> None:
 
 
 def coverage(out: Path) -> None:
-    data = ensure_dataset(out / "data", study_sequence_config())
+    data = ensure_dataset(out / "data", profile_config("occlusion"))
     run_study(data, out / "study", COVERAGE, seeds=(0,), schedule=Schedule(300, 150, 150), held_out=8)
     print((out / "study" / "ablation.md").read_text())
     # targets 1-2 m off the contexts' line: twice the occluded share, wider hidden regions
@@ -274,7 +274,7 @@ def coverage(out: Path) -> None:
 def two_seed_suite(name: str, variants: list[Variant]):
     """A suite of ``variants`` on the study's data, schedule and seeds (0 and 1), written to ``OUT/name``."""
     def suite(out: Path) -> None:
-        data = ensure_dataset(out / "data", study_sequence_config())
+        data = ensure_dataset(out / "data", profile_config("occlusion"))
         run_study(data, out / name, variants, seeds=(0, 1), schedule=Schedule(300, 150, 150), held_out=8)
         print((out / name / "ablation.md").read_text())
     return suite
@@ -307,7 +307,7 @@ def ensure_scale_dataset(root: Path) -> Path:
 
     ids = [f"{i:08d}" for i in range(208)]
     if not all((root / i / "meta.json").is_file() for i in ids):  # new, or a killed generation: it resumes
-        write_synthetic_dataset(root, 208, (64, 128), study_sequence_config(), seed=0)
+        write_synthetic_dataset(root, 208, (64, 128), profile_config("occlusion"), seed=0)
     meta = json.loads((root / "meta.json").read_text())
     if meta["scenes"] != ids[:20] + ids[28:] + ids[20:28]:
         meta["scenes"] = ids[:20] + ids[28:] + ids[20:28]
@@ -348,7 +348,7 @@ def decoded_colour_at_scale(out: Path) -> None:
 
 def ceilings(out: Path) -> None:
     """What copying the surroundings, or knowing the hidden regions' mean colours, scores on occluded pixels."""
-    for label, data in (("study data", ensure_dataset(out / "data", study_sequence_config())),
+    for label, data in (("study data", ensure_dataset(out / "data", profile_config("occlusion"))),
                         ("wide holes", ensure_dataset(out / "data_wide_holes", profile_config("occlusion", **WIDE_HOLES)))):
         test = held_out(data)
         oracles = ", ".join(f"{regions} {oracle_mean_fill(test, regions):.2f}"

@@ -1,8 +1,8 @@
 """The volume branch, second attempt (issue 23): colour rules, the stage-3 volume loss, pixel clearing, all-view
 attention and k Gaussians per cell, judged against pixel-only models with fills behind.
 
-    python benchmarks/volume_branch_v2.py OUT_DIR [--variants NAME ...] [--seeds 0 1] [--threads 1]
-    python benchmarks/volume_branch_v2.py OUT_DIR --table --json benchmarks/results/volume_branch_v2.json
+    python studies/volume_branch_v2.py OUT_DIR [--variants NAME ...] [--seeds 0 1] [--threads 1]
+    python studies/volume_branch_v2.py OUT_DIR --table --json studies/results/volume_branch_v2.json
 
 Data: the "wide holes" procedural scenes (occlusion profile, targets 1.5-2.5 m off the contexts' line among 10
 occluders; 28 scenes at 64x128, the last 8 held out, 14 % of their target pixels hidden from both inputs),
@@ -21,8 +21,10 @@ from pathlib import Path
 import torch
 
 from cylindersplat.data.synth import profile_config, write_synthetic_dataset
-from cylindersplat.experiments.ablation import (FINE_GRID, PRIOR_ALIGNMENT, SURFACE_RECIPE, VOLUME_ONLY, Schedule, Variant,
-                                                pinned_to_earlier_tiny, run_study)
+from cylindersplat.study import Schedule, Variant, change_set, pinned_to_earlier_tiny, run_study
+
+VOLUME_ONLY, SURFACE_RECIPE = change_set("volume_only"), change_set("surface_recipe")
+PRIOR_ALIGNMENT, FINE_GRID = change_set("prior_alignment"), change_set("fine_grid")
 
 WIDE_HOLES = dict(target_offset=(1.5, 2.5), occluders=10)
 SURFACE = ("model.volume.color=surface",)

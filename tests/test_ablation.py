@@ -1,4 +1,4 @@
-"""The ablation study harness: variants, schedule bookkeeping, resumable runs, tables."""
+"""The study library (cylindersplat.study): variants as data, schedule bookkeeping, resumable runs, tables."""
 
 import json
 
@@ -6,7 +6,66 @@ import pytest
 
 from cylindersplat.cli import main
 from cylindersplat.data.synth import SequenceConfig, write_synthetic_dataset
-from cylindersplat.experiments.ablation import Schedule, Variant, all_variants, default_variants, run_study, study_table
+from cylindersplat.study import Schedule, Variant, all_variants, default_variants, run_study, study_table
+
+
+# The catalogue's overrides as the Python tables wrote them before they became data (issue 36): a variant's
+# overrides are recorded in every report and compared on resume, so their text must not change.
+EARLIER_TINY = ("model.volume.color=retrieval", "loss.volume_loss=scaled", "loss.volume_weight=0",
+                "model.fusion.pixel_clearing=none", "model.prior_alignment=none",
+                "model.volume.grid=[4,16,8]", "model.volume.image_grid=[2,8,4]")
+VOLUME_ONLY = ("model.fusion.strategy=concat", "train.stage2_render=volume")
+OVERRIDES_BEFORE = {
+    "full": (), "full_paper_recipe": VOLUME_ONLY, "pixel_only": (),
+    "pixel_only_no_edge_fading": ("model.pixel.edge_sigma=0",),
+    "volume_only_cylindrical": VOLUME_ONLY,
+    "volume_only_spherical": VOLUME_ONLY + ("model.volume.coordinates=spherical",),
+    "volume_only_cartesian": VOLUME_ONLY + ("model.volume.coordinates=cartesian",),
+    "wo_rgb_retrieval": ("model.volume.color=decoded",), "central_triplane": ("model.volume.placement=central",),
+    "cartesian_scale": ("model.volume.scale_transform=cartesian",),
+    "full_res_query": ("model.volume.image_query=full",),
+    "isolated_init": ("model.volume.init=isolated",), "no_edge_fading": ("model.pixel.edge_sigma=0",),
+    "full_earlier_recipe": EARLIER_TINY,
+    "full_priors_as_given_coarse_grid": ("model.prior_alignment=none", "model.volume.grid=[4,16,8]",
+                                         "model.volume.image_grid=[2,8,4]"),
+    "depth_fusion_own_view": ("model.fusion.strategy=depth_prune", "model.fusion.side=front"),
+    "retrieval_window_2": EARLIER_TINY + ("model.volume.color=surface", "model.volume.surface_window=2",
+                                          "model.volume.surface_temperature=1"),
+    "volume_weight_1": EARLIER_TINY + ("loss.volume_weight=1",),
+    "pixel_stage_leaves_hidden": ("loss.pixel_stage_hidden=leave",),
+}
+KINDS_BEFORE = {"pixel_only": "pixel", "pixel_only_no_edge_fading": "pixel", "volume_only_cylindrical": "volume",
+                "volume_only_spherical": "volume", "volume_only_cartesian": "volume"}
+
+
+def test_the_catalogue_data_gives_the_overrides_the_python_tables_gave():
+    from cylindersplat.study import change_set, recipe
+
+    assert {v.name: v.overrides for v in all_variants()} == OVERRIDES_BEFORE
+    assert list(OVERRIDES_BEFORE)[:13] == [v.name for v in default_variants()]  # table order kept
+    assert {v.name: v.kind for v in all_variants() if v.kind != "full"} == KINDS_BEFORE
+    assert recipe("tiny_earlier") == EARLIER_TINY and change_set("volume_only") == VOLUME_ONLY
+    assert change_set("fine_grid") == ("model.volume.grid=[8,32,16]", "model.volume.image_grid=[4,16,8]")
+    with pytest.raises(ValueError, match="unknown recipe 'nope'"):
+        change_set("nope")
+
+
+def test_the_earlier_tiny_recipe_differs_from_the_tiny_preset_only_where_it_says():
+    """``configs/recipes/tiny_earlier.yaml`` undoes what tiny.yaml's header says issue 23's recipe changed."""
+    from cylindersplat.study import recipe
+    from cylindersplat.training import load_config
+    from cylindersplat.training.config import config_as_dict
+
+    def flat(tree, prefix=""):
+        out = {}
+        for key, value in tree.items():
+            out.update(flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {f"{prefix}{key}": value})
+        return out
+
+    now = flat(config_as_dict(load_config("tiny")))
+    earlier = flat(config_as_dict(load_config("tiny", recipe("tiny_earlier"))))
+    changed = {k for k in now if now[k] != earlier[k]}
+    assert changed == {o.split("=")[0] for o in EARLIER_TINY}
 
 
 def test_every_variant_gets_the_same_number_of_steps():
@@ -18,13 +77,13 @@ def test_every_variant_gets_the_same_number_of_steps():
 
 
 def test_the_default_study_has_the_issue_rows_and_every_named_variant_is_a_valid_config():
-    from cylindersplat.experiments.ablation import _check_variants
+    from cylindersplat.study import check_variants
 
     names = [v.name for v in default_variants()]
     assert {"full", "pixel_only", "volume_only_cylindrical", "volume_only_spherical", "volume_only_cartesian",
             "wo_rgb_retrieval", "central_triplane", "cartesian_scale", "full_res_query", "isolated_init",
             "full_paper_recipe"} <= set(names)
-    _check_variants(all_variants())  # raises on an unknown key or an invalid value
+    check_variants(all_variants())  # raises on an unknown key or an invalid value
 
 
 @pytest.mark.slow

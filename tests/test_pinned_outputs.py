@@ -2,9 +2,10 @@
 same bytes as the code gave before issue 36's reorganisation (research out of the package, one dataset registry,
 the training objective out of the trainer). Any change of behaviour, however small, changes a digest.
 
-The digests were recorded with one torch thread on the project's x86 CPU machine (torch 2.13 CPU build, AVX512); float sums depend on the torch
-build and the CPU's vector unit, so elsewhere (another torch version or CPU capability) the pins skip rather than
-fail. Record new ones with ``PIN_RECORD=1 pytest tests/test_pinned_outputs.py -s`` only for a deliberate change.
+The digests were recorded with one torch thread on the project's x86 CPU machine (torch 2.13 CPU build, AVX512);
+float sums depend on the torch build and the CPU's vector unit, so elsewhere (another torch version or CPU
+capability) the pins skip rather than fail. Record new ones with ``PIN_RECORD=1 pytest tests/test_pinned_outputs.py
+-s`` only for a deliberate change.
 """
 
 from __future__ import annotations
@@ -25,11 +26,21 @@ PINS = {
     "forward_model_preset_tiny": "11db63ba4e8e6aceb981f3336ce4b247b42259903c6eef93f078f20813a3e783",
     "forward_training_preset_tiny": "0a45e2e3cf409eb3a33bca3ba43551a73e59a66677af892fc30d71e7e347b240",
     "train_steps_released_volume_loss": "d28be6b6d86b5d3f1b7455edb98ea9f4b2d718ff7f1709659537141b7758f735",
-    "train_steps_scaled_volume_loss_occluded_weights": "bf90e1b51aabba1f6ec660faeac0d023a45d4bcd8eeba3cd5f077a4f5c6e57ff",
+    "train_steps_scaled_volume_loss_occluded_weights":
+        "bf90e1b51aabba1f6ec660faeac0d023a45d4bcd8eeba3cd5f077a4f5c6e57ff",
     "eval_results_json": "50243c473ffffbcacbbd86c9274464ded7f0de46455fbe30982c4e9d7e9084f7",
     "study_ablation_json": "1af5e3fd5758d0700c95f77d4efb93ca2e14f84f60123d7a09a2f2b4e42c9d30",
 }
 VOLATILE_KEYS = {"time_s", "train_s", "study_s", "step_time", "data"}  # wall times and tmp paths
+
+
+@pytest.fixture(autouse=True)
+def _reference_renderer(monkeypatch):
+    """Every render through the PyTorch reference, the backend ``auto`` chose on the CPU when the pins were
+    recorded (fast backends have their own tests against it)."""
+    from cylindersplat.render import api
+
+    monkeypatch.setattr(api, "_AUTO_ORDER", {})
 
 
 def _where() -> tuple[str, str]:
@@ -145,7 +156,7 @@ def test_small_evaluation_is_pinned(occlusion_data, tmp_path, tiny_checkpoint):
 
 @pytest.mark.slow
 def test_small_study_is_pinned(occlusion_data, tmp_path):
-    from cylindersplat.experiments.ablation import Schedule, Variant, run_study
+    from cylindersplat.study import Schedule, Variant, run_study
 
     variants = [Variant("full", "both branches"), Variant("pixel_only", "pixel", kind="pixel"),
                 Variant("volume_only", "volume", ("model.fusion.strategy=concat", "train.stage2_render=volume"),

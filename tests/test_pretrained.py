@@ -10,9 +10,8 @@ import torch
 
 from cylindersplat.cli import main
 from cylindersplat.data import SyntheticDataset
-from cylindersplat.data.synth import write_synthetic_dataset
+from cylindersplat.data.synth import profile_config, write_synthetic_dataset
 from cylindersplat.evaluation import evaluate, model_method
-from cylindersplat.experiments.ablation import study_sequence_config
 from cylindersplat.metrics import DepthRange
 from cylindersplat.model import from_config
 from cylindersplat.model.pretrained import DEFAULT_PRETRAINED, PRETRAINED, from_pretrained, pretrained_path
@@ -47,7 +46,7 @@ def test_from_pretrained_takes_a_file_or_a_run_folder(tmp_path):
 def test_shipped_weights_are_trained(tmp_path):
     """On scenes it never saw (another dataset seed), the shipped model renders far better than the same
     architecture untrained: the file holds the documented training run, not a placeholder."""
-    write_synthetic_dataset(tmp_path, 2, (64, 128), study_sequence_config(), seed=7)
+    write_synthetic_dataset(tmp_path, 2, (64, 128), profile_config("occlusion"), seed=7)
     dataset = SyntheticDataset(tmp_path, views="two_view")
     torch.manual_seed(0)
     methods = [model_method(from_pretrained(DEFAULT_PRETRAINED), "shipped"),

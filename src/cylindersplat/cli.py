@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from . import interrupt
+from .utils.arguments import OneLineErrorParser
 
 
 def subcommand_modules() -> list[str]:
@@ -25,41 +26,6 @@ def subcommand_modules() -> list[str]:
 
     names = sorted(m.name for m in pkgutil.iter_modules(commands.__path__) if not m.name.startswith("_"))
     return [f"{commands.__name__}.{name}" for name in names]
-
-
-class OneLineErrorParser(argparse.ArgumentParser):
-    """argparse with its errors on one line (what is wrong, then where to read more) instead of the
-    whole usage block; subcommand parsers inherit it."""
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-    def parse_args(self, args=None, namespace=None):
-        """Unknown options are reported by the subcommand's parser (its --help), with the nearest known option."""
-        parsed, extras = self.parse_known_args(args, namespace)
-        if extras:
-            parser = self._subcommand_parser(getattr(parsed, "command", None)) or self
-            parser.error(f"unrecognized arguments: {' '.join(extras)}{_did_you_mean(parser, extras)}")
-        return parsed
-
-    def _subcommand_parser(self, name: str | None) -> argparse.ArgumentParser | None:
-        for action in self._actions:
-            if isinstance(action, argparse._SubParsersAction) and name in action.choices:
-                return action.choices[name]
-        return None
-
-
-def _did_you_mean(parser: argparse.ArgumentParser, extras: list[str]) -> str:
-    """`` (did you mean --frames?)`` for the first unknown option close to one of ``parser``'s, else ``""``."""
-    import difflib
-
-    known = [option for action in parser._actions for option in action.option_strings if option.startswith("--")]
-    for word in extras:
-        if word.startswith("--"):
-            close = difflib.get_close_matches(word.split("=", 1)[0], known, n=1)
-            if close:
-                return f" (did you mean {close[0]}?)"
-    return ""
 
 
 def build_parser() -> argparse.ArgumentParser:

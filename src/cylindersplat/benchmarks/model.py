@@ -24,8 +24,8 @@ import sys
 import time
 
 import torch
-from cylindersplat.cli import OneLineErrorParser
-from cylindersplat.commands._arguments import nonnegative_int, positive_int
+
+from cylindersplat.utils.arguments import OneLineErrorParser, nonnegative_int, positive_int
 
 
 def synthetic_inputs(views: int, height: int, device: torch.device, seed: int = 0):

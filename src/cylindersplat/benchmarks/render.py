@@ -26,8 +26,7 @@ from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
 from cylindersplat.scenes import random_indoor
 from cylindersplat.utils.allocator import keep_freed_memory
-from cylindersplat.cli import OneLineErrorParser
-from cylindersplat.commands._arguments import positive_int
+from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
 
 
 def _sync(device: torch.device) -> None:

@@ -15,9 +15,8 @@ import time
 
 import torch
 
-from cylindersplat.cli import OneLineErrorParser
-from cylindersplat.commands._arguments import equirect_resolution, positive_int
 from cylindersplat.data.synth import SequenceConfig, write_synthetic_dataset
+from cylindersplat.utils.arguments import OneLineErrorParser, equirect_resolution, positive_int
 
 
 def main(argv: list[str] | None = None) -> None:

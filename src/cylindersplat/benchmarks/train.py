@@ -21,8 +21,8 @@ import time
 import warnings
 
 import torch
-from cylindersplat.cli import OneLineErrorParser
-from cylindersplat.commands._arguments import nonnegative_int, positive_int
+
+from cylindersplat.utils.arguments import OneLineErrorParser, nonnegative_int, positive_int
 
 
 def _sync(device: torch.device) -> None:

@@ -7,8 +7,7 @@ from pathlib import Path
 
 from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
-
-from ._arguments import device, fill_list, model_resolution, positive_int, positive_int
+from ._arguments import device, fill_list, model_resolution, positive_int
 
 
 def _steps(text: str) -> tuple[int, int, int]:
@@ -22,7 +21,7 @@ def _steps(text: str) -> tuple[int, int, int]:
 
 
 def register(subparsers) -> None:
-    from ..experiments.ablation import VARIANT_NAMES, extra_variants
+    from ..study import extra_variants, variant_names
 
     extras = [v.name for v in extra_variants()]
 
@@ -36,7 +35,7 @@ def register(subparsers) -> None:
     p.add_argument("--data", type=Path, help="synthetic dataset (default: generate OUT/data with the occlusion profile)")
     p.add_argument("--out", type=Path, default=Path("outputs/ablation"), help="output folder (default outputs/ablation)")
     p.add_argument("--variants", nargs="+", default=None, metavar="NAME",
-                   help=f"variants to run (default: the default study, {', '.join(n for n in VARIANT_NAMES if n not in extras)}; "
+                   help=f"variants to run (default: the default study, {', '.join(n for n in variant_names() if n not in extras)}; "
                    f"also available: {', '.join(extras)})")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="training seeds (default 0 1)")
     p.add_argument("--steps", type=_steps, default=(300, 150, 150),
@@ -55,12 +54,12 @@ def register(subparsers) -> None:
                    "(default mean,inpaint)")
     p.add_argument("--threads", type=positive_int, default=2, help="torch threads of every run (default 2): part of the recipe, "
                    "as the thread count sets the order of float sums; the same count gives bit-identical reruns")
-    p.add_argument("--json", type=Path, help="also copy ablation.json here (e.g. benchmarks/results/ablation.json)")
+    p.add_argument("--json", type=Path, help="also copy ablation.json here (e.g. studies/results/ablation.json)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..experiments.ablation import Schedule, all_variants, default_variants, run_study
+    from ..study import Schedule, all_variants, default_variants, run_study
 
     known = {v.name: v for v in all_variants()}
     names = args.variants or [v.name for v in default_variants()]
@@ -80,9 +79,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _generate(args) -> Path:
-    from ..data.synth import write_synthetic_dataset
-    from ..experiments.ablation import study_sequence_config
+    from ..data.synth import profile_config, write_synthetic_dataset
 
     root = args.out / "data"
-    write_synthetic_dataset(root, args.scenes, args.resolution, study_sequence_config(), seed=0)
+    # the occlusion profile (targets off the contexts' line, occluders, doorways): a real share of every target
+    # is hidden from both inputs
+    write_synthetic_dataset(root, args.scenes, args.resolution, profile_config("occlusion"), seed=0)
     return root

@@ -71,7 +71,7 @@ def read_model_config(path: str | Path) -> ModelConfig:
 def _check_model_size(config: ModelConfig, path: Path, device) -> None:
     """Refuse a stored config whose weights alone would not fit in free memory (a hand-edited or hostile
     config asking for terabytes), before allocating: the parameters are counted on the meta device."""
-    from ..render.rasterize import available_memory
+    from ..utils.memory import available_memory
 
     with torch.device("meta"):
         model = CylinderSplat(config)

@@ -15,7 +15,7 @@ The colour rules (``volume.color``; :data:`COLOR_RULES`, built by :func:`build_c
   every view, ``d_g - d_o > 0`` in all of them and the softmax still returns a blend of the views'
   colours *at the projection*: the occluder's. At the true geometry of the study's scenes it colours
   hidden pixels no better than copying the nearest visible pixel
-  (``benchmarks/colour_rule_oracle.py``).
+  (``studies/colour_rule_oracle.py``).
 * ``"surface"`` (our departure): every view is read at the ``(2 window + 1)^2`` pixels around the
   projection (``volume.surface_window``), each read lifted to its observed surface point
   ``d_o * ray``, and ``w = softmax_{v, k}(-|p_g - d_o ray_k| / T)`` over views and taps with a sharp
