@@ -20,7 +20,7 @@ texture) the best candidate is not trusted and the scale stays 1: the best cost 
 
 Why the model has it (issue 23): the nearest-observed-surface colour rule reads the input depth; at the true
 geometry of the wide-holes study its hidden-pixel WS-PSNR is 18.52 dB with the simulated prior, 19.08 with the
-prior's scale error removed and 19.67 with the true depth (``benchmarks/colour_rule_oracle.py``).
+prior's scale error removed and 19.67 with the true depth (``studies/colour_rule_oracle.py``).
 """
 
 from __future__ import annotations

@@ -10,7 +10,7 @@ surface a camera sees below it: among the points seen below the horizon (latitud
 of their heights below the camera (model units) is taken as the floor (furniture and table tops lie above it, a
 few mismatched points below), and the known camera height over it gives the scale. A heuristic: on the real
 Matterport3D triplet, whose floor is mostly textureless, it under-estimates the floor's depth and the scale comes
-out about 13 % too large (benchmarks/results/sfm_fixture.json); depth, where there is any, is far better.
+out about 13 % too large (studies/results/sfm_fixture.json); depth, where there is any, is far better.
 """
 
 from __future__ import annotations
