@@ -77,6 +77,20 @@ def _warn_if_scale_off(inputs, folder: Path) -> None:
                       "--prior-scale none to use the depth as given without this check", ScaleWarning, stacklevel=2)
 
 
+def _say_resized(folder: Path, names: list[str], size: tuple[int, int]) -> None:
+    """One line when the panoramas are stored at another size than the model runs at (they are resized, and the
+    views and fly-through are written at the model's size unless --output-resolution says otherwise)."""
+    from PIL import Image
+
+    try:
+        with Image.open(folder / names[0]) as image:
+            stored = (image.height, image.width)
+    except (OSError, ValueError, IndexError):
+        return
+    if stored != tuple(size):
+        print(f"the panoramas ({stored[0]}x{stored[1]}) are resized to {size[0]}x{size[1]} for the model")
+
+
 def reconstruct_from_args(args: argparse.Namespace):
     """-> (inputs, gaussians, model) for the parsed options; prints what it did."""
     from ..data.depth_prior import parse_depth_prior
@@ -97,8 +111,11 @@ def reconstruct_from_args(args: argparse.Namespace):
     inputs = load_panorama_folder(args.input, size, depth_prior=prior, poses_file=args.poses_file,
                                   allow_outside_paths=args.allow_outside_paths,
                                   check_plausibility=not args.skip_plausibility_checks)
+    _say_resized(args.input, inputs.names, size)
     alignment = model.config.prior_alignment if args.prior_scale == "model" else args.prior_scale
-    if alignment == "photometric":
+    if alignment == "photometric" and len(inputs.names) == 1:  # the search compares views: one has nothing to match
+        print("depth used as given: the photometric depth-scale search needs 2 or more panoramas, this is 1")
+    elif alignment == "photometric":
         # searched once, here, so the factors can be printed; the model then takes the rescaled depth as it is
         scales = _prior_scales(inputs)
         inputs.depths = inputs.depths * scales[:, None, None]
@@ -111,6 +128,7 @@ def reconstruct_from_args(args: argparse.Namespace):
     # the folder's depths were checked just above, by file name: no second, nameless round of the same checks
     gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, args.min_opacity,
                                       check_plausibility=False)
-    print(f"reconstructed {len(gaussians):,} Gaussians from {len(inputs.names)} panoramas at "
+    views = f"{len(inputs.names)} panorama{'s' if len(inputs.names) != 1 else ''}"
+    print(f"reconstructed {len(gaussians):,} Gaussians from {views} at "
           f"{size[0]}x{size[1]} in {time.perf_counter() - start:.2f} s on {args.device}")
     return inputs, gaussians, model
