@@ -461,3 +461,31 @@ def test_poses_in_sfm_units_warn_once(tmp_path, recwarn):
                         "depth-scale search from them are unreliable: run data poses again with one of those (and "
                         "--overwrite)"]
     warn_if_not_metric(tmp_path / "missing.json")  # unreadable: left to the reader
+
+
+@pytest.mark.slow  # SfM on the real triplet (about 12 s)
+def test_real_triplet_with_one_panorama_at_half_size_registers(pano_grf_fixture, tmp_path, capsys):
+    """Issue 37: all panoramas on one camera left even the two same-size ones unplaced; one camera per size places
+    all three, as close to the dataset's poses as at one size."""
+    pytest.importorskip("pycolmap")
+    from cylindersplat.data.pano_grf import panogrf_c2w
+    from cylindersplat.data.poses.alignment import pose_errors
+
+    fixture = pano_grf_fixture / "00000007"
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    for f in ("00", "01", "02"):
+        with Image.open(fixture / f / "rgb.png") as image:
+            (image.resize((512, 256), Image.LANCZOS) if f == "01" else image).save(folder / f"pano_{f}.png")
+    assert main(["data", "poses", str(folder), "--scale", "none", "--threads", "2"]) == 0
+    out = capsys.readouterr()
+    assert "one camera per size: 2 of 1024x512, 1 of 512x256" in out.err and "registered 3 of 3 panoramas" in out.out
+    frames = sorted(json.loads((folder / "poses.json").read_text())["frames"], key=lambda f: f["image"])
+    truth = np.stack([panogrf_c2w(np.loadtxt(fixture / f / "rot.txt"), np.loadtxt(fixture / f / "tran.txt")).double()
+                      .numpy() for f in ("00", "01", "02")])
+    errors = pose_errors(np.array([f["c2w"] for f in frames]), truth)
+    assert max(errors.rotation_deg) < 1.0 and errors.centre_over_baseline < 0.02
+    before = _snapshot(folder)
+    _one_line(capsys, ["data", "poses", str(folder)], "already exists (poses of an earlier run, imported or written "
+              "by hand) and is kept: give --overwrite")
+    assert _snapshot(folder) == before

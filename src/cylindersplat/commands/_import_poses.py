@@ -44,8 +44,9 @@ def _run(args: argparse.Namespace) -> int:
         records = [PoseRecord(os.path.relpath(folder / r.image, base), r.c2w,
                               r.depth and os.path.relpath(folder / r.depth, base)) for r in records]
         if any(r.depth is not None and r.depth.lower().endswith(".npy") for r in records):
-            raise ValueError(f"{source} has .npy depth files, which nerfstudio keeps in depth units (mm) but poses.json "
-                             "reads in metres; use the transforms.json directly as the poses file (render/export read it)")
+            raise ValueError(f"{source} has .npy depth files, which nerfstudio keeps in depth units (mm) but "
+                             "poses.json reads in metres; use the transforms.json directly as the poses file "
+                             "(render/export read it)")
         depth_scale = 1000
     if args.images is not None:
         if not args.images.is_dir():
@@ -60,8 +61,10 @@ def _run(args: argparse.Namespace) -> int:
         elif source_format.images == "named":
             records = [PoseRecord(os.path.relpath(folder / _image_file(folder, r.image), base), r.c2w) for r in records]
         else:
-            raise ValueError(f"--images does not apply to --from {args.source_format} (its frames name their images)")
-        missing = [r.image for r in records if not Path(os.path.normpath(base / r.image)).is_file()]  # out may not exist yet
+            raise ValueError(f"--images does not apply to --from {args.source_format} (its frames name their "
+                             "images)")
+        # out may not exist yet: normpath, not resolve
+        missing = [r.image for r in records if not Path(os.path.normpath(base / r.image)).is_file()]
         if missing:
             raise FileNotFoundError(f"{len(missing)} image(s) of the poses are not there, e.g. {base / missing[0]}")
     elif source_format.images == "ordered":
@@ -99,22 +102,25 @@ def _start_time(text: str | None) -> float | str:
 def register(sub) -> None:
     """Add ``import-poses`` to the ``data`` subcommand's parsers."""
     parser = sub.add_parser(
-        "import-poses", help="convert 360° camera poses from OpenSfM, nerfstudio, stella_vslam (TUM/KITTI) to poses.json",
+        "import-poses",
+        help="convert 360° camera poses of other tools (COLMAP, OpenSfM, nerfstudio, stella_vslam, ...) to poses.json",
         description="Convert the poses of equirectangular panoramas from another tool into our poses.json "
         "(OpenCV camera-to-world, metres): an OpenSfM/OpenDroneMap reconstruction.json (spherical cameras), a "
-        "nerfstudio transforms.json (EQUIRECTANGULAR), or a stella_vslam/OpenVSLAM keyframe trajectory (TUM or KITTI "
-        "format), a COLMAP sparse model (EQUIRECTANGULAR cameras, or the virtual pinhole cameras of COLMAP's panorama "
-        "workflow), an Agisoft Metashape camera XML (spherical sensors) or an OpenMVG sfm_data.json (spherical "
-        "intrinsics). SfM/SLAM results have an arbitrary scale: --scale gives metres per unit. See docs/inference.md.")
-    parser.add_argument("source", type=Path, help="reconstruction.json, transforms.json, a trajectory text file, a COLMAP "
-                        "model folder (sparse/0), a Metashape cameras .xml or an OpenMVG sfm_data.json")
-    parser.add_argument("--from", dest="source_format", required=True, choices=_FormatNames(), help="the source's format")
+        "nerfstudio transforms.json (EQUIRECTANGULAR), or a stella_vslam/OpenVSLAM keyframe trajectory (TUM or "
+        "KITTI format), a COLMAP sparse model (EQUIRECTANGULAR cameras, or the virtual pinhole cameras of COLMAP's "
+        "panorama workflow), an Agisoft Metashape camera XML (spherical sensors) or an OpenMVG sfm_data.json "
+        "(spherical intrinsics). SfM/SLAM results have an arbitrary scale: --scale gives metres per unit. See "
+        "docs/inference.md; the readers and how to add one: docs/poses.md.")
+    parser.add_argument("source", type=Path, help="reconstruction.json, transforms.json, a trajectory text file, a "
+                        "COLMAP model folder (sparse/0), a Metashape cameras .xml or an OpenMVG sfm_data.json")
+    parser.add_argument("--from", dest="source_format", required=True, choices=_FormatNames(),
+                        help="the source's format")
     parser.add_argument("--out", type=Path, required=True, help="poses.json to write (in the input folder)")
     parser.add_argument("--scale", type=float, default=1.0,
                         help="metres per source unit: multiplies every camera position (default 1)")
     parser.add_argument("--images", type=Path,
-                        help="folder of the panoramas: OpenSfM/COLMAP/Metashape/OpenMVG image names are looked up there; TUM/KITTI poses are "
-                        "matched to its images in name order, or by timestamp with --fps")
+                        help="folder of the panoramas: OpenSfM/COLMAP/Metashape/OpenMVG image names are looked up "
+                        "there; TUM/KITTI poses are matched to its images in name order, or by timestamp with --fps")
     parser.add_argument("--fps", type=float,
                         help="TUM: the pose at time t belongs to image number round(t * fps) of --images (frames "
                         "numbered from 0, as stella_vslam times a video)")
