@@ -257,6 +257,17 @@ def test_colmap_text_reader_never_raises_anything_but_value_error(tmp_path):
 # --- what is written ----------------------------------------------------------------------------------
 
 
+def test_import_poses_keeps_an_existing_out_unless_overwrite(tmp_path, capsys):
+    out = tmp_path / "poses.json"
+    out.write_text('{"frames": "hand-written"}')
+    args = _import(DATA / "metashape_spherical.xml", "metashape", out)
+    _one_line(capsys, args, f"{out} already exists (poses imported earlier, or written by hand) and is kept: give "
+              "--overwrite to replace it, or --out another file")
+    assert out.read_text() == '{"frames": "hand-written"}'
+    assert main([*args, "--overwrite"]) == 0
+    assert len(json.loads(out.read_text())["frames"]) == 2
+
+
 def test_write_poses_json_refuses_bad_poses(tmp_path):
     import torch
 

@@ -36,6 +36,9 @@ def _run(args: argparse.Namespace) -> int:
                          f"{args.source_format}")
     if args.start_time is not None and args.fps is None:
         raise ValueError("--start-time is the timestamp of the first image when matching by --fps; give --fps too")
+    if out.exists() and not args.overwrite:  # a hand-written or earlier poses file is never lost silently
+        raise ValueError(f"{out} already exists (poses imported earlier, or written by hand) and is kept: give "
+                         "--overwrite to replace it, or --out another file")
     records = source_format.read(source, args.scale, **{name: getattr(args, name) for name in source_format.options})
     base = out.parent.resolve()
     depth_scale = None
@@ -127,6 +130,7 @@ def register(sub) -> None:
     parser.add_argument("--start-time", metavar="SECONDS|first",
                         help="with --fps: the timestamp of image 0 (default 0); 'first' takes the trajectory's first "
                         "timestamp, for SLAM runs that stamp poses with the clock")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing --out file (kept by default)")
     parser.add_argument("--reconstruction", type=int, default=0,
                         help="OpenSfM: which reconstruction of the file (default 0, the largest)")
     parser.set_defaults(func=_run)
