@@ -15,14 +15,6 @@ from .pipeline import (
     write_metric_depth,
     write_view,
 )
-from ..data.poses import (
-    PoseRecord,
-    read_kitti,
-    read_opensfm,
-    read_transforms_json,
-    read_tum,
-    write_poses_json,
-)
 from .video import VideoWriter, write_video
 
 __all__ = [name for name in dir() if not name.startswith("_")]
