@@ -453,8 +453,9 @@ def test_check_panoramas_accepts_mixed_sizes(tmp_path):
 
 
 def test_poses_in_sfm_units_warn_once(tmp_path, recwarn):
-    from cylindersplat.inference import load_panorama_folder, write_panorama_folder
     import torch
+
+    from cylindersplat.inference import load_panorama_folder, write_panorama_folder
 
     c2w = torch.eye(4).repeat(2, 1, 1)
     c2w[1, 0, 3] = 0.5
