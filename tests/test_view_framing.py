@@ -1,11 +1,12 @@
-"""The viewer opens on the scene: framed from behind and above, from outside an open scene, from just inside a
-closed room, never among the input cameras."""
+"""The viewer (and view --screenshot) opens on the scene: from the input cameras' middle where there are cameras,
+from outside an open scene, from the middle of a closed room; the picture shows the scene, not one colour."""
 
 from __future__ import annotations
 
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from cylindersplat.gaussians import Gaussians
@@ -17,15 +18,30 @@ from cylindersplat.viewer import ViewCamera
 CAMERAS = [ViewCamera(make_c2w(translation=torch.tensor([x, 0.0, 0.3 * x]))) for x in (-1.0, 0.0, 1.0)]
 
 
-def test_a_closed_room_is_seen_from_just_inside_near_the_ceiling():
-    eye, target = default_view(demo_room(), CAMERAS)  # walls x = +-3, z = +-2.5; ceiling y = -1.2, floor y = 1.6
-    assert -3 < eye[0] < 3 and -2.5 < eye[2] < 2.5 and -1.2 < eye[1] < 1.6  # inside, below the ceiling
-    centres = np.stack([c.c2w[:3, 3].numpy() for c in CAMERAS])
-    assert eye[1] < centres[:, 1].min() - 0.5  # well above the cameras (+y is down)
-    assert np.linalg.norm(centres - eye, axis=1).min() > 1.0  # not in the inputs' frustums
-    low, high = scene_bounds(demo_room(), CAMERAS)
-    np.testing.assert_allclose(target, (low + high) / 2)
-    assert eye[2] < target[2]  # behind, as the first camera looks along +z
+def test_with_cameras_the_view_starts_in_their_middle_along_the_first_ones_forward():
+    room = demo_room()
+    eye, target = default_view(room, CAMERAS)
+    np.testing.assert_allclose(eye, np.mean([c.c2w[:3, 3].numpy() for c in CAMERAS], axis=0), atol=1e-9)
+    direction = (target - eye) / np.linalg.norm(target - eye)
+    np.testing.assert_allclose(direction, [0.0, 0.0, 1.0], atol=1e-9)  # the first camera's +z, level
+    means = room.means.double().numpy()[room.opacities.numpy() > 0.1]
+    ahead = (means - eye)[:, 2]
+    assert np.linalg.norm(target - eye) == pytest.approx(np.median(ahead[ahead > 0]))  # the orbit's centre
+
+
+def test_a_tilted_first_camera_still_gives_a_level_view():
+    tilt = math.radians(30)
+    pitched = torch.tensor([[1.0, 0, 0], [0, math.cos(tilt), -math.sin(tilt)], [0, math.sin(tilt), math.cos(tilt)]])
+    eye, target = default_view(demo_room(), [ViewCamera(make_c2w(rotation=pitched))])
+    assert target[1] == pytest.approx(eye[1]) and target[2] > eye[2]
+
+
+def test_a_closed_room_without_cameras_is_seen_from_its_middle():
+    eye, target = default_view(demo_room(), [])  # walls x = +-3, z = +-2.5; ceiling y = -1.2, floor y = 1.6
+    low, high = scene_bounds(demo_room())
+    np.testing.assert_allclose(eye, (low + high) / 2)
+    assert -3 < eye[0] < 3 and -2.5 < eye[2] < 2.5 and -1.2 < eye[1] < 1.6  # inside
+    assert target[2] > eye[2] and target[1] == pytest.approx(eye[1])
 
 
 def _floor_patch() -> Gaussians:

@@ -28,11 +28,14 @@ from torch import Tensor
 
 from .gaussians import Gaussians
 from .geometry.rotations import matrix_to_quaternion
+from .render.cameras import CameraModel, Pinhole
 from .render.covariance import covariance_3d
+from .render.projection import PixelMap, RasterSettings
 from .view_framing import default_view  # the first view: the scene framed from behind and above
 
 __all__ = ["VIEW_INSTALL", "ViewCamera", "ViewerScene", "SplatArrays", "splat_arrays", "import_viser", "build_scene",
-           "default_view", "serve", "write_html", "render_picture"]
+           "default_view", "serve", "write_html", "render_picture", "PinholeRows", "row_bytes", "picture_bands",
+           "screenshot_budget", "SCREENSHOT_BUDGET_BYTES"]
 
 VIEW_INSTALL = "pip install 'cylindersplat[view]'"
 FRUSTUM_COLOR = (255, 140, 0)
@@ -173,27 +176,113 @@ def serve(gaussians: Gaussians, cameras: list[ViewCamera] = (), host: str = "127
             server.stop()
 
 
+# What one band of a screenshot may take (the reference renderer's own estimate): a picture that needs more is
+# rendered in bands of rows, each within it; half the free memory where that is less.
+SCREENSHOT_BUDGET_BYTES = 1 << 30
+
+
+@dataclass(frozen=True)
+class PinholeRows(CameraModel):
+    """Rows ``top .. top + height - 1`` of the pinhole camera ``full``: its pixel map moved up by ``top``, so
+    every Gaussian is kept or dropped and shaped exactly as in the whole picture (bands agree at their seams)."""
+
+    full: Pinhole
+    top: int
+    height: int
+
+    @property
+    def width(self) -> int:
+        return self.full.width
+
+    @property
+    def max_std(self) -> tuple[float, float]:
+        return self.full.max_std
+
+    def pixel_map(self, points: Tensor, settings: RasterSettings) -> PixelMap:
+        m = self.full.pixel_map(points, settings)
+        return PixelMap(m.u, m.v - self.top, m.depth, m.jacobian, m.valid)
+
+
+def row_bytes(gaussians: Gaussians, c2w: Tensor, camera: Pinhole) -> Tensor:
+    """``(H,)`` float64: the reference renderer's memory for each row of ``camera``'s picture, from the projected
+    Gaussians' (clipped) 3-sigma boxes: every pixel of a box a fragment, every box row per tile a row span. An
+    upper bound (the support is an ellipse inside the box), known before anything is rasterized."""
+    from .render.projection import flatten_cameras, project_gaussians
+    from .render.rasterize import BYTES_PER_FRAGMENT, BYTES_PER_ROW_SPAN
+
+    h, w = camera.height, camera.width
+    flat, flat_c2w, _ = flatten_cameras(gaussians.detach(), c2w.to(device=gaussians.device, dtype=gaussians.dtype))
+    proj = project_gaussians(flat, flat_c2w, camera, RasterSettings())
+    uv, extent = proj.uv.detach().double(), proj.extent.detach().double()
+    i0 = torch.ceil(uv[:, 1] - extent[:, 1] - 0.5).clamp(min=0).long()
+    i1 = torch.floor(uv[:, 1] + extent[:, 1] - 0.5).clamp(max=h - 1).long()
+    columns = (torch.floor(uv[:, 0] + extent[:, 0] - 0.5).clamp(max=w - 1)
+               - torch.ceil(uv[:, 0] - extent[:, 0] - 0.5).clamp(min=0) + 1).clamp(min=0)
+    keep = (i1 >= i0) & (columns > 0)
+    per_row = columns * BYTES_PER_FRAGMENT + (columns // RasterSettings().tile_size + 2) * BYTES_PER_ROW_SPAN
+    change = torch.zeros(h + 1, dtype=torch.float64, device=uv.device)
+    change.index_add_(0, i0[keep], per_row[keep]).index_add_(0, i1[keep] + 1, -per_row[keep])
+    return change.cumsum(0)[:h].clamp(min=0).cpu()
+
+
+def picture_bands(need: Tensor, budget: float) -> list[tuple[int, int]]:
+    """``[(top, height), ...]`` covering all rows of ``need`` (bytes per row), each band within ``budget``;
+    a ``MemoryError`` where one row alone exceeds it."""
+    worst = int(need.argmax()) if len(need) else 0
+    if len(need) and float(need[worst]) > budget:
+        raise MemoryError(f"row {worst} of the picture alone needs about {_amount(float(need[worst]))}, more than "
+                          f"the {_amount(budget)} one band may use")
+    bands, top, total = [], 0, 0.0
+    for row, cost in enumerate(need.tolist()):
+        if row > top and total + cost > budget:
+            bands.append((top, row - top))
+            top, total = row, 0.0
+        total += cost
+    bands.append((top, len(need) - top))
+    return bands
+
+
+def _amount(size: float) -> str:
+    return f"{size / 2**30:.1f} GiB" if size >= 2**30 else f"{size / 2**20:.0f} MiB"
+
+
+def screenshot_budget(device) -> float:
+    """Bytes one band may use: :data:`SCREENSHOT_BUDGET_BYTES`, or half of the free memory where that is less."""
+    from .render.rasterize import available_memory
+
+    free = available_memory(torch.device(device))
+    return float(SCREENSHOT_BUDGET_BYTES if free is None else min(SCREENSHOT_BUDGET_BYTES, free / 2))
+
+
 def render_picture(path: str | Path, gaussians: Gaussians, c2w: Tensor, size: tuple[int, int] = (480, 640),
-                   fov_deg: float = 90.0, panorama: bool = False, background=(1.0, 1.0, 1.0)) -> Path:
+                   fov_deg: float = 90.0, panorama: bool = False, background=(1.0, 1.0, 1.0),
+                   backend: str = "auto") -> Path:
     """Render one view with our renderer and write it as a PNG (atomic): a pinhole camera with horizontal
-    field of view ``fov_deg``, or an equirect panorama (``panorama=True``, ``size`` must be ``(H, 2H)``)."""
+    field of view ``fov_deg``, or an equirect panorama (``panorama=True``, ``size`` must be ``(H, 2H)``).
+
+    The pinhole picture's memory is estimated first (:func:`row_bytes`); one that needs more than
+    :func:`screenshot_budget` is rendered in bands of rows, each within it (the same picture, in pieces); a
+    ``MemoryError`` says how much one row alone would need where even that does not fit."""
     from PIL import Image
 
-    from .render import Equirect, Pinhole, render
+    from .render import Equirect, render
     from .utils.atomic import atomic_path
 
     h, w = size
+    g = gaussians.detach()
+    c2w = c2w.to(device=g.device, dtype=g.dtype)
     if panorama:
-        camera = Equirect(h, w)
+        rgb = render(g, c2w, Equirect(h, w), background=background, backend=backend).rgb
     else:
         if not 1.0 <= fov_deg < 179.0:
             raise ValueError(f"field of view must be in [1, 179) degrees, got {fov_deg}")
         f = 0.5 * w / math.tan(math.radians(fov_deg) / 2)
         camera = Pinhole(torch.tensor([[f, 0.0, w / 2], [0.0, f, h / 2], [0.0, 0.0, 1.0]]), h, w)
-    g = gaussians.detach()
-    out = render(g, c2w.to(device=g.device, dtype=g.dtype), camera, background=background)
-    rgb = (out.rgb.clamp(0, 1) * 255 + 0.5).to(torch.uint8).permute(1, 2, 0).cpu().numpy()
+        bands = picture_bands(row_bytes(g, c2w, camera), screenshot_budget(g.device))
+        rgb = torch.cat([render(g, c2w, PinholeRows(camera, top, rows), background=background, backend=backend).rgb
+                         for top, rows in bands], dim=-2)
+    picture = (rgb.clamp(0, 1) * 255 + 0.5).to(torch.uint8).permute(1, 2, 0).cpu().numpy()
     path = Path(path)
     with atomic_path(path) as tmp:
-        Image.fromarray(rgb).save(tmp, format="PNG")
+        Image.fromarray(picture).save(tmp, format="PNG")
     return path

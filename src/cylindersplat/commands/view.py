@@ -57,11 +57,28 @@ def load_scene(args: argparse.Namespace):
     return gaussians.to("cpu"), cameras
 
 
+def _screenshot(args: argparse.Namespace, gaussians, pose) -> Path:
+    """--screenshot: the Gaussians above --min-opacity rendered from ``pose`` (in bands of rows where the whole
+    picture would not fit in memory); a refusal names the options that make it fit."""
+    from ..viewer import render_picture
+
+    picture = gaussians[gaussians.opacities > args.min_opacity].to(args.device)
+    try:
+        return render_picture(args.screenshot, picture, pose, args.screenshot_size, args.fov, args.panorama)
+    except MemoryError as exc:
+        h, w = args.screenshot_size
+        half = max(h // 2, 1)
+        smaller = f"{half}x{2 * half if args.panorama else max(w // 2, 1)}"
+        raise MemoryError(f"--screenshot at {h}x{w}: {str(exc).split('; ')[0]}; drop faint Gaussians with "
+                          f"--min-opacity (now {args.min_opacity:g}; e.g. 0.1) or render a smaller --screenshot-size, "
+                          f"e.g. {smaller}") from None
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..geometry import look_at_c2w
-    from ..viewer import default_view, import_viser, render_picture, serve, write_html
+    from ..viewer import default_view, import_viser, serve, write_html
 
     check_sources(args)
     if args.screenshot is None or args.html is not None:
@@ -78,8 +95,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             position, look_at = default_view(gaussians, cameras)
             pose = look_at_c2w(torch.tensor(position), torch.tensor(look_at)).float()
-        picture = gaussians.to(args.device)
-        path = render_picture(args.screenshot, picture, pose, args.screenshot_size, args.fov, args.panorama)
+        path = _screenshot(args, gaussians, pose)
         print(f"wrote {path} ({'panorama' if args.panorama else 'pinhole view'}, "
               f"{args.screenshot_size[0]}x{args.screenshot_size[1]})")
     if args.html is None and args.screenshot is None:
@@ -107,7 +123,9 @@ def register(subparsers) -> None:
     parser.add_argument("--frustum-scale", type=float, default=0.2, help="size of the camera frustums in metres (default 0.2)")
     parser.add_argument("--html", type=Path, help="write the scene as one self-contained HTML file and do not serve")
     parser.add_argument("--screenshot", type=Path, help="render a PNG with cylindersplat's renderer (no browser) and do "
-                        "not serve: a pinhole view from where the browser view starts, or --panorama")
+                        "not serve: a pinhole view from where the browser view starts (the input cameras' middle), or "
+                        "--panorama; Gaussians at or below --min-opacity are left out, and a picture too large for "
+                        "memory is rendered in bands of rows")
     parser.add_argument("--screenshot-size", type=image_resolution, default=(480, 640), help="HxW of --screenshot (default 480x640)")
     parser.add_argument("--fov", type=float, default=90.0, help="horizontal field of view of --screenshot in degrees (default 90)")
     parser.add_argument("--panorama", action="store_true", help="--screenshot renders an equirect panorama from the first "
