@@ -501,3 +501,15 @@ def test_real_triplet_with_one_panorama_at_half_size_registers(pano_grf_fixture,
     _one_line(capsys, ["data", "poses", str(folder)], "already exists (poses of an earlier run, imported or written "
               "by hand) and is kept: give --overwrite")
     assert _snapshot(folder) == before
+
+
+@pytest.mark.parametrize("content", [b"", b"user depth"])
+def test_unreadable_depth_file_for_the_scale_is_one_line(pano, content):
+    import argparse
+
+    from cylindersplat.commands._sfm_poses import _depth_maps
+
+    (pano / "a_depth.npy").write_bytes(content)
+    args = argparse.Namespace(depth_prior=None, depth_scale=1000.0)
+    with pytest.raises(ValueError, match="a_depth.npy"):
+        _depth_maps(args, pano, ["a.png", "b.png"])

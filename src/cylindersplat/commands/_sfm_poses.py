@@ -51,10 +51,14 @@ def _depth_maps(args, folder: Path, names: list[str]) -> tuple[dict[str, np.ndar
         depth = _find_depth(folder / name)
         if depth is None:
             continue
-        if depth.suffix.lower() == ".npy":
-            maps[name] = read_depth_npy(depth).double().numpy()
-        else:
-            maps[name] = read_depth_png(depth, scale=args.depth_scale).double().numpy()
+        try:
+            if depth.suffix.lower() == ".npy":
+                maps[name] = read_depth_npy(depth).double().numpy()
+            else:
+                maps[name] = read_depth_png(depth, scale=args.depth_scale).double().numpy()
+        except (OSError, EOFError, SyntaxError) as exc:  # an empty or cut .npy/.png (ValueError names it already)
+            raise ValueError(f"{depth} is not a readable depth file ({type(exc).__name__}: {exc}): fix or remove it, "
+                             "or give --scale/--camera-height") from None
     return maps, f"{len(maps)} depth file(s) (<stem>_depth.*, PNG {args.depth_scale:g} per metre)"
 
 
