@@ -2,8 +2,9 @@
 
 A new format is one new module of this package (a header table like :mod:`.conventions`' and a reader
 ``read_x(path, scale=1.0, **options) -> list[PoseRecord]`` ending in :func:`~.conventions.check_pose`) and one line
-here; ``tests/test_pose_registry.py`` checks every line, and docs/poses.md walks through an example. Importing this
-module imports no reader (the command line lists the names without loading torch).
+here; ``tests/test_pose_registry.py`` checks every line, and docs/poses.md walks through an example. No reader
+module is imported until its format is read (``PoseFormat.read``); ``data import-poses`` reads the names from here
+only when it parses ``--from``.
 """
 
 from __future__ import annotations
