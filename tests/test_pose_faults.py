@@ -513,3 +513,13 @@ def test_unreadable_depth_file_for_the_scale_is_one_line(pano, content):
     args = argparse.Namespace(depth_prior=None, depth_scale=1000.0)
     with pytest.raises(ValueError, match="a_depth.npy"):
         _depth_maps(args, pano, ["a.png", "b.png"])
+
+
+def test_fps_applies_to_trajectories_only(tmp_path, capsys):
+    (tmp_path / "kitti.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n")
+    (tmp_path / "images").mkdir()
+    _image(tmp_path / "images" / "f0.png", 4, 8)
+    _one_line(capsys, [*_import(DATA / "metashape_spherical.xml", "metashape", tmp_path / "a.json"), "--fps", "30"],
+              "--fps matches trajectory timestamps to frame numbers; it does not apply to --from metashape")
+    _one_line(capsys, [*_import(tmp_path / "kitti.txt", "kitti", tmp_path / "b.json"), "--fps", "30", "--images",
+                       str(tmp_path / "images")], "kitti.txt: --fps needs timestamps (a TUM trajectory)")

@@ -31,8 +31,8 @@ def _run(args: argparse.Namespace) -> int:
     source_format = pose_format(args.source_format)
     if out.is_dir() or out.suffix.lower() != ".json":
         raise ValueError(f"--out must be a .json file (e.g. my_scene/poses.json), got {out}")
-    if args.fps is not None and args.source_format != "tum":
-        raise ValueError("--fps matches TUM timestamps to frame numbers; it does not apply to --from "
+    if args.fps is not None and source_format.images != "ordered":
+        raise ValueError("--fps matches trajectory timestamps to frame numbers; it does not apply to --from "
                          f"{args.source_format}")
     if args.start_time is not None and args.fps is None:
         raise ValueError("--start-time is the timestamp of the first image when matching by --fps; give --fps too")
