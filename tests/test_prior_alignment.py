@@ -185,7 +185,9 @@ def test_search_cost_grows_linearly_with_the_views(monkeypatch, capsys):
         counted[count] = len(calls)
     assert counted == {4: 4 * 2 * 2, 8: 8 * 2 * 2, 16: 16 * 2 * 2}
     lines = capsys.readouterr().err.splitlines()  # 16 views: progress lines where the output is not a terminal
-    assert [line.split(" (")[0] for line in lines] == [f"photometric depth-scale search: {k}/16 views" for k in (4, 8, 12, 16)]
+    assert lines[0] == "photometric depth-scale search started: 16 views, a line every 4 views"
+    assert [line.split(" (")[0] for line in lines[1:]] == [f"photometric depth-scale search: {k}/16 views"
+                                                          for k in (4, 8, 12, 16)]
 
 
 def test_neighbours_are_the_nearest_camera_centres():

@@ -100,7 +100,9 @@ def _scene_ids(args) -> tuple[list[str], list[str]]:
 def generate_data(args) -> Path:
     from ..data.synth import profile_config, write_synthetic_dataset
 
-    print(f"[1/4] procedural panoramas: {args.scenes} scenes x 3 frames at {args.resolution[0]}x{args.resolution[1]}")
+    # flush: a log file (`> log`) sees each step's line when it starts, not when the buffer fills
+    print(f"[1/4] procedural panoramas: {args.scenes} scenes x 3 frames at {args.resolution[0]}x{args.resolution[1]}",
+          flush=True)
     root = args.out / "data"
     # Baselines 1-2 m between the outer frames; the target is off their line and occluders stand near the
     # path (the "occlusion" profile), so part of every target is hidden from both inputs: only the volume
@@ -141,7 +143,7 @@ def train_or_reuse(args, data: Path) -> Path:
         "train.image_every": 50,
     })
     print(f"[2/4] training the tiny model on {len(train_ids)} scenes: stages {stages}, steps {steps} "
-          f"(a few minutes on CPU; logs and image grids in {run_dir})")
+          f"(a few minutes on CPU; logs and image grids in {run_dir})", flush=True)
     if has_checkpoint(run_dir) and not args.retrain:
         trainer = Trainer(config, resume=run_dir)  # a killed demo continues where it stopped
     else:
@@ -160,7 +162,7 @@ def score_held_out(args, data: Path, checkpoint: Path) -> str:
     from ..model import load_model
 
     _, held_out = _scene_ids(args)
-    print(f"[3/4] scoring {len(held_out)} held-out scenes (2 panoramas in, the middle one predicted)")
+    print(f"[3/4] scoring {len(held_out)} held-out scenes (2 panoramas in, the middle one predicted)", flush=True)
     dataset = SyntheticDataset(data, views="two_view", scenes=held_out)
     model = load_model(checkpoint, map_location=args.device)
     methods = [model_method(model, "CylinderSplat (tiny)", device=args.device)]
@@ -201,7 +203,7 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
     _, held_out = _scene_ids(args)
     sample = SyntheticDataset(data, views="two_view", scenes=held_out[:1])[0]
     print(f"[4/4] reconstructing held-out scene {held_out[0]} from 2 panoramas "
-          f"({sample.metadata.get('baseline', float('nan')):.2f} m apart)")
+          f"({sample.metadata.get('baseline', float('nan')):.2f} m apart)", flush=True)
     # The two inputs are written as a user input folder and read back: the same path as `cylindersplat render`.
     with written_at_once():  # read back at once, so not held back with the demo's other outputs
         folder = write_panorama_folder(args.out / "input", sample.context_images, sample.context_poses,

@@ -192,7 +192,7 @@ def photometric_prior_scales(
     coarse = torch.linspace(-r, r, n, dtype=depth.dtype, device=depth.device).exp().expand(b, n)
     step = 2 * r / (n - 1)
     offsets = torch.linspace(-step, step, search.fine_steps, dtype=depth.dtype, device=depth.device).exp()
-    bar = Progress(v, "photometric depth-scale search", "view", enabled=v >= PROGRESS_FROM_VIEWS)
+    bar = Progress(v, "photometric depth-scale search", "view", enabled=v >= PROGRESS_FROM_VIEWS, announce=True)
     for view in range(v):
         if bool((depth[:, view] > 0).any()):
             others = None if neighbours is None else neighbours[:, view]

@@ -342,7 +342,7 @@ class Trainer:
                 )
                 # A bar on a terminal, ten plain lines per stage in a log file or pipe.
                 bar = Progress(total, f"stage {self.stage}", "step", tcfg.progress and self.dist.is_main,
-                               initial=self.stage_step, lines=10)
+                               initial=self.stage_step, lines=10, announce=True)
                 for batch in build_loader(self.dataset, sampler, self.config.data.num_workers):
                     start = time.perf_counter()
                     parts = self.train_step(batch)

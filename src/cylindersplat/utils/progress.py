@@ -26,10 +26,11 @@ class Progress:
         initial: items already done before this loop (resume).
         lines: how many lines a loop without a terminal prints (at ``total * k / lines``, k = 1..lines).
         stream: where it writes (default ``sys.stderr``); it is a terminal or not.
+        announce: without a terminal, also say at once that the loop started (its first mark may be minutes away).
     """
 
     def __init__(self, total: int, desc: str, unit: str, enabled: bool = True, initial: int = 0, lines: int = 4,
-                 stream=None) -> None:
+                 stream=None, announce: bool = False) -> None:
         self.total, self.desc, self.unit, self.done = total, desc, unit, initial
         self.stream = stream if stream is not None else sys.stderr
         self.enabled = enabled and total > 0
@@ -38,6 +39,11 @@ class Progress:
                      if self.enabled and on_terminal else None)
         self._marks = sorted({max(1, round(total * k / lines)) for k in range(1, lines + 1)})
         self._start = time.perf_counter()
+        if announce and self.enabled and self._bar is None:
+            start = f"started: {total} {unit}s" if initial == 0 else f"resumed at {initial}/{total} {unit}s"
+            every = max(1, round(total / lines))
+            print(f"{desc} {start}, a line every {f'{every} {unit}s' if every > 1 else unit}", file=self.stream,
+                  flush=True)
 
     def update(self, n: int = 1, note: str = "") -> None:
         """``n`` more items done; ``note`` (e.g. ``"loss 0.0123"``) goes into the bar's postfix or the line."""
