@@ -406,7 +406,7 @@ def test_too_little_room_is_refused_before_colmap_starts(tmp_path, monkeypatch):
 
     usage = collections.namedtuple("usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(10 * 2**20, 9 * 2**20, 2**20))
-    with pytest.raises(ValueError, match=r"has 1 MB free; structure from motion on 3 panoramas needs about 40 MB "
+    with pytest.raises(ValueError, match=r"has 1 MB free; structure from motion on 3 panoramas needs about 22 MB "
                        "there: free space or set TMPDIR"):
         check_room(3, str(tmp_path))
 

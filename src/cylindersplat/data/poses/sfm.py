@@ -44,8 +44,9 @@ __all__ = ["SFM_INSTALL", "SfmResult", "require_pycolmap", "check_panoramas", "p
 
 SFM_INSTALL = "pip install 'cylindersplat[sfm]'"
 EXHAUSTIVE_UP_TO = 50  # matcher "auto": all pairs up to this many photos, else sequential (video frames)
-# Room COLMAP's temporary database needs, roughly: SIFT features and matches of one panorama take a few MB.
-ROOM_PER_PANORAMA = 8 * 2**20
+# Room COLMAP's temporary database needs at least (a refusal only when plainly too small; an abort part-way is
+# still one line): up to 8192 SIFT features of one panorama take about 1.2 MB, its matches far less.
+ROOM_PER_PANORAMA = 2 * 2**20
 ROOM_BASE = 16 * 2**20
 
 
