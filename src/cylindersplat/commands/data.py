@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from ..dataset_layouts import DATASET_LAYOUTS, LAYOUT_ALIASES
+from ..dataset_layouts import DATASET_SPECS, LAYOUT_ALIASES
 from ._arguments import device, equirect_resolution, fraction, nonnegative_int, positive_int
 
 PROFILE_NAMES = ("default", "occlusion")  # cylindersplat.data.synth.PROFILES (not imported: keeps the CLI start fast)
@@ -87,17 +87,18 @@ def _percent(share: float) -> str:
 
 
 def _info(args) -> int:
-    from ..data.preview import example_occlusion, occlusion_summary, open_dataset
+    from ..data.preview import default_views, example_occlusion, occlusion_summary, open_dataset
 
     targets = [name for name in args.targets.split(",") if name] if args.targets else None
-    ds = open_dataset(args.data, views=args.views, targets=targets, allow_outside_paths=args.allow_outside_paths)
+    chosen = args.views or default_views(args.data, "info")  # the layout's own unless --views (360Loc: all_between)
+    ds = open_dataset(args.data, views=chosen, targets=targets, allow_outside_paths=args.allow_outside_paths)
     size, which = ds.stored_size, ""
     if size is None and len(ds):  # a folder of panoramas fixes no size: show its first panorama's
         from PIL import Image
 
         with Image.open(ds.example(0).frames[0].rgb) as image:
             size, which = (image.height, image.width), ", first panorama"
-    views = f"held_out ({', '.join(targets)})" if targets else args.views
+    views = f"held_out ({', '.join(targets)})" if targets else chosen
     print(f"{type(ds).__name__}: {len(ds)} examples, stored size {size} (HxW{which}), views {views}")
     for index in range(min(args.count, len(ds))):
         ref = ds.example(index)
@@ -182,9 +183,9 @@ def register(subparsers) -> None:
 
     preview = sub.add_parser(
         "preview", help="contact sheet PNG: RGB and colourised depth of a few examples",
-        description="Write a contact sheet of the first examples of a synthetic dataset, a png_render_* folder or a "
-        "folder of posed panoramas (poses.json or transforms.json, docs/inference.md; every frame in poses-file order, "
-        "depth tiles black where a frame has no depth file).",
+        description="Write a contact sheet of the first examples of a synthetic dataset, a png_render_* folder, a "
+        "360Loc root or a folder of posed panoramas (poses.json or transforms.json, docs/inference.md; every frame in "
+        "poses-file order, depth tiles black where a frame has no depth file).",
     )
     preview.add_argument("--data", required=True,
                          help="dataset folder (synthetic output, png_render_* folder, or a folder of posed panoramas or of such folders)")
@@ -198,13 +199,16 @@ def register(subparsers) -> None:
         "info", help="summarise a dataset folder: examples, poses, baselines, occluded share of the targets",
         description="Print examples, views and poses, each example's context baseline and the share of each "
         "target's pixels that no context view sees (from ground-truth depth at the stored resolution), and "
-        "their average over the dataset. Reads synthetic datasets, png_render_* folders and folders of posed "
-        "panoramas (poses.json or transforms.json, docs/inference.md; frames without a depth file: n/a).")
+        "their average over the dataset. Reads every layout of the dataset registry: synthetic datasets, png_render_* "
+        "folders, 360Loc roots (no depth: n/a) and folders of posed panoramas (poses.json or transforms.json, "
+        "docs/inference.md; frames without a depth file: n/a).")
     info.add_argument("--data", required=True,
-                      help="dataset folder (synthetic output, png_render_* folder, or a folder of posed panoramas or of such folders)")
+                      help="dataset folder (synthetic output, png_render_* folder, 360Loc root, or a folder of posed "
+                      "panoramas or of such folders)")
     info.add_argument("--count", type=nonnegative_int, default=5, help="examples to list (default 5)")
-    info.add_argument("--views", default="two_view", choices=PROTOCOL_NAMES,
-                      help="view protocol (default two_view; a folder of panoramas: over its frames in poses-file order)")
+    info.add_argument("--views", default=None, choices=PROTOCOL_NAMES + ("all_between",),
+                      help="view protocol (default two_view; a folder of panoramas: over its frames in poses-file "
+                      "order; a 360Loc root: all_between, its only one)")
     info.add_argument("--targets", help="folder of panoramas: comma list of frames (image names or stems) held out as "
                       "targets, the other frames being the inputs (instead of --views), as in eval --targets")
     info.add_argument("--occlusion", type=nonnegative_int, default=64, metavar="N",
@@ -242,7 +246,7 @@ def register(subparsers) -> None:
     priors.add_argument("--net-size", type=equirect_resolution,
                         help="exported networks: HxW the network runs at (for networks exported with fixed shapes; "
                         "its output is resized back)")
-    priors.add_argument("--layout", type=_dataset_layout, choices=["auto", *DATASET_LAYOUTS], default="auto",
+    priors.add_argument("--layout", type=_dataset_layout, choices=["auto", *DATASET_SPECS], default="auto",
                         help="dataset layout, as train and eval name it (default: detected; 'input' is folder's older name)")
     priors.add_argument("--split", default="all", help="360Loc: train, test or all locations (default all)")
     priors.add_argument("--batch-size", type=positive_int, default=4, help="panoramas per network call (default 4)")

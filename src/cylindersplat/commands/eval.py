@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..dataset_layouts import DATASET_LAYOUTS
+from ..dataset_layouts import DATASET_SPECS, dataset_spec
 from ..utils.atomic import atomic_write_text, output_set
 from ..utils.jsonfile import json_text
 
@@ -33,17 +33,18 @@ def positive_int_list(text: str) -> list[int]:
 def eval_runs(args) -> list[tuple[str, str, dict]]:
     """``(label, protocol, loader options)`` per table: one per protocol, and for 360Loc's all_between one per
     ``--views`` x ``--gap`` (label ``all_between_3views_gap3``; plain ``all_between`` when neither is given)."""
+    spec = dataset_spec(args.format)  # which of these options its loader takes
     chosen = args.views is not None or args.gap is not None or args.views_layout is not None
-    if chosen and args.format != "loc360":
+    if chosen and not spec.accepts("context_views"):
         raise ValueError(f"--views, --gap and --views-layout choose 360Loc's context frames (--format loc360, protocol "
                          f"all_between); the {args.format} format has fixed protocols: use --protocols")
     if getattr(args, "targets", None):  # a folder of panoramas with held-out frames: one table
-        if args.format != "folder":
+        if not spec.accepts("targets"):
             raise ValueError(f"--targets holds out frames of a folder of panoramas (--format folder), not of {args.format} data")
         return [("held_out", "held_out", {})]
     runs = []
     for protocol in args.protocols.split(","):
-        if protocol != "all_between" or args.format != "loc360":
+        if protocol != "all_between" or not spec.accepts("context_views"):
             runs.append((protocol, protocol, {}))
             continue
         layout = args.views_layout or "spaced"
@@ -80,10 +81,11 @@ def context_spacing(dataset, count: int) -> str | None:
 def open_eval_dataset(args, protocol: str, loader_options: dict | None = None):
     from ..data.datasets import make_dataset
 
-    options = {"scenes": args.scenes.split(",")} if args.format == "synthetic" and args.scenes else {}
-    if args.format == "folder" and getattr(args, "targets", None):
+    spec = dataset_spec(args.format)  # the command's options its loader takes
+    options = {"scenes": args.scenes.split(",")} if spec.accepts("scenes") and args.scenes else {}
+    if spec.accepts("targets") and getattr(args, "targets", None):
         options["targets"] = [name for name in args.targets.split(",") if name]
-    if args.format == "folder" and getattr(args, "allow_outside_paths", False):
+    if spec.accepts("allow_outside_paths") and getattr(args, "allow_outside_paths", False):
         options["allow_outside_paths"] = True
     options.update(loader_options or {})
     # The PCC reference: gt is Sample.target_depths; file:NAME arrives as Sample.target_reference_depths.
@@ -124,8 +126,9 @@ def _detect_format(data) -> str:
     try:
         chosen = detect_layout(data)
     except ValueError:
-        raise ValueError(f"{data}: cannot tell the dataset layout (no meta.json, not a png_render_* folder, no 360Loc "
-                         "mapping/query_360, no poses.json); name it with --format synthetic|pano_grf|loc360|folder") from None
+        known = ", ".join(dataset_spec(name).what for name in DATASET_SPECS)
+        raise ValueError(f"{data}: cannot tell the dataset layout (none of: {known}); name it with --format "
+                         f"{'|'.join(DATASET_SPECS)}") from None
     print(f"data layout: {chosen} (detected; --format to choose another)")
     return chosen
 
@@ -184,8 +187,7 @@ def run(args: argparse.Namespace) -> int:
                   "torchvision's cached VGG16 weights; docs/evaluation.md); column shown as n/a")
     if lpips_net is not None and getattr(lpips_net, "sources", None):
         print(f"LPIPS: VGG trunk from {lpips_net.sources['trunk']}, linear layers from {lpips_net.sources['linear']}")
-    depth_range = DepthRange(*args.depth_range) if args.depth_range else (
-        DepthRange() if args.format == "pano_grf" else DepthRange(0.05, 1000.0))
+    depth_range = DepthRange(*(args.depth_range or dataset_spec(args.format).depth_range))
     args.out.mkdir(parents=True, exist_ok=True)
     results, details, settings, notes = {}, {}, {}, []
     for label, (protocol, options, dataset) in datasets.items():
@@ -244,7 +246,7 @@ def register(subparsers) -> None:
         ),
     )
     parser.add_argument("--data", required=True, help="dataset folder (synthetic output, png_render_* folder, 360Loc root or a folder of posed panoramas)")
-    parser.add_argument("--format", "--layout", dest="format", choices=DATASET_LAYOUTS,
+    parser.add_argument("--format", "--layout", dest="format", choices=list(DATASET_SPECS),
                         help="dataset layout (default: the --config preset's, else detected from --data as the data commands do); folder: posed panoramas in the "
                         "input format of docs/inference.md (one folder, or a folder of them), frames held out with "
                         "--targets or by --protocols two_view/one_view/n_view in poses-file order")

@@ -1,6 +1,7 @@
 """One registry of dataset layouts and the choices around them, shared by ``train`` and ``eval``.
 
-:data:`DATASETS` maps a layout name (``data.format`` / ``eval --format``) to its loader.
+:data:`DATASETS` maps a layout name (``data.format`` / ``eval --format``) to its loader, the ``open`` of its
+:class:`~cylindersplat.dataset_layouts.DatasetSpec` in the registry.
 :func:`make_dataset` opens one with the three depth choices kept apart:
 
 * the model's **input prior** (``data.depth_prior``): ``default`` (the dataset's own: the
@@ -19,47 +20,34 @@ without a prior of its own and no choice, prior files that are missing (naming
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Callable
 
+from ..dataset_layouts import DATASET_SPECS, dataset_spec, layout_name
 from .base import FrameRef, PanoramaDataset
-from ..dataset_layouts import DATASET_LAYOUTS, layout_name
 from .depth_prior import FilePrior, MissingPrior, NoPrior, StoredDepthPrior, parse_depth_prior, require_depth_prior
-from .folder import FolderDataset
-from .loc360 import Loc360Dataset
-from .pano_grf import PanoGRFDataset
-from .synthetic import SyntheticDataset
 
 __all__ = ["DATASETS", "REFERENCES", "make_dataset", "check_reference_spec", "attach_reference", "check_prior_files"]
 
 
-def _synthetic(root, *, views="two_view", split=None, **kwargs) -> PanoramaDataset:
-    return SyntheticDataset(root, views=views, **kwargs)  # one folder, no splits (scenes=[...] selects)
+class _Loaders(Mapping):
+    """layout name -> its spec's loader, ``open(root, *, views, split, resolution, depth_prior, **layout options)``:
+    a view of the registry (:data:`cylindersplat.dataset_layouts.DATASET_SPECS`), layouts added later included."""
+
+    def __getitem__(self, name: str) -> Callable[..., PanoramaDataset]:
+        if name not in DATASET_SPECS:
+            raise KeyError(name)
+        return dataset_spec(name).open
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(list(DATASET_SPECS))
+
+    def __len__(self) -> int:
+        return len(DATASET_SPECS)
 
 
-def _pano_grf(root, *, views="two_view", split="test", **kwargs) -> PanoramaDataset:
-    return PanoGRFDataset(root, split=split, views=views, **kwargs)
-
-
-def _loc360(root, *, views="all_between", split="test", **kwargs) -> PanoramaDataset:
-    # options: gap (frames between neighbouring contexts, default 3 = 1.4 m), context_views (2, 3, 4, ...),
-    # context_layout ("spaced" / "released"), times_per_sequence; see cylindersplat.data.views.all_between
-    if views != "all_between":
-        raise ValueError(f"360Loc has its own protocol: use views all_between (data.views / eval --protocols), not {views!r}")
-    dataset = Loc360Dataset(root, split=split, **kwargs)
-    dataset.require_examples()
-    return dataset
-
-
-def _folder(root, *, views="all_inputs", split=None, **kwargs) -> PanoramaDataset:
-    return FolderDataset(root, views=views, **kwargs)  # a folder of posed panoramas, or a folder of them (no splits)
-
-
-# layout name -> loader(root, *, views, split, resolution, depth_prior, **layout options)
-DATASETS: dict[str, Callable[..., PanoramaDataset]] = {"synthetic": _synthetic, "pano_grf": _pano_grf, "loc360": _loc360,
-                                                       "folder": _folder}
-
-assert tuple(DATASETS) == DATASET_LAYOUTS  # one vocabulary: the names every command offers (dataset_layouts.py)
+DATASETS: Mapping[str, Callable[..., PanoramaDataset]] = _Loaders()
 
 REFERENCES = ("gt", "prior", "none", "file:NAME")
 
@@ -141,7 +129,7 @@ def make_dataset(
     check_plausibility: bool = True,
     **options,
 ) -> PanoramaDataset:
-    """Open ``root`` as ``layout`` (a key of :data:`DATASETS`) with an input prior and a target reference.
+    """Open ``root`` as ``layout`` (a name of the dataset registry) with an input prior and a target reference.
 
     ``options`` go to the loader (``scenes=[...]`` for synthetic data, ``dist=`` for PanoGRF, ...);
     ``prior_option`` / ``reference_option`` name the settings in error messages. ``check_plausibility=False``
@@ -156,11 +144,12 @@ def make_dataset(
         kwargs["resolution"] = tuple(resolution)
     if depth_prior != "default":
         kwargs["depth_prior"] = parse_depth_prior(depth_prior)  # a name or name:value, e.g. unik3d:/weights
-    dataset = DATASETS[layout](root, views=views, split=split, **kwargs)
+    dataset = dataset_spec(layout).open(root, views=views, split=split, **kwargs)
     dataset.check_plausibility = check_plausibility
     require_depth_prior(dataset, prior_option)  # no silent zeros: the PanoGRF / 360Loc default asks for a choice
-    if isinstance(dataset, FolderDataset):
-        dataset.check_depth(prior_option)  # frames without a depth file need a chosen prior
+    check_depth = getattr(dataset, "check_depth", None)  # a layout whose frames may lack depth files (folders)
+    if check_depth is not None:
+        check_depth(prior_option)  # frames without a depth file need a chosen prior
     if isinstance(dataset.depth_prior, (FilePrior, StoredDepthPrior)) or reference != "none":
         contexts, targets = _frames_by_role(dataset)
         check_prior_files(dataset, dataset.depth_prior, contexts, prior_option)

@@ -10,46 +10,51 @@ import numpy as np
 import torch
 from PIL import Image
 
+from ..dataset_layouts import DATASET_SPECS, dataset_spec, detect_layout  # the rule of every command
 from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
 from .base import FrameRef, PanoramaDataset, _baseline
-from ..dataset_layouts import detect_layout  # the rule of every command
-from .depth_prior.base import NoPrior
-from .folder import FolderDataset
 from .io import read_depth_npy, read_depth_png, to_uint8
 from .occlusion import occluded_fraction, occluded_mask
-from .pano_grf import PanoGRFDataset
-from .synthetic import SyntheticDataset
 
-__all__ = ["open_dataset", "contact_sheet", "write_contact_sheet", "ExampleOcclusion", "example_occlusion",
-           "occlusion_summary"]
+__all__ = ["open_dataset", "default_views", "contact_sheet", "write_contact_sheet", "ExampleOcclusion",
+           "example_occlusion", "occlusion_summary"]
+
+
+def _layout_spec(path: Path):
+    """The spec of the layout ``path`` holds, ``None`` for none the registry knows (a missing folder keeps its
+    ``FileNotFoundError``)."""
+    try:
+        return dataset_spec(detect_layout(path))
+    except ValueError:
+        return None
+
+
+def default_views(path: str | Path, purpose: str = "preview") -> str | None:
+    """The views ``data preview`` (``purpose="preview"``) or ``data info`` (``"info"``) shows of the dataset at
+    ``path`` unless told otherwise (its spec's); ``None`` for a folder that is no dataset."""
+    spec = _layout_spec(Path(path))
+    return None if spec is None else getattr(spec, f"{purpose}_views")
 
 
 def open_dataset(path: str | Path, resolution: tuple[int, int] | None = None, views: str | None = None,
                  targets: list[str] | None = None, allow_outside_paths: bool = False) -> PanoramaDataset:
-    """A synthetic folder (has ``meta.json``), a ``png_render_*`` PanoGRF folder or a folder of posed panoramas
-    (``poses.json`` or ``transforms.json``, or a folder of such folders). ``views`` defaults to ``n_view`` (every
-    frame of a 3-frame sequence), for a folder of panoramas to ``all_inputs`` (every frame, in poses-file order,
-    whatever their number); ``targets`` (folders only) holds those frames out, as ``eval --targets`` does;
-    ``allow_outside_paths`` (folders only) reads files their poses files name outside them."""
+    """Any dataset the registry knows (:func:`~cylindersplat.dataset_layouts.detect_layout`), without a depth
+    prior (pictures and occlusion need none). ``views`` defaults to the layout's preview views (``n_view``, every
+    frame of a 3-frame sequence; for a folder of panoramas ``all_inputs``, every frame in poses-file order whatever
+    their number; 360Loc's ``all_between``); ``targets`` (folders only) holds those frames out, as ``eval
+    --targets`` does; ``allow_outside_paths`` (folders only) reads files their poses files name outside them."""
     path = Path(path)
-    try:
-        layout = detect_layout(path)
-    except ValueError:  # none it knows (a missing folder keeps its FileNotFoundError)
-        layout = None
-    if targets and layout != "folder":
+    spec = _layout_spec(path)
+    if targets and (spec is None or not spec.accepts("targets")):
         raise ValueError(f"{path}: targets hold out frames of a folder of posed panoramas (poses.json), "
                          "not of a synthetic or png_render_* dataset; choose views (--views) there")
-    if layout == "folder":  # depth files only as ground truth: pictures and occlusion need no prior
-        return FolderDataset(path, views=views or "all_inputs", targets=targets, resolution=resolution,
-                             depth_prior=NoPrior(), depth_files="reference", allow_outside_paths=allow_outside_paths)
-    views = views or "n_view"
-    if layout == "synthetic":
-        return SyntheticDataset(path, views=views, resolution=resolution, depth_prior=NoPrior())
-    if layout == "pano_grf":
-        return PanoGRFDataset(path, views=views, resolution=resolution, depth_prior=NoPrior())  # pictures need no prior
-    raise ValueError(f"{path}: not a dataset: neither a synthetic dataset (meta.json), a png_render_* PanoGRF folder "
-                     "nor a folder of posed panoramas (poses.json or transforms.json, or subfolders with one)")
+    if spec is None:
+        known = [dataset_spec(name).what for name in DATASET_SPECS]
+        raise ValueError(f"{path}: not a dataset: neither {', '.join(known[:-1])} nor {known[-1]}")
+    chosen = {"targets": targets, "allow_outside_paths": allow_outside_paths}
+    options = {key: value for key, value in chosen.items() if spec.accepts(key)}
+    return spec.inspect(path, views=views or spec.preview_views, resolution=resolution, **options)
 
 
 @dataclass

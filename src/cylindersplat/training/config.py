@@ -21,6 +21,7 @@ from typing import Any, Literal
 import yaml
 
 from ..data.datasets import check_reference_spec
+from ..dataset_layouts import DATASET_SPECS
 from ..model.config import ModelConfig, config_to_dict, get_config
 from ..model.curriculum import STAGE2_RENDERS
 from .losses import VOLUME_LOSSES, LossConfig
@@ -44,7 +45,7 @@ CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 
 @dataclass
 class DataConfig:
-    format: Literal["synthetic", "pano_grf", "loc360", "folder"] = "synthetic"
+    format: str = "synthetic"  # a layout of the dataset registry (cylindersplat.dataset_layouts)
     root: str | None = None  # dataset folder (see docs/data.md)
     resolution: tuple[int, int] | None = None  # (H, W) resize on load; None = stored size
     split: str = "train"  # pano_grf / loc360 split
@@ -274,6 +275,8 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     bad = [s for s in cfg.train.stages if s not in (1, 2, 3)]
     if bad or not cfg.train.stages:
         raise ValueError(f"train.stages must be a non-empty list of 1, 2, 3; got {cfg.train.stages}")
+    if cfg.data.format not in DATASET_SPECS:  # the registry's layouts (a dataset added there is trainable)
+        raise ValueError(f"data.format must be one of {', '.join(DATASET_SPECS)}; got {cfg.data.format!r}")
     check_reference_spec(cfg.loss.depth_reference, "loss.depth_reference")
     check_reference_spec(cfg.eval.pcc_reference, "eval.pcc_reference", allowed=("gt",))
     if cfg.loss.occluded_weight < 0:

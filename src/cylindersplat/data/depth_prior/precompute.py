@@ -20,10 +20,10 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from ...dataset_layouts import DATASET_LAYOUTS, dataset_spec, detect_layout, layout_name
 from ...utils.atomic import atomic_path, atomic_write_text
 from ..io import DEPTH_PNG_SCALE, read_rgb, write_depth_png
 from .files import SIDECAR, check_prior_name, prior_tree, read_sidecar, tree_file
-from ...dataset_layouts import DATASET_LAYOUTS, detect_layout, layout_name
 from .registry import parse_network_prior
 
 __all__ = ["LAYOUTS", "detect_layout", "prior_frames", "write_priors", "PriorRun"]
@@ -41,34 +41,13 @@ class PriorRun:
     seconds: float
 
 
-def prior_frames(data: str | Path, layout: str = "auto", split: str = "all") -> tuple[Path, list[tuple[Path, str]], str]:
-    """``(dataset root, [(panorama path, key)], layout)``: every panorama of a dataset, once."""
-    from ..loc360 import LOC360_SPLITS, Loc360Dataset
-    from ..pano_grf import PanoGRFDataset
-    from ..synthetic import SyntheticDataset
-    from .base import NoPrior
-
+def prior_frames(data: str | Path, layout: str = "auto", split: str = "all"
+                 ) -> tuple[Path, list[tuple[Path, str]], str]:
+    """``(dataset root, [(panorama path, key)], layout)``: every panorama of a dataset, once (its spec's
+    ``frames``; ``split`` is ``all`` or a split name of layouts that have splits)."""
     data = Path(data)
     layout = detect_layout(data) if layout == "auto" else layout_name(layout)
-    if layout == "folder":
-        from ...data.confine import ALLOW_OUTSIDE_OPTION
-        from ...errors import OutsideFolderError
-        from ..folder import FolderDataset
-
-        try:
-            dataset = FolderDataset(data, depth_prior=NoPrior())
-        except OutsideFolderError as exc:  # no way round here: the tree mirrors paths inside the dataset
-            text = str(exc).replace(f" (or pass {ALLOW_OUTSIDE_OPTION} to read it anyway)", "")
-            raise OutsideFolderError(f"{text} (prior files mirror the panoramas' paths inside the dataset)") from None
-    elif layout == "synthetic":
-        dataset = SyntheticDataset(data, depth_prior=NoPrior())
-    elif layout == "pano_grf":
-        dataset = PanoGRFDataset(data, depth_prior=NoPrior())
-    elif layout == "loc360":
-        if split == "all":
-            dataset = Loc360Dataset(data, locations=tuple(x for s in LOC360_SPLITS.values() for x in s))
-        else:
-            dataset = Loc360Dataset(data, split=split)
+    dataset = dataset_spec(layout).frames(data, split)
     return Path(dataset.data_root), [(Path(f.rgb), key) for f, key in dataset.frames()], layout
 
 
