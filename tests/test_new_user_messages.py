@@ -103,3 +103,30 @@ def test_a_synthetic_datasets_own_depth_scale_is_used(synth_dataset, tmp_path):
     assert frame.depth_scale == 500
     stored = read_depth_png(scene / "00" / "depth.png", scale=1.0)
     torch.testing.assert_close(read_depth_png(frame.depth, scale=frame.depth_scale), stored / 500)
+
+
+def test_views_that_barely_show_the_scene_are_warned_about(tmp_path, capsys):
+    """A scene far smaller than the cameras' distances (millimetres read as metres): a few % of each panorama."""
+    from cylindersplat.gaussians import Gaussians, save_ply
+
+    g = torch.Generator().manual_seed(0)
+    means = torch.randn(50, 3, generator=g) * 0.05 + torch.tensor([0.0, 0.0, 2.0])
+    scene = Gaussians.from_rgb(means, torch.full((50, 3), 0.05), torch.tensor([[1.0, 0, 0, 0]]).repeat(50, 1),
+                               torch.full((50,), 0.99), torch.rand(50, 3, generator=g))
+    save_ply(scene, tmp_path / "small.ply")
+    (tmp_path / "views.json").write_text(json.dumps({"convention": "opencv_c2w",
+                                                     "frames": [{"c2w": torch.eye(4).tolist()}]}))
+    argv = ["render", "--ply", str(tmp_path / "small.ply"), "--views", str(tmp_path / "views.json"),
+            "--output-resolution", "32x64", "--frames", "0", "--out", str(tmp_path / "out")]
+    assert main(argv) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "note:" in line]
+    assert len(notes) == 1 and notes[0].startswith("cylindersplat render: note: the rendered views show the scene in "
+                                                   "only "), notes
+    assert notes[0].endswith(" % of their pixels: is the scene (or the poses) in other units than metres, or are the "
+                             "cameras outside it? Gaussians closer than 1 cm to a camera are not drawn")
+    torch.manual_seed(0)
+    from cylindersplat.scenes import demo_room
+
+    save_ply(demo_room(), tmp_path / "room.ply")  # a room around the camera: no note
+    assert main([*argv[:2], str(tmp_path / "room.ply"), *argv[3:]]) == 0
+    assert "note:" not in capsys.readouterr().err

@@ -235,3 +235,28 @@ def test_eval_tables_are_written_both_or_neither(tmp_path, monkeypatch):
     assert failure.value.output_note == f"nothing in {tmp_path} was changed (not written: results.md, results.json)"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["results.md"]
     assert (tmp_path / "results.md").read_text() == "earlier"
+
+
+@pytest.mark.slow
+def test_a_demo_that_hits_a_file_size_limit_keeps_the_earlier_results(tmp_path, monkeypatch, capsys):
+    from cylindersplat.inference import video
+
+    out = tmp_path / "demo"
+    argv = ["demo", "--out", str(out), "--scenes", "2", "--held-out", "1", "--resolution", "16x32", "--frames", "2",
+            "--device", "cpu"]
+    assert main(argv) == 0
+    results = ["results.md", "results.json", "comparison.png", "novel_view_rgb.png", "novel_view_depth.png",
+               "gaussians.ply", "flythrough.gif"]
+    before = {name: _files(out)[name] for name in results}
+    examples = {name: data for name, data in _files(out).items() if name.startswith("examples/")}
+    capsys.readouterr()
+    monkeypatch.setattr(video._GifStream, "append", _file_too_large)
+    assert main(argv) == 1
+    err = _one_line(capsys)
+    assert err.startswith(f"cylindersplat demo: error: file too large while writing {out}/flythrough.gif (a file-size "
+                          f"limit: ulimit -f, FAT32's 4 GiB): choose another --out; nothing in {out} was changed (not "
+                          "written: results.md, results.json, "), err
+    after = _files(out)
+    assert {name: after[name] for name in results} == before
+    assert {name: data for name, data in after.items() if name.startswith("examples/")} == examples
+    assert not [name for name in after if ".tmp" in name]

@@ -13,6 +13,7 @@ from ._inference import add_input_arguments, reconstruct_from_args
 VIEW_PATTERNS = ("view_*_rgb.png", "view_*_depth.png", "view_*_depth.npy", "view_*_depth_mm.png", "poses.json")
 RENDER_PATTERNS = ("gaussians.ply", "flythrough.gif", "flythrough.mp4", "flythrough.webm", "flythrough_poses.json")
 PLY_DEFAULT_HEIGHT = 512  # --ply without --output-resolution: 512x1024 panoramas, 512x682 pinhole views
+LOW_COVERAGE = 0.05  # panoramas that show the scene in fewer of their pixels than this are warned about
 
 
 def _yaw(degrees: float):
@@ -71,6 +72,21 @@ def _earlier_render(out: Path, keep) -> list[Path]:
     stale = [p for pattern in VIEW_PATTERNS for p in view_dir.glob(pattern)] if view_dir.is_dir() else []
     stale += [out / name for name in RENDER_PATTERNS if (out / name).is_file()]
     return [p for p in stale if p.resolve() not in kept]
+
+
+def _warn_if_little_covered(covered: int, pixels: int, camera) -> None:
+    """Panoramas see every direction: one that shows the scene in a few % of its pixels points at a scene far
+    smaller than the cameras' distances (a unit mistake, e.g. millimetres read as metres) or cameras outside it."""
+    import warnings
+
+    from ..render import Pinhole
+    from ..validation import ScaleWarning
+
+    if isinstance(camera, Pinhole) or not covered or covered / pixels >= LOW_COVERAGE:
+        return  # (none covered: the renderer has said that nothing is visible)
+    warnings.warn(f"the rendered views show the scene in only {100 * covered / pixels:.1f} % of their pixels: is "
+                  "the scene (or the poses) in other units than metres, or are the cameras outside it? Gaussians "
+                  "closer than 1 cm to a camera are not drawn", ScaleWarning, stacklevel=2)
 
 
 def _planned(args, view_poses, video) -> list[Path]:
@@ -151,9 +167,10 @@ def run(args: argparse.Namespace) -> int:
         if view_poses is not None:
             view_poses = view_poses @ turn
             view_dir.mkdir(exist_ok=True)
-            records, index = [], 0
+            records, index, covered = [], 0, 0
             for out in iter_views(gaussians, view_poses, h, w, background, args.view_batch, progress=True,
                                   desc="novel views", camera=camera):
+                covered += int((out.alpha > 0.5).sum())
                 for k in range(len(out.rgb)):  # written as rendered: memory holds one chunk of views
                     stem = f"view_{index:03d}"
                     write_view(view_dir / f"{stem}_rgb.png", view_dir / f"{stem}_depth.png", out.rgb[k], out.depth[k],
@@ -168,6 +185,7 @@ def run(args: argparse.Namespace) -> int:
             if args.metric_depth:
                 extra["depth_type"] = ("radial distance along each pixel's ray: view_NNN_depth.npy float32 metres, "
                                        "view_NNN_depth_mm.png 16-bit depth_scale units per metre; 0 = no surface")
+            _warn_if_little_covered(covered, index * h * w, camera)
             write_poses_json(view_dir / "poses.json", records, depth_scale=1000 if args.metric_depth else None, **extra)
             what = "RGB + depth colormap" + (" + metric depth (.npy metres, 16-bit PNG mm)" if args.metric_depth else "")
             said.append(f"wrote {index} {record['model']} views ({what}, {h}x{w}) and their poses.json to {view_dir}")
