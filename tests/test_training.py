@@ -321,7 +321,7 @@ def test_stage_one_can_leave_hidden_pixels_to_the_volume_branch(tmp_path, monkey
         trainer = Trainer(cfg)
         trainer.stage_index = cfg.train.stages.index(stage)
         batch = batch_to_device(collate_samples([trainer.dataset[0]]), trainer.device)
-        weights = trainer._occluded_weights(batch)
+        weights = trainer.objective.pixel_weights(batch, trainer.stage)
         if not leaves:
             assert weights is None
             continue

@@ -21,10 +21,16 @@ from jaxtyping import Float
 from torch import Tensor, nn
 
 from ..utils.notices import Notice
+from .loss_terms.depth import depth_l1 as depth_l1_term
+from .loss_terms.depth import reference_depths
+from .loss_terms.perceptual import lpips_term
+from .loss_terms.photometric import rgb_l1 as rgb_l1_term
+from .loss_terms.photometric import rgb_l2 as rgb_l2_term
+from .loss_terms.volume import VOLUME_LOSS_MODES
 
 __all__ = ["LossConfig", "RenderLoss", "LossTerms", "reference_depths", "VOLUME_LOSSES", "RELEASED_VOLUME_WEIGHTS"]
 
-VOLUME_LOSSES = ("scaled", "released")
+VOLUME_LOSSES = tuple(VOLUME_LOSS_MODES)  # "scaled", "released" (loss_terms/volume.py)
 RELEASED_VOLUME_WEIGHTS = {"rgb_l2": 0.1, "lpips": 0.005, "depth_l1": 0.1}  # the released code's stage-3 volume loss
 
 
@@ -66,22 +72,9 @@ class LossTerms:
     parts: dict[str, float]  # unweighted terms, detached, for logging
 
 
-def reference_depths(batch, depth_reference: str) -> Tensor | None:
-    """The depth loss's ``D_ref`` of a (batched) Sample for ``loss.depth_reference``; ``None`` for ``none``."""
-    if depth_reference == "none":
-        return None
-    if depth_reference == "gt":
-        depth, what = batch.target_depths, "ground-truth depth of the targets"
-    else:
-        depth, what = getattr(batch, "target_reference_depths", None), f"{depth_reference} reference depth"
-    if depth is None:
-        raise ValueError(f"loss.depth_reference={depth_reference}: this batch has no {what}; build the dataset with "
-                         "cylindersplat.training.data.build_dataset(data, loss) (or choose loss.depth_reference=none)")
-    return depth
-
-
 class RenderLoss(nn.Module):
-    """``forward(rgb, depth, alpha, target_rgb, reference_depth)`` on ``(*B, V, ...)`` renders."""
+    """``forward(rgb, depth, alpha, target_rgb, reference_depth)`` on ``(*B, V, ...)`` renders: Eq. 7's weighted
+    sum of the terms in :mod:`.loss_terms` (and :meth:`released_volume`, the released code's volume loss)."""
 
     def __init__(self, config: LossConfig | None = None, device: torch.device | str = "cpu") -> None:
         super().__init__()
@@ -130,25 +123,15 @@ class RenderLoss(nn.Module):
         """``pixel_weight`` (optional) weights the RGB L1 per pixel (a weighted mean); pixels it gives weight 0
         are left out of the depth term too."""
         cfg = self.config
-        if pixel_weight is None:
-            rgb_l1 = (rgb - target_rgb).abs().mean()
-        else:
-            w = pixel_weight.unsqueeze(-3).to(rgb.dtype)
-            rgb_l1 = (w * (rgb - target_rgb).abs()).sum() / (3 * w.sum()).clamp_min(1e-12)
+        rgb_l1 = rgb_l1_term(rgb, target_rgb, pixel_weight)
         total = cfg.rgb_l1 * rgb_l1
         parts = {"rgb_l1": float(rgb_l1.detach())}
         if self.lpips_net is not None:
-            # LPIPS expects (B, 3, H, W); fold every leading dim into the batch.
-            perceptual = self.lpips_net(rgb.flatten(0, -4), target_rgb.flatten(0, -4)).mean()
+            perceptual = lpips_term(self.lpips_net, rgb, target_rgb)
             total = total + cfg.lpips * perceptual
             parts["lpips"] = float(perceptual.detach())
         if reference_depth is not None and cfg.depth_l1 > 0:
-            valid = reference_depth > 0
-            if pixel_weight is not None:
-                valid = valid & (pixel_weight > 0)
-            rendered = depth / alpha.clamp_min(1e-4) if cfg.normalize_depth else depth
-            error = (rendered - reference_depth).abs() * valid
-            depth_l1 = error.sum() / valid.sum().clamp_min(1)
+            depth_l1 = depth_l1_term(depth, reference_depth, alpha, pixel_weight, cfg.normalize_depth)
             total = total + cfg.depth_l1 * depth_l1
             parts["depth_l1"] = float(depth_l1.detach())
         parts["total"] = float(total.detach())
@@ -164,15 +147,14 @@ class RenderLoss(nn.Module):
         """``loss.volume_loss=released``: :data:`RELEASED_VOLUME_WEIGHTS` on the volume branch's own render (MSE,
         LPIPS when its weights are loaded, depth L1 over valid reference pixels)."""
         weights = RELEASED_VOLUME_WEIGHTS
-        rgb_l2 = ((rgb - target_rgb) ** 2).mean()
+        rgb_l2 = rgb_l2_term(rgb, target_rgb)
         total, parts = weights["rgb_l2"] * rgb_l2, {"rgb_l2": float(rgb_l2.detach())}
         if self.lpips_net is not None:
-            perceptual = self.lpips_net(rgb.flatten(0, -4), target_rgb.flatten(0, -4)).mean()
+            perceptual = lpips_term(self.lpips_net, rgb, target_rgb)
             total = total + weights["lpips"] * perceptual
             parts["lpips"] = float(perceptual.detach())
         if reference_depth is not None:
-            valid = reference_depth > 0
-            depth_l1 = ((depth - reference_depth).abs() * valid).sum() / valid.sum().clamp_min(1)
+            depth_l1 = depth_l1_term(depth, reference_depth)
             total = total + weights["depth_l1"] * depth_l1
             parts["depth_l1"] = float(depth_l1.detach())
         parts["total"] = float(total.detach())

@@ -31,7 +31,6 @@ from torch import Tensor
 from .. import interrupt
 from ..data import Sample
 from ..model import CylinderSplat, load_model, save_model
-from ..model.curriculum import volume_stage_follows
 from ..render import available_backends, render_equirect
 from ..utils.atomic import atomic_write_text
 from ..utils.progress import Progress
@@ -41,7 +40,8 @@ from .data import ResumableBatchSampler, build_dataset, build_loader
 from .distributed import cleanup_distributed, init_distributed, unwrap, wrap_ddp
 from .logger import MetricLogger
 from .resume import curriculum_position
-from .losses import LossTerms, RenderLoss, reference_depths
+from .losses import LossTerms, RenderLoss
+from .objective import Objective
 from .schedule import cosine_schedule
 
 __all__ = ["Trainer", "batch_to_device", "select_device"]
@@ -108,6 +108,7 @@ class Trainer:
         self.output_dir = Path(config.output_dir)
         self.model = CylinderSplat(config.model).to(self.device)
         self.loss_fn = RenderLoss(config.loss, self.device)
+        self.objective = Objective(config.loss, self.loss_fn, config.train.stages)
         self.dataset = dataset if dataset is not None else build_dataset(config.data, config.loss)
         if len(self.dataset) == 0:
             raise ValueError("the training dataset is empty")
@@ -177,7 +178,8 @@ class Trainer:
 
     # -- one step -----------------------------------------------------------------------------
     def compute_loss(self, batch: Sample) -> LossTerms:
-        """Forward the contexts, render the targets, compare. Batch tensors ``(B, V|T, ...)``."""
+        """Forward the contexts, render the targets, score them (:class:`~.objective.Objective`). Batch tensors
+        ``(B, V|T, ...)``."""
         autocast = (
             torch.autocast("cuda", dtype=torch.bfloat16) if self.use_bf16 else contextlib.nullcontext()
         )
@@ -188,54 +190,19 @@ class Trainer:
         with torch.autocast(self.device.type, enabled=False):
             render = self._render(gaussians, batch)
             self._last_render = (render, batch)
-            reference = reference_depths(batch, self.config.loss.depth_reference) if self.config.loss.depth_l1 > 0 else None
-            pixel_weight = self._occluded_weights(batch)
+            volume_render = None
+            if out.pixel_gaussians is not None and out.volume_gaussians is not None:  # a fused set: its volume part
 
-            def loss_of(r):
-                return self.loss_fn(r.rgb, r.depth, r.alpha, batch.target_images, reference, pixel_weight=pixel_weight)
+                def volume_render():
+                    return self._render(out.volume_gaussians.to(torch.float32), batch)
 
-            terms = loss_of(render)
-            weight = self.config.loss.volume_weight
-            if weight > 0 and out.pixel_gaussians is not None and out.volume_gaussians is not None:
-                # loss.volume_weight: the volume Gaussians rendered alone, before fusion, count too
-                own_render = self._render(out.volume_gaussians.to(torch.float32), batch)
-                if self.config.loss.volume_loss == "released":
-                    own = self.loss_fn.released_volume(own_render.rgb, own_render.depth, batch.target_images, reference)
-                else:
-                    own = loss_of(own_render)
-                parts = dict(terms.parts, volume_total=own.parts["total"], total=terms.parts["total"] + weight * own.parts["total"])
-                terms = LossTerms(terms.total + weight * own.total, parts)
-            return terms
+            return self.objective(batch, render, self.stage, volume_render)
 
     def _render(self, gaussians, batch: Sample):
         """fp32 render of the batch's target views."""
         height, width = batch.target_images.shape[-2:]
         return render_equirect(gaussians, batch.target_poses.float(), height, width,
                                background=tuple(self.config.train.background), backend=self.config.train.render_backend)
-
-    def _occluded_weights(self, batch: Sample) -> Tensor | None:
-        """``1 + loss.occluded_weight`` on target pixels no context view sees (from reference depths), else 1;
-        0 there in stage 1 with ``loss.pixel_stage_hidden=leave`` when later stages train the volume branch."""
-        lcfg = self.config.loss
-        weight, setting = lcfg.occluded_weight, "loss.occluded_weight"
-        if lcfg.pixel_stage_hidden == "leave" and volume_stage_follows(self.stage, self.config.train.stages):
-            weight, setting = -1.0, "loss.pixel_stage_hidden=leave"
-        if weight == 0:
-            return None
-        if batch.target_depths is None or batch.context_gt_depths is None:
-            if not getattr(self, "_warned_occluded", False):
-                warnings.warn(f"{setting} needs reference depths of targets and contexts; not applied",
-                              stacklevel=3)
-                self._warned_occluded = True
-            return None
-        from ..data.occlusion import occluded_mask
-
-        masks = torch.stack([
-            torch.stack([occluded_mask(batch.target_depths[b, t], batch.target_poses[b, t], batch.context_gt_depths[b],
-                                       batch.context_poses[b]) for t in range(batch.target_depths.shape[1])])
-            for b in range(batch.target_depths.shape[0])
-        ])
-        return 1.0 + weight * masks.to(batch.target_images.dtype)
 
     def _watch_gaussian_grads(self, gaussians) -> None:
         """Record per Gaussian tensor whether its grad is finite; a device-side flag, no sync."""
