@@ -29,7 +29,8 @@ def _memory_for(monkeypatch, cameras: int) -> list[int]:
         if cameras_at_once > cameras:
             raise rasterize.RenderMemoryError(num_fragments * 400, 1000, num_fragments, cameras_at_once, device)
 
-    monkeypatch.setattr(rasterize, "check_fragment_memory", check)
+    monkeypatch.setattr(rasterize, "check_fragment_memory", check)  # the PyTorch reference's check
+    monkeypatch.setattr(rasterize, "check_pair_memory", check)  # the numba CPU backend's
     return asked
 
 

@@ -124,8 +124,8 @@ def _run_fast(fn: Backend, backend: str, fast: Callable, reference: Callable, un
     (it compiles at first use, which may fail on this machine) with a warning."""
     try:
         return fast()
-    except torch.OutOfMemoryError:
-        raise  # not a broken backend: the reference would need more memory still
+    except (torch.OutOfMemoryError, MemoryError):
+        raise  # not a broken backend (RenderMemoryError included): the reference would need more memory still
     except UnsupportedSettings:
         if unsupported_is_final and (backend != "auto" or fn is _reference_backend):
             raise

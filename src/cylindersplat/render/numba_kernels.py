@@ -43,10 +43,11 @@ def _clamp_to_int(x):
 
 @njit(cache=True)
 def tile_spans(uv, extent, height, width, tile, wrap_u, half):
-    """Per projected Gaussian ``(M, 6)`` int64 ``i0, i1, a0, b0, a1, b1`` (inclusive rows and up to two column
-    intervals; ``b < a`` marks an empty one) and ``(M,)`` pair counts. ``half`` is 0.5 in the dtype of ``uv``."""
+    """Per projected Gaussian ``(M, 7)`` int64 ``i0, i1, a0, b0, a1, b1, shift`` (inclusive rows and up to two
+    column intervals, ``b < a`` marks an empty one; ``shift``: wrapped minus unwrapped column in the first
+    interval, ``shift - W`` in the second) and ``(M,)`` pair counts. ``half`` is 0.5 in the dtype of ``uv``."""
     m = uv.shape[0]
-    spans = np.zeros((m, 6), np.int64)
+    spans = np.zeros((m, 7), np.int64)
     counts = np.zeros(m, np.int64)
     for k in range(m):
         spans[k, 1] = spans[k, 3] = spans[k, 5] = -1
@@ -79,6 +80,7 @@ def tile_spans(uv, extent, height, width, tile, wrap_u, half):
         spans[k, 3] = b0
         spans[k, 4] = a1
         spans[k, 5] = b1
+        spans[k, 6] = a0 - j0
         nx = b0 // tile - a0 // tile + 1
         if b1 >= a1:
             nx += b1 // tile - a1 // tile + 1
@@ -140,6 +142,41 @@ def _offsets(u, v, a, b, c, row_center, col_center, consts, wrap_u):
 
 
 @njit(cache=True)
+def _pair_reach(spans, g, interval, u, a, b, c, o, sigma2, alpha_min, width):
+    """What the per-row column ranges of a pair need: its Gaussian's centre in the interval's (wrapped)
+    columns and the squared Mahalanobis radius beyond which no fragment passes (``sigma_extent^2``, or
+    less where the opacity cannot reach ``alpha_min`` there: ``o exp(-m / 2) < alpha_min``)."""
+    centre = np.float64(u) + spans[g, 6] - interval * width
+    reach = np.float64(sigma2)
+    if o > 0 and alpha_min > 0:
+        reach = min(reach, 2.0 * math.log(np.float64(o) / np.float64(alpha_min)))
+    return centre, reach
+
+
+@njit(cache=True)
+def _row_columns(row_center, v, a, b, c, centre, reach, j0, j1):
+    """Columns of row ``row_center`` inside ``[j0, j1]`` that can lie inside the ellipse ``m <= reach`` (the
+    quadratic in ``du`` solved in float64 and widened by a pixel each side: every fragment is still tested)."""
+    a64, b64, c64 = np.float64(a), np.float64(b), np.float64(c)
+    if not a64 > 0:
+        return j0, j1
+    dv = np.float64(row_center) - np.float64(v)
+    disc = (b64 * b64 - a64 * c64) * dv * dv + reach * a64
+    if disc < 0:
+        return j0, j0 - 1
+    if not disc < 1e300:  # inf or NaN: no bound
+        return j0, j1
+    root = math.sqrt(disc)
+    lo = centre + (-b64 * dv - root) / a64
+    hi = centre + (-b64 * dv + root) / a64
+    if lo - 1.5 > j0:
+        j0 = np.int64(math.ceil(lo - 0.5)) - 1
+    if hi + 1.5 < j1:
+        j1 = np.int64(math.floor(hi - 0.5)) + 1
+    return j0, j1
+
+
+@njit(cache=True)
 def _tile_box(t, per_camera, tiles_x, tile, height, width):
     cam, local = t // per_camera, t % per_camera
     r_lo, c_lo = (local // tiles_x) * tile, (local % tiles_x) * tile
@@ -176,8 +213,10 @@ def composite_forward(packed, pairs, tile_start, spans, centers, consts, height,
             i0, i1, j0, j1 = _rectangle(spans, g, interval, r_lo, r_hi, c_lo, c_hi)
             u, v, a, b, c, o = packed[g, 0], packed[g, 1], packed[g, 2], packed[g, 3], packed[g, 4], packed[g, 5]
             cr, cg, cb, cd = packed[g, 6], packed[g, 7], packed[g, 8], packed[g, 9]
+            centre, reach = _pair_reach(spans, g, interval, u, a, b, c, o, sigma2, alpha_min, width)
             for row in range(i0, i1 + 1):
-                for col in range(j0, j1 + 1):
+                k0, k1 = _row_columns(centers[row], v, a, b, c, centre, reach, j0, j1)
+                for col in range(k0, k1 + 1):
                     k = (row - r_lo) * tile + (col - c_lo)
                     if not alive[k]:
                         continue
@@ -244,8 +283,10 @@ def composite_backward(packed, pairs, tile_start, spans, centers, consts, height
             a64, b64, c64 = np.float64(a), np.float64(b), np.float64(c)
             g_u, g_v, g_a, g_b, g_c, g_o = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
             g_r, g_g, g_bl, g_d = 0.0, 0.0, 0.0, 0.0
+            centre, reach = _pair_reach(spans, g, interval, u, a, b, c, o, sigma2, alpha_min, width)
             for row in range(i0, i1 + 1):
-                for col in range(j0, j1 + 1):
+                k0, k1 = _row_columns(centers[row], v, a, b, c, centre, reach, j0, j1)
+                for col in range(k0, k1 + 1):
                     k = (row - r_lo) * tile + (col - c_lo)
                     if not alive[k]:
                         continue
