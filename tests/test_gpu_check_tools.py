@@ -45,3 +45,25 @@ def test_training_run_verdict(tmp_path, capsys):
     assert summary.main(rising, require_fall=True) == 1
     assert summary.main(rising) == 0  # without --require-fall the verdict is only printed
     assert "NOT converging" in capsys.readouterr().out
+
+
+def test_bench_render_reports_a_reference_out_of_memory_instead_of_crashing(monkeypatch, capsys):
+    """The reference running out of memory (as at 1.3 M Gaussians on an 80 GB GPU) is a row and a table cell, and
+    the other backend is still timed."""
+    from cylindersplat.benchmarks import render as bench_render
+
+    real = bench_render.render_equirect
+
+    def reference_out_of_memory(*args, backend="auto", **kwargs):
+        if backend == "torch":
+            raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 40.00 GiB")
+        return real(*args, backend=backend, **kwargs)
+
+    monkeypatch.setattr(bench_render, "render_equirect", reference_out_of_memory)
+    bench_render.main(["--num", "300", "--height", "8", "--device", "cpu", "--backend", "torch", "numba",
+                       "--repeats", "1", "--default-malloc"])
+    out = capsys.readouterr().out
+    assert "# numba vs torch (300 Gaussians, 8x16, cpu): torch: out of memory - no ratio" in out
+    assert "| cpu | torch | 300 | 8x16 | out of memory | out of memory |  |" in out
+    numba_row = next(line for line in out.splitlines() if line.startswith("| cpu | numba | 300 |"))
+    assert float(numba_row.split("|")[5]) > 0  # its forward was timed

@@ -2,12 +2,15 @@
 
     cylindersplat bench render                       # 100k Gaussians, 256x512, CPU (+CUDA if present)
     cylindersplat bench render --num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --cubemap
+    cylindersplat bench render --device cpu --threads 2 --backend torch numba --ply-view 1000000
 
 Scenes come from :func:`cylindersplat.scenes.random_indoor` (Gaussians on the walls of an 8 x 3 x 6 m
 room plus 20% scattered inside). ``--stages`` also prints where the time goes: projection, tile
 binning, fragment expansion + sort, compositing, backward for the PyTorch reference; with
 ``--backend triton`` the Triton backend's own stages (fused projection kernel, key binning,
-compositing kernels).
+compositing kernels). ``--ply-view N`` also times what a user waits for to see a scene: a PLY of ``N``
+Gaussians loaded and one 512x1024 view rendered (no gradients), per backend. A backend that runs out
+of memory is reported as such in the rows and the closing table (the others are still timed).
 """
 
 from __future__ import annotations
@@ -17,10 +20,12 @@ import os
 import platform
 import resource
 import statistics
+import tempfile
 import time
 
 import torch
 
+from cylindersplat.gaussians import load_ply, save_ply
 from cylindersplat.render import Equirect, render_cubemap, render_equirect
 from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
@@ -179,6 +184,60 @@ def profile(num: int, height: int, device: torch.device, backend: str, rows: int
     print(prof.key_averages().table(sort_by=key, row_limit=rows, max_name_column_width=60))
 
 
+def ply_view(num: int, device: torch.device, backends: list[str], folder: str, height: int = 512) -> list[dict]:
+    """Seconds to load a PLY of ``num`` Gaussians and render one ``height x 2 height`` view, per backend (the second
+    of two renders: the first compiles where a backend compiles)."""
+    path = save_ply(random_indoor(num), os.path.join(folder, f"scene_{num}.ply"))
+    rows = []
+    for backend in backends:
+        row = {"ply_view": num, "size": f"{height}x{2 * height}", "device": str(device), "backend": backend}
+        try:
+            for _ in range(2):
+                t0 = time.perf_counter()
+                g = load_ply(path, device=device)
+                t1 = time.perf_counter()
+                with torch.no_grad():
+                    render_equirect(g, torch.eye(4, device=device), height, 2 * height, backend=backend)
+                _sync(device)
+                t2 = time.perf_counter()
+            row.update(load_s=round(t1 - t0, 3), render_s=round(t2 - t1, 3), total_s=round(t2 - t0, 3))
+        except (torch.OutOfMemoryError, MemoryError):
+            row["error"] = "out of memory"
+        rows.append(row)
+    return rows
+
+
+def ratio_line(base: dict, row: dict, dev: str) -> str:
+    """``# B vs A (...)``: how many times faster ``row`` is than ``base``; a run out of memory says so instead."""
+    head = f"# {row['backend']} vs {base['backend']} ({row['num']} Gaussians, {row['size']}, {dev}): "
+    failed = [r for r in (base, row) if "forward_ms" not in r]
+    if failed:
+        return head + "; ".join(f"{r['backend']}: {r.get('error', 'no timing')}" for r in failed) + " - no ratio"
+    text = head + (f"forward {base['forward_ms'] / row['forward_ms']:.1f}x faster, "
+                   f"fwd+bwd {base['fwd_bwd_ms'] / row['fwd_bwd_ms']:.1f}x")
+    if "cubemap_forward_ms" in row:
+        text += (f"; vs cubemap route: forward {row['cubemap_forward_ms'] / row['forward_ms']:.1f}x, "
+                 f"fwd+bwd {row['cubemap_fwd_bwd_ms'] / row['fwd_bwd_ms']:.1f}x")
+    return text
+
+
+def table(rows: list[dict]) -> list[str]:
+    """Markdown table of timed rows; a backend out of memory shows that in its cells."""
+    lines = ["| device | backend | Gaussians | size | forward ms | fwd+bwd ms | peak MB |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "ply_view" in r:
+            cells = (f"PLY load {r['load_s']} s + view {r['render_s']} s = {r['total_s']} s", "", "") if "total_s" in r \
+                else (r.get("error", "failed"),) * 2 + ("",)
+            lines.append(f"| {r['device']} | {r['backend']} | {r['ply_view']:,} (PLY) | {r['size']} | " + " | ".join(cells) + " |")
+            continue
+        if "forward_ms" in r:
+            cells = (f"{r['forward_ms']:.1f}", f"{r['fwd_bwd_ms']:.1f}", f"{r['peak_mb']:.0f}")
+        else:
+            cells = (r.get("error", "failed"),) * 2 + ("",)
+        lines.append(f"| {r['device']} | {r['backend']} | {r['num']:,} | {r['size']} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineErrorParser(prog="cylindersplat bench render", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--num", type=positive_int, nargs="+", default=[100_000], help="numbers of Gaussians")
@@ -193,6 +252,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--default-malloc", action="store_true", help="skip the glibc allocator tuning")
     parser.add_argument("--profile", action="store_true", help="print torch.profiler's top kernels of one forward+backward")
     parser.add_argument("--compile", action="store_true", help="projection through torch.compile (render.projection.compile_projection)")
+    parser.add_argument("--ply-view", type=positive_int, nargs="+", default=[], metavar="N",
+                        help="also time loading a PLY of N Gaussians and rendering one 512x1024 view, per backend")
     args = parser.parse_args(argv)
     if args.compile:
         from cylindersplat.render.projection import compile_projection
@@ -207,6 +268,7 @@ def main(argv: list[str] | None = None) -> None:
           f"{', compiled projection' if args.compile else ''}")
     if torch.cuda.is_available():
         print(f"# GPU: {torch.cuda.get_device_name()}")
+    timed = []
     for dev in devices:
         for num in args.num:
             rows = []
@@ -219,13 +281,17 @@ def main(argv: list[str] | None = None) -> None:
                 if args.profile:
                     profile(num, args.height, torch.device(dev), backend)
             for row in rows[1:]:
-                base = rows[0]
-                text = (f"# {row['backend']} vs {base['backend']} ({num} Gaussians, {row['size']}, {dev}): forward "
-                        f"{base['forward_ms'] / row['forward_ms']:.1f}x faster, fwd+bwd {base['fwd_bwd_ms'] / row['fwd_bwd_ms']:.1f}x")
-                if "cubemap_forward_ms" in row:
-                    text += (f"; vs cubemap route: forward {row['cubemap_forward_ms'] / row['forward_ms']:.1f}x, "
-                             f"fwd+bwd {row['cubemap_fwd_bwd_ms'] / row['fwd_bwd_ms']:.1f}x")
-                print(text)
+                print(ratio_line(rows[0], row, dev))
+            timed += rows
+        if args.ply_view:
+            with tempfile.TemporaryDirectory(prefix="cylindersplat_bench_") as folder:
+                for num in args.ply_view:
+                    backends = [b for b in args.backend if b != "triton" or torch.device(dev).type == "cuda"]
+                    for row in ply_view(num, torch.device(dev), backends, folder):
+                        print(row)
+                        timed.append(row)
+    print()
+    print("\n".join(table(timed)))
 
 
 if __name__ == "__main__":
