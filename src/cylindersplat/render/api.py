@@ -154,7 +154,10 @@ def _project(fn: Backend, backend: str, gaussians: Gaussians, c2w: Tensor, camer
 
 
 def _rasterize(fn: Backend, backend: str, proj: ProjectedGaussians, settings, background):
-    """Run a backend; under ``"auto"`` fall back to the reference where the fast one cannot run."""
+    """Run a backend; under ``"auto"`` fall back to the reference where the fast one cannot run (or its own
+    projection already failed in this call)."""
+    if backend == "auto" and fn in _AUTO_DISABLED:
+        return _reference_backend(proj, settings, background)
     return _run_fast(fn, backend, lambda: fn(proj, settings, background),
                      lambda: _reference_backend(proj, settings, background), unsupported_is_final=True)
 
