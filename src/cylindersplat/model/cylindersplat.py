@@ -73,18 +73,6 @@ class CylinderSplat(nn.Module):
             p.requires_grad_(trainable)
         return self
 
-    def freeze_pixel_branch(self) -> "CylinderSplat":
-        return self._set_trainable(self.pixel_branch, False)
-
-    def unfreeze_pixel_branch(self) -> "CylinderSplat":
-        return self._set_trainable(self.pixel_branch, True)
-
-    def freeze_volume_branch(self) -> "CylinderSplat":
-        return self._set_trainable(self.volume_branch, False)
-
-    def unfreeze_volume_branch(self) -> "CylinderSplat":
-        return self._set_trainable(self.volume_branch, True)
-
     def configure_stage(self, stage: int, stage2_render: str = "volume") -> "CylinderSplat":
         """Mode and freezing of curriculum stage 1 (pixel only), 2 (volume, pixel frozen; rendered alone or, with
         ``stage2_render="fused"``, over the frozen pixel Gaussians) or 3 (joint): :func:`~.curriculum.stage_policy`."""

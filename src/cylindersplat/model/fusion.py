@@ -7,7 +7,7 @@
   by ``exp(-e^2 / (2 sigma^2))`` (``side="front"``: only for ``e < 0``, i.e. Gaussians floating in
   front of the observed surface; those behind it are the occluded regions the volume branch
   completes). Gaussians whose attenuated opacity falls below ``prune_threshold`` are marked in
-  ``keep_mask`` (batched outputs keep a fixed ``N``; :func:`compact` drops them for one scene).
+  ``keep_mask`` (batched outputs keep a fixed ``N``; ``gaussians.batch(i)[keep_mask[i]]`` drops them).
   Pixel Gaussians lie on the refined depth by construction and are never attenuated.
   ``side="hidden"``: the ``front`` attenuation against *every* input view's refined depth
   (multiplied), so volume Gaussians survive only in space no input view saw: where completion is
@@ -36,7 +36,7 @@ from ..geometry import project_equirect, world_to_camera
 from .config import FusionConfig
 from .sampling import sample_panorama
 
-__all__ = ["depth_confidence", "hidden_confidence", "fuse", "fuse_gaussians", "compact"]
+__all__ = ["depth_confidence", "hidden_confidence", "fuse", "fuse_gaussians"]
 
 
 def depth_confidence(
@@ -122,7 +122,3 @@ def fuse(
             pixel = replace(pixel, opacities=pixel.opacities * hidden_confidence(pixel.means, c2w, refined_depth, cfg.sigma))
     return fuse_gaussians(pixel, volume_gaussians, cfg, points, check_depth, c2w)
 
-
-def compact(gaussians: Gaussians, keep: Float[Tensor, "B N"]) -> list[Gaussians]:
-    """Drop the pruned Gaussians of every scene (ragged, so one unbatched container per scene)."""
-    return [gaussians.batch(i)[keep[i]] for i in range(keep.shape[0])]
