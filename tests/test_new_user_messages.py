@@ -44,7 +44,8 @@ def test_a_panorama_that_is_a_symlink_loop_is_one_line(panorama_folder, tiny_che
     os.symlink("pano_00.png", folder / "pano_00.png")
     assert main(_export(folder, tiny_checkpoint, tmp_path)) == 1
     assert _error(capsys) == (f'cylindersplat export: error: {folder}/poses.json frame 0 "image": pano_00.png is a '
-                              "symlink loop (a link that leads back to itself); replace it with the file or a link to it")
+                              "symlink loop (a link that leads back to itself); replace it with the file or a link "
+                              "to it")
     assert main(_export(folder, tiny_checkpoint, tmp_path, "--allow-outside-paths")) == 1  # not confined: read
     assert _error(capsys) == (f"cylindersplat export: error: {folder}/pano_00.png is a symlink that leads to no file "
                               "(a loop, or its target is missing); replace it with the file")

@@ -157,8 +157,8 @@ def test_a_checkpoint_that_does_not_fit_keeps_the_last_one_and_resumes(synth_dat
             "train.checkpoint_every=1", "data.resolution=[32,64]", *QUIET]
     assert main(argv) == 1
     assert _one_line(capsys) == (f"cylindersplat train: error: file too large while writing "
-                                 f"{run}/checkpoints/step_0000002/state.pt (a file-size limit: ulimit -f, FAT32's 4 GiB)"
-                                 ": choose another --out")
+                                 f"{run}/checkpoints/step_0000002/state.pt (a file-size limit: ulimit -f, FAT32's "
+                                 "4 GiB): choose another --out")
     assert (run / "checkpoints" / "latest").read_text() == "step_0000001\n"
     assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["latest", "step_0000001"]  # no half step_2
     monkeypatch.setattr(checkpoint, "atomic_write_bytes", write)
@@ -252,10 +252,11 @@ def test_a_demo_that_hits_a_file_size_limit_keeps_the_earlier_results(tmp_path, 
     capsys.readouterr()
     monkeypatch.setattr(video._GifStream, "append", _file_too_large)
     assert main(argv) == 1
-    err = _one_line(capsys)
-    assert err.startswith(f"cylindersplat demo: error: file too large while writing {out}/flythrough.gif (a file-size "
-                          f"limit: ulimit -f, FAT32's 4 GiB): choose another --out; nothing in {out} was changed (not "
-                          "written: results.md, results.json, "), err
+    assert _one_line(capsys) == (
+        f"cylindersplat demo: error: file too large while writing {out}/flythrough.gif (a file-size limit: ulimit -f, "
+        f"FAT32's 4 GiB): choose another --out; nothing in {out} was changed (not written: "
+        "examples/example_0000_view0.png, results.md, results.json, novel_view_rgb.png, novel_view_depth.png, "
+        "comparison.png and 2 more)")
     after = _files(out)
     assert {name: after[name] for name in results} == before
     assert {name: data for name, data in after.items() if name.startswith("examples/")} == examples

@@ -187,7 +187,8 @@ def run(args: argparse.Namespace) -> int:
                                        "view_NNN_depth_mm.png 16-bit depth_scale units per metre; 0 = no surface")
             _warn_if_little_covered(covered, index * h * w, camera)
             write_poses_json(view_dir / "poses.json", records, depth_scale=1000 if args.metric_depth else None, **extra)
-            what = "RGB + depth colormap" + (" + metric depth (.npy metres, 16-bit PNG mm)" if args.metric_depth else "")
+            what = "RGB + depth colormap" + (" + metric depth (.npy metres, 16-bit PNG mm)" if args.metric_depth
+                                             else "")
             said.append(f"wrote {index} {record['model']} views ({what}, {h}x{w}) and their poses.json to {view_dir}")
 
         if not args.no_ply and not args.ply:
