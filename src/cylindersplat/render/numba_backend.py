@@ -52,7 +52,10 @@ def _kernels():
 
     from . import numba_kernels
 
-    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
+    threads = torch.get_num_threads()
+    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    if torch.get_num_threads() != threads:  # launching numba's OpenMP pool resets the count torch shares with it
+        torch.set_num_threads(threads)
     return numba_kernels
 
 
