@@ -62,7 +62,10 @@ def remember():
 
 
 def restore(previous) -> None:
-    """Put back the handler :func:`remember` replaced (a library caller's, e.g. pytest's)."""
+    """Put back the handler :func:`remember` replaced (a library caller's, e.g. pytest's); the interrupt it
+    remembered is forgotten (it belonged to that command)."""
+    global _received
+    _received = False
     if previous is not None:
         signal.signal(signal.SIGINT, previous)
 
@@ -86,6 +89,4 @@ def held() -> Iterator[None]:
     finally:
         signal.signal(signal.SIGINT, previous)
     if pressed and previous is not signal.SIG_IGN:
-        global _received
-        _received = True
         raise KeyboardInterrupt

@@ -339,8 +339,10 @@ class Trainer:
             finished = self.stage_index >= len(tcfg.stages)
             if finished and self.dist.is_main:
                 save_model(self.model, self.output_dir / "model.safetensors")
-        except KeyboardInterrupt:
-            self._save_interrupted()
+        except BaseException as exc:
+            # Ctrl-C, or what a library made of it (a DataLoader whose workers the same Ctrl-C ended)
+            if isinstance(exc, KeyboardInterrupt) or interrupt.received():
+                self._save_interrupted()
             raise
         finally:
             self.logger.close()
