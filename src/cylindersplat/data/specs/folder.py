@@ -24,8 +24,8 @@ def _open(root, *, views="all_inputs", split=None, **options):
 
 
 def _frames(root, split: str = "all"):
-    from ...data.confine import ALLOW_OUTSIDE_OPTION
     from ...errors import OutsideFolderError
+    from ..confine import ALLOW_OUTSIDE_OPTION
     from ..depth_prior.base import NoPrior
     from ..folder import FolderDataset
 
