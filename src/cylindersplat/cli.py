@@ -47,7 +47,8 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command; process faults end in one line (or none) instead of a traceback: Ctrl-C at any
     moment, the start-up imports included, prints ``interrupted`` and exits 130 (files are written atomically,
     so none is left half-written; an error a library made of the interrupt counts as one, see
-    :mod:`cylindersplat.interrupt`); a reader that stops early (``| head``) ends the output quietly (exit 0: the command did its job)."""
+    :mod:`cylindersplat.interrupt`); a reader that stops early (``| head``) ends the output quietly (exit 0: the
+    command did its job)."""
     previous = interrupt.remember()
     _closed_streams_to_devnull()
     try:
