@@ -130,6 +130,7 @@ def test_bad_variants_fail_before_training(tmp_path, capsys):
     assert "unknown variant" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_variant_is_scored_with_the_depth_prior_it_trains_with(tmp_path, monkeypatch):
     from cylindersplat.data import datasets
 
@@ -158,6 +159,7 @@ def test_a_variant_is_scored_with_the_depth_prior_it_trains_with(tmp_path, monke
         run_study(data, tmp_path / "u", [plain], seeds=(0,), held_out=1, depth_prior="sharp")
 
 
+@pytest.mark.slow
 def test_study_reruns_are_bit_identical_at_a_fixed_thread_count(tmp_path):
     """The thread count is part of the recipe (it orders float sums): two runs with the same one give the same bytes."""
     import hashlib
