@@ -131,3 +131,11 @@ def test_views_that_barely_show_the_scene_are_warned_about(tmp_path, capsys):
     save_ply(demo_room(), tmp_path / "room.ply")  # a room around the camera: no note
     assert main([*argv[:2], str(tmp_path / "room.ply"), *argv[3:]]) == 0
     assert "note:" not in capsys.readouterr().err
+
+
+def test_demo_refuses_a_height_the_model_cannot_take_before_any_work(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--scenes", "2", "--held-out", "1", "--resolution", "40x80"]) == 1
+    assert _error(capsys) == ("cylindersplat demo: error: --resolution 40x80: the tiny model needs a height divisible "
+                              "by 16, e.g. 32x64 or 48x96")
+    assert not out.exists()  # no scenes generated for nothing

@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
     if args.held_out < 1 or args.scenes - args.held_out < 1:
         raise ValueError(f"need at least one training and one held-out scene (--scenes {args.scenes}, --held-out {args.held_out})")
     args.steps = _parse_steps(args.steps)  # a bad --steps fails before any work, --train or not
+    _check_resolution(args.resolution)
     start = time.perf_counter()
     args.out.mkdir(parents=True, exist_ok=True)
     data = generate_data(args)
@@ -78,6 +79,18 @@ def run(args: argparse.Namespace) -> int:
     print(f"demo finished in {time.perf_counter() - start:.0f} s; everything is in {args.out}/ "
           "(comparison.png, novel_view_*.png, flythrough.gif, gaussians.ply, results.md)")
     return 0
+
+
+def _check_resolution(size: tuple[int, int]) -> None:
+    """The tiny model (trained here, or shipped) needs a height divisible by its token stride: said before the
+    scenes are generated, with the nearest sizes that work."""
+    from ..training import load_config
+
+    stride = load_config("tiny").model.backbone.token_stride
+    if size[0] % stride:
+        low = max(stride, size[0] // stride * stride)
+        raise ValueError(f"--resolution {size[0]}x{size[1]}: the tiny model needs a height divisible by {stride}, "
+                         f"e.g. {low}x{2 * low} or {low + stride}x{2 * (low + stride)}")
 
 
 def _parse_steps(text: str) -> list[int]:
