@@ -66,6 +66,8 @@ def test_the_earlier_tiny_recipe_differs_from_the_tiny_preset_only_where_it_says
     earlier = flat(config_as_dict(load_config("tiny", recipe("tiny_earlier"))))
     changed = {k for k in now if now[k] != earlier[k]}
     assert changed == {o.split("=")[0] for o in EARLIER_TINY}
+    # and it is a preset of its own: its base with its changes, the same config
+    assert flat(config_as_dict(load_config("recipes/tiny_earlier"))) == earlier
 
 
 def test_every_variant_gets_the_same_number_of_steps():

@@ -126,7 +126,9 @@ def available_presets() -> list[str]:
     return sorted(p.stem for p in CONFIG_DIR.glob("*.yaml")) if CONFIG_DIR.is_dir() else []
 
 
-def _read_preset(preset: str | Path) -> dict[str, Any]:
+def _read_preset(preset: str | Path, _bases: tuple[str, ...] = ()) -> dict[str, Any]:
+    """A preset's nested dict. A recipe (``configs/recipes/*.yaml``: ``base: PRESET`` and ``changes:`` of dotted
+    keys) is its base preset with those changes, so ``--config recipes/tiny_earlier`` trains it."""
     path = Path(preset)
     if not path.suffix:
         path = CONFIG_DIR / f"{preset}.yaml"
@@ -138,6 +140,11 @@ def _read_preset(preset: str | Path) -> dict[str, Any]:
         raise ValueError(f"{path}: malformed YAML ({' '.join(str(exc).split())})") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: top level must be a mapping")
+    if "base" in data:  # a recipe: a change set on another preset
+        base, changes = str(data.pop("base")), data.pop("changes", None) or {}
+        if base in _bases or not isinstance(changes, dict):
+            raise ValueError(f"{path}: a recipe needs a base preset other than itself and a mapping of changes")
+        data = _merge(_merge(_read_preset(base, (*_bases, base)), nest_changes(changes)), data)
     return data
 
 
