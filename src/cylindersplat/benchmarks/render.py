@@ -201,8 +201,9 @@ def ply_view(num: int, device: torch.device, backends: list[str], folder: str, h
                 _sync(device)
                 t2 = time.perf_counter()
             row.update(load_s=round(t1 - t0, 3), render_s=round(t2 - t1, 3), total_s=round(t2 - t0, 3))
-        except (torch.OutOfMemoryError, MemoryError):
-            row["error"] = "out of memory"
+        except (torch.OutOfMemoryError, MemoryError) as exc:
+            need = getattr(exc, "need", None)  # the reference's RenderMemoryError: refused before allocating
+            row["error"] = "out of memory" + (f" (needs {need / 2**30:.0f} GiB)" if need else "")
         rows.append(row)
     return rows
 
