@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from cylindersplat.cli import main
@@ -18,6 +19,7 @@ DEMO_ROWS = {"CylinderSplat (tiny)", "its pixel branch alone", "its pixel branch
              "Forward warp + inpaint fill"}
 
 
+@pytest.mark.slow  # 141 s at load 4.5 (2 shared cores)
 def test_demo_end_to_end_and_reuse(tmp_path, capsys):
     out = tmp_path / "demo"
     args = ["demo", "--out", str(out), "--scenes", "3", "--held-out", "1", "--resolution", "16x32",
@@ -42,6 +44,7 @@ def test_demo_end_to_end_and_reuse(tmp_path, capsys):
     assert "reusing" in capsys.readouterr().out
 
 
+@pytest.mark.slow  # 19 s at load 4.5 (2 shared cores)
 def test_demo_uses_the_shipped_weights_by_default(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--scenes", "2", "--held-out", "1", "--resolution", "16x32", "--frames", "0"]) == 0

@@ -18,6 +18,7 @@ from cylindersplat.model import save_model
 from cylindersplat.utils.picture_grid import LABEL_HEIGHT
 
 
+@pytest.mark.slow  # 40 s at load 9 (2 shared cores)
 def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
     """`eval --format loc360 --views 2,3 --gap 2`: one table per view count, the chosen frames scored (no GT depth)."""
     from test_data_loaders import write_loc360
@@ -198,6 +199,7 @@ def test_markdown_table():
     assert "Not available here: PSNR, LPIPS, AbsRel, RMSE, δ1" in text
 
 
+@pytest.mark.slow  # 41 s at load 9 (2 shared cores)
 def test_eval_cli_writes_tables_and_pictures(synth_root, tiny_model, tmp_path, capsys):
     checkpoint = tmp_path / "model.safetensors"
     save_model(tiny_model, checkpoint)

@@ -295,6 +295,7 @@ def test_pcc_against_a_non_metric_reference_ignores_the_metric_range(synth_root)
     assert rows[0]["pcc"] == pytest.approx(float(expected[0]), rel=1e-6) and rows[0]["pcc"] > 0.5
 
 
+@pytest.mark.slow  # 69 s at load 11 (2 shared cores)
 def test_eval_cli_fill_rows_backgrounds_and_released_protocol(pano_grf_fixture, tmp_path, capsys):
     out = tmp_path / "eval"
     assert main(["eval", "--data", str(pano_grf_fixture), "--no-model", "--depth-prior", "gt", "--protocols",

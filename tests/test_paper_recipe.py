@@ -94,6 +94,7 @@ def test_train_config_paper_runs_and_refuses_missing_priors(m3d, tmp_path, capsy
     assert "loss.depth_reference must be one of" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # 35 s at load 9 (2 shared cores)
 def test_eval_config_paper_scores_pcc_against_depth_anywhere(m3d, tmp_path, capsys):
     common = ["eval", "--config", "paper", "--data", str(m3d), "--resolution", "32x64", "--lpips", "off",
               "--pictures", "0"]
@@ -174,6 +175,7 @@ def test_network_specs_work_from_configs(m3d, tmp_path, monkeypatch, request):
             torch.testing.assert_close(depth, (1 / out) * (2.0 / (1 / out).median()))
 
 
+@pytest.mark.slow  # 30 s at load 9 (2 shared cores)
 def test_finetune_360loc_preset_runs_on_priors_without_ground_truth(tmp_path, capsys):
     from test_data_loaders import write_loc360
 

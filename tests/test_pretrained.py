@@ -43,6 +43,7 @@ def test_from_pretrained_takes_a_file_or_a_run_folder(tmp_path):
         from_pretrained(tmp_path.parent)
 
 
+@pytest.mark.slow  # 56 s at load 10 (2 shared cores)
 def test_shipped_weights_are_trained(tmp_path):
     """On scenes it never saw (another dataset seed), the shipped model renders far better than the same
     architecture untrained: the file holds the documented training run, not a placeholder."""

@@ -39,6 +39,7 @@ def test_result_does_not_depend_on_tile_size():
         torch.testing.assert_close(out.rgb, ref.rgb, atol=1e-10, rtol=0)
 
 
+@pytest.mark.slow  # 51 s at load 12 (2 shared cores)
 def test_gradients_match_finite_differences():
     g = shell_scene(5, seed=1, scale=(0.15, 0.35), radius=(1.0, 2.0), sh_degree=1)
     c2w = yaw_pose(0.3)

@@ -79,6 +79,7 @@ def test_config_overrides_and_errors(tmp_path):
         load_config("no_such_preset")
 
 
+@pytest.mark.slow  # 35 s at load 10 (2 shared cores)
 def test_resume_with_other_stages_starts_the_first_unfinished_one(synth_root, tmp_path):
     """``train --resume RUN --stages 3`` after a stage-1 run: stage 3 from the run's weights (issue 37)."""
     Trainer(_config(synth_root, tmp_path / "run", "train.stages=[1]", "train.steps_per_stage=[1]")).fit()
@@ -250,6 +251,7 @@ def test_code_changes_and_command_line_overrides_are_one_mechanism(tmp_path):
         load_config("tiny", changes={"train.nope": 1})
 
 
+@pytest.mark.slow  # 33 + 14 s at load 10 (2 shared cores)
 @pytest.mark.parametrize("volume_loss", ["scaled", "released"])
 def test_volume_weight_adds_the_volume_branchs_own_render_loss(synth_root, tmp_path, volume_loss):
     """loss.volume_weight=w: total = loss(fused render) + w * L(volume Gaussians rendered alone, before fusion), with

@@ -21,6 +21,7 @@ def _train(argv, capsys):
     return code, out.out, out.err
 
 
+@pytest.mark.slow  # 75 s at load 12 (2 shared cores)
 def test_resume_uses_the_runs_config_and_schedule(synth_dataset, tmp_path, capsys):
     run = tmp_path / "run"
     code, out, err = _train(["--data", str(synth_dataset(2, seed=5)), "--out", str(run), "--stages", "1", "--steps", "3",
