@@ -101,8 +101,9 @@ class _NumbaComposite(torch.autograd.Function):
         kernels = _kernels()
         height, width, wrap_u = proj_shape
         work = _numpy(packed, _work_dtype(packed.dtype))
-        args = _kernel_args(bins, work.dtype, height, width, wrap_u, settings)
-        out = kernels.composite_forward(work, *args)
+        pair_packed, pair_spans, local = kernels.gather_pairs(work, bins.spans, bins.pairs)
+        args = _kernel_args(bins, local, pair_spans, work.dtype, height, width, wrap_u, settings)
+        out = kernels.composite_forward(pair_packed, *args)
         ctx.save_for_backward(packed)
         ctx.bins, ctx.args, ctx.out = bins, args, out
         return torch.from_numpy(out).to(packed.dtype)
@@ -112,18 +113,21 @@ class _NumbaComposite(torch.autograd.Function):
         kernels = _kernels()
         (packed,) = ctx.saved_tensors
         work = _numpy(packed, _work_dtype(packed.dtype))
-        pair_grads = kernels.composite_backward(work, *ctx.args, ctx.out, _numpy(grad_out, torch.float64))
+        pair_packed = kernels.gather_pairs(work, ctx.bins.spans, ctx.bins.pairs)[0]
+        pair_grads = kernels.composite_backward(pair_packed, *ctx.args, ctx.out, _numpy(grad_out, torch.float64))
         grads = kernels.reduce_pair_grads(ctx.bins.pairs, pair_grads, len(work))
         return torch.from_numpy(grads).to(packed.dtype), None, None, None
 
 
-def _kernel_args(bins: NumbaBins, dtype: np.dtype, height: int, width: int, wrap_u: bool, settings: RasterSettings):
-    """The kernels' arguments after ``packed``: per-fragment constants in the packed dtype (as the reference's)."""
+def _kernel_args(bins: NumbaBins, pairs: np.ndarray, spans: np.ndarray, dtype: np.dtype, height: int, width: int,
+                 wrap_u: bool, settings: RasterSettings):
+    """The kernels' arguments after the (pair-ordered) packed rows: pairs and spans in pair order
+    (:func:`.numba_kernels.gather_pairs`), per-fragment constants in the packed dtype (as the reference's)."""
     size = max(height, width)
     centers = np.arange(size, dtype=dtype) + dtype.type(0.5)
     consts = np.array([width, width / 2, 2, -0.5, settings.sigma_extent**2, settings.alpha_max, settings.alpha_min],
                       dtype=dtype)
-    return (bins.pairs, bins.tile_start, bins.spans, centers, consts, height, width, bins.tiles_x,
+    return (pairs, bins.tile_start, spans, centers, consts, height, width, bins.tiles_x,
             settings.tile_size, bool(wrap_u), float(settings.transmittance_min))
 
 

@@ -209,8 +209,9 @@ def check_span_memory(num_spans: int, device: torch.device, cameras: int = 1) ->
     _check_memory(num_spans, BYTES_PER_ROW_SPAN, "row spans", device, cameras)
 
 
-# Bytes per (Gaussian, tile) pair of the CPU backend (.numba_backend): its int64 entry and ten gradients, with margin.
-BYTES_PER_PAIR = 128
+# Bytes per (Gaussian, tile) pair of the CPU backend (.numba_backend): its entries, its copy of the Gaussian's row
+# and spans, and ten gradients (float64 at most), with margin.
+BYTES_PER_PAIR = 320
 
 
 def check_pair_memory(num_pairs: int, device: torch.device, cameras: int = 1) -> None:
