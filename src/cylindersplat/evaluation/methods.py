@@ -14,7 +14,7 @@ import torch
 
 from ..baselines import forward_warp
 from ..data import Sample
-from ..inference.pipeline import reconstruct_gaussians, render_views
+from ..inference.pipeline import raster_settings, reconstruct_gaussians, render_views
 from ..render.api import RenderOutput
 
 __all__ = ["Method", "model_method", "forward_warp_method", "reconstruct", "with_fill", "fill_methods"]
@@ -55,11 +55,12 @@ def reconstruct(model, sample: Sample, device: torch.device | str = "cpu"):
 
 def model_method(model, name: str = "CylinderSplat", device: torch.device | str = "cpu", background=(0.0, 0.0, 0.0)) -> Method:
     model = model.to(device)
+    settings = raster_settings(model.config)
 
     def run(sample: Sample) -> RenderOutput:
         gaussians = reconstruct(model, sample, device)
         h, w = sample.target_images.shape[-2:]
-        return render_views(gaussians, sample.target_poses, h, w, background)
+        return render_views(gaussians, sample.target_poses, h, w, background, settings=settings)
 
     return Method(name, run)
 

@@ -18,6 +18,7 @@ from ..gaussians import Gaussians
 from ..render import Equirect, render
 from ..render.api import RenderOutput
 from ..render.cameras import CameraModel
+from ..render.projection import RasterSettings
 from ..render.rasterize import RenderMemoryError
 from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
@@ -29,7 +30,7 @@ from .camera_path import flythrough_path
 from .memory import check_forward_memory
 from .video import VideoWriter
 
-__all__ = ["reconstruct_gaussians", "iter_views", "render_views", "normalized_depth", "depth_limits",
+__all__ = ["reconstruct_gaussians", "raster_settings", "iter_views", "render_views", "normalized_depth", "depth_limits",
            "sampled_depth_limits", "view_picture", "write_view", "write_metric_depth", "pinhole_intrinsics",
            "write_flythrough"]
 
@@ -84,6 +85,11 @@ def reconstruct_gaussians(
     return gaussians
 
 
+def raster_settings(model_config) -> RasterSettings:
+    """The rasterizer's constants a model's Gaussians are drawn with (its ``render_dilation``; 3DGS's otherwise)."""
+    return RasterSettings(dilation=getattr(model_config, "render_dilation", RasterSettings.dilation))
+
+
 AUTO_VIEWS_AT_ONCE = 4  # the first batch size of automatic batching (halved while a batch does not fit)
 
 
@@ -99,10 +105,12 @@ def iter_views(
     desc: str = "render",
     camera: CameraModel | None = None,
     unit: str = "view",
+    settings: RasterSettings | None = None,
 ) -> Iterator[RenderOutput]:
     """Render ``K`` views ``chunk`` cameras at a time, yielding each chunk (on the CPU) as soon as it is
     done: a caller that writes and drops them holds at most ``chunk`` views. ``camera``: any camera
-    model (default ``Equirect(height, width)``; e.g. ``Pinhole(K, height, width)``).
+    model (default ``Equirect(height, width)``; e.g. ``Pinhole(K, height, width)``); ``settings``: the rasterizer's
+    constants (a model's Gaussians are drawn with :func:`raster_settings` of its config).
 
     ``chunk=None`` batches automatically: :data:`AUTO_VIEWS_AT_ONCE` views at a time, halved (down to one, with
     a :class:`~cylindersplat.utils.notices.Notice`) whenever the renderer refuses a batch for memory
@@ -119,7 +127,8 @@ def iter_views(
     try:
         while start < len(c2w):
             try:
-                out = render(gaussians, c2w[start:start + at_once].to(device), camera, background=background)
+                out = render(gaussians, c2w[start:start + at_once].to(device), camera, background=background,
+                             settings=settings)
             except RenderMemoryError:
                 if chunk is not None or at_once == 1 or len(c2w) - start == 1:
                     raise
@@ -143,10 +152,12 @@ def render_views(
     progress: bool = False,
     desc: str = "render",
     camera: CameraModel | None = None,
+    settings: RasterSettings | None = None,
 ) -> RenderOutput:
     """Render ``K`` views (default panoramas; ``camera`` any camera model) in chunks of ``chunk`` cameras
     (bounded render memory; None: automatic, see :func:`iter_views`); all results on the CPU, stacked."""
-    parts = list(iter_views(gaussians, c2w, height, width, background, chunk, progress, desc, camera))
+    parts = list(iter_views(gaussians, c2w, height, width, background, chunk, progress, desc, camera,
+                            settings=settings))
     return RenderOutput(*(torch.cat([getattr(p, k) for p in parts]) for k in ("rgb", "depth", "alpha")))
 
 

@@ -67,6 +67,8 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "fusion.side": ("both", "front", "hidden"),
     "fusion.pixel_clearing": ("none", "seen_through"),
     "prior_alignment": ("none", "photometric"),
+    "pixel.footprint": ("learned", "pixel", "surface"),
+    "pixel.opacity": ("learned", "opaque"),
 }
 
 
@@ -112,6 +114,13 @@ class PixelBranchConfig:
     # > 0: pixel opacity x exp(-g^2 / (2 edge_sigma^2)), g = largest |log depth| step to a neighbour pixel;
     # fades the "flying" Gaussians a smooth depth map strings across occlusion boundaries (0 = off)
     edge_sigma: float = 0.0
+    # Issue 34 (docs/model.md, "Sharp pixel Gaussians"): "learned" scales/rotations from the head (the paper);
+    # "pixel": isotropic, std-dev = refined depth x pi / H x footprint_px (the input pixel's own size, as a warp);
+    # "surface": flat on the pixel's own patch of the surface it sees, footprint_px times its extent
+    footprint: str = "learned"
+    footprint_px: float = 0.35
+    # "learned" opacity from the head (the paper), or "opaque": 1 on every seen surface (edge fading still applies)
+    opacity: str = "learned"
 
 
 @dataclass
@@ -191,6 +200,10 @@ class ModelConfig:
     pixel: PixelBranchConfig = field(default_factory=PixelBranchConfig)
     volume: VolumeBranchConfig = field(default_factory=VolumeBranchConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    # Screen-space dilation (px^2) added to every 2-D covariance when this model's Gaussians are drawn in training,
+    # evaluation and rendering; 0.3 is 3DGS's low-pass (the paper). Issue 34: it blurs pixel-sized splats below the
+    # sharpness of a forward warp (docs/model.md, "Sharp pixel Gaussians"). Viewers of an exported PLY use their own.
+    render_dilation: float = 0.3
 
     def validate(self) -> "ModelConfig":
         """Raise ``ValueError`` naming the first inconsistent field; return ``self``."""
@@ -209,6 +222,8 @@ class ModelConfig:
             (0 < vol.min_scale_cells < vol.max_scale_cells, "need 0 < volume.min_scale_cells < volume.max_scale_cells"),
             (vol.surface_window <= 8, f"volume.surface_window must be an integer 1..8 (pixels), got {vol.surface_window!r}"),
             (vol.surface_temperature > 0 and vol.visibility_temperature > 0, "volume temperatures must be > 0"),
+            (self.pixel.footprint_px > 0, f"pixel.footprint_px must be > 0 (pixels), got {self.pixel.footprint_px!r}"),
+            (self.render_dilation >= 0, f"render_dilation must be >= 0 px^2, got {self.render_dilation!r}"),
         ]
         for ok, message in self._choice_checks() + checks + self._size_checks():
             if not ok:

@@ -81,6 +81,17 @@ class CylinderSplat(nn.Module):
         self._set_trainable(self.pixel_branch, policy.train_pixel)
         return self._set_trainable(self.volume_branch, policy.train_volume)
 
+    def with_config(self, **changes) -> "CylinderSplat":
+        """The same weights under this config with fields replaced (:meth:`ModelConfig.replace`, dotted keys): the
+        switches that keep every parameter's shape, e.g. ``render_dilation`` or ``**{"pixel.footprint": "pixel"}``;
+        a change of shape raises ``ValueError``."""
+        model = CylinderSplat(self.config.replace(**changes)).to(next(self.parameters()).device)
+        try:
+            model.load_state_dict(self.state_dict())
+        except RuntimeError as error:
+            raise ValueError(f"config changes {sorted(changes)} change the model's parameters: {error}") from None
+        return model.set_mode(self.mode).train(self.training)
+
     def branch_parameters(self, branch: str) -> list[nn.Parameter]:
         return list({"pixel": self.pixel_branch, "volume": self.volume_branch}[branch].parameters())
 

@@ -25,7 +25,7 @@ import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor, nn
 
-from ..geometry import TriplaneCoordinates
+from ..geometry import TriplaneCoordinates, equirect_rays
 from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "cell_cartesian_extent",
     "cell_frame",
     "SCALE_TRANSFORMS",
+    "surface_footprints",
 ]
 
 SCALE_TRANSFORMS = ("paper", "exact", "cartesian")
@@ -53,20 +54,59 @@ def _bounded(raw: Tensor, low: Tensor | float, high: Tensor | float) -> Tensor:
     return low + (high - low) * torch.sigmoid(raw)
 
 
+SURFACE_STRETCH_MAX = 4.0  # a surface footprint is at most this many frontal footprints long (depth edges, grazing)
+SURFACE_THICKNESS = 0.1  # its std-dev along the normal, in frontal footprints
+
+
+def surface_footprints(
+    depth: Float[Tensor, "N H W"], footprint_px: float
+) -> tuple[Float[Tensor, "N HW 3"], Float[Tensor, "N HW 4"]]:
+    """Camera-frame scales and rotations of flat Gaussians lying on the surface each pixel sees: the pixel's own
+    patch of that surface (``footprint="surface"``).
+
+    The patch is spanned by the surface steps to the next pixel along the row and the column (central differences
+    of the unprojected depth; columns wrap around the seam, rows are one-sided at the poles). Its std-devs are
+    ``footprint_px`` times their lengths (the second made orthogonal to the first), each at most
+    :data:`SURFACE_STRETCH_MAX` frontal footprints (``depth x pi / H x footprint_px``), so a depth edge gives no
+    needle; the thickness along the normal is :data:`SURFACE_THICKNESS` of a frontal footprint. Seen from another
+    viewpoint the patch stays closed where an isotropic ball per pixel leaves cracks (slanted floors and walls)."""
+    n, h, w = depth.shape
+    points = equirect_rays(h, w, device=depth.device, dtype=depth.dtype) * depth[..., None]  # (N, H, W, 3)
+    along_row = 0.5 * (points.roll(-1, dims=2) - points.roll(1, dims=2))
+    padded = torch.cat((points[:, :1], points, points[:, -1:]), dim=1)
+    along_col = 0.5 * (padded[:, 2:] - padded[:, :-2])
+    along_col[:, 0] *= 2
+    along_col[:, -1] *= 2
+    frontal = (depth * (math.pi / h))[..., None]
+    e1 = F.normalize(along_row, dim=-1, eps=1e-12)
+    second = along_col - (along_col * e1).sum(-1, keepdim=True) * e1
+    e2 = F.normalize(second, dim=-1, eps=1e-12)
+    e3 = torch.cross(e1, e2, dim=-1)
+    length1 = along_row.norm(dim=-1, keepdim=True).clamp(frontal * 1e-3, SURFACE_STRETCH_MAX * frontal)
+    length2 = second.norm(dim=-1, keepdim=True).clamp(frontal * 1e-3, SURFACE_STRETCH_MAX * frontal)
+    scales = torch.cat((length1, length2, SURFACE_THICKNESS * frontal), dim=-1) * footprint_px
+    frame = torch.stack((e1, e2, e3), dim=-1)  # columns: the Gaussian's axes in the camera frame
+    return scales.reshape(n, h * w, 3), matrix_to_quaternion(frame).reshape(n, h * w, 4)
+
+
 class PixelGaussianHead(nn.Module):
     """Per-pixel MLP (1x1 convs) on ``[F_pano, rgb]`` -> scale, rotation, opacity, colour.
 
-    * scale: std-dev = refined depth x angular pixel size (pi / H) x factor in ``scale_range``;
+    * scale: std-dev = refined depth x angular pixel size (pi / H) x factor in ``scale_range``
+      (``footprint="pixel"``: x ``footprint_px``, isotropic, no rotation; ``"surface"``: flat on the pixel's
+      patch of the surface, :func:`surface_footprints`);
     * rotation: unit quaternion in the camera frame;
-    * opacity: sigmoid;
+    * opacity: sigmoid (``opacity="opaque"``: 1);
     * colour: the input pixel colour corrected in logit space (starts at the image itself).
     """
 
     NUM_OUTPUTS = 3 + 4 + 1 + 3
 
-    def __init__(self, feature_dim: int, hidden: int, scale_range: tuple[float, float]):
+    def __init__(self, feature_dim: int, hidden: int, scale_range: tuple[float, float], footprint: str = "learned",
+                 footprint_px: float = 0.35, opacity: str = "learned"):
         super().__init__()
         self.scale_range = scale_range
+        self.footprint, self.footprint_px, self.opacity = footprint, footprint_px, opacity
         self.mlp = nn.Sequential(
             nn.Conv2d(feature_dim + 3, hidden, 1), nn.GELU(), nn.Conv2d(hidden, hidden, 1), nn.GELU(),
             nn.Conv2d(hidden, self.NUM_OUTPUTS, 1),
@@ -80,15 +120,20 @@ class PixelGaussianHead(nn.Module):
         raw = self.mlp(torch.cat((features, rgb), dim=1)).flatten(2).transpose(1, 2)  # (N, HW, 11)
         raw_scale, raw_rot, raw_opacity, raw_color = raw.split((3, 4, 1, 3), dim=-1)
         footprint = depth.reshape(n, h * w, 1) * (math.pi / h)
-        scales = footprint * _bounded(raw_scale, *self.scale_range)
         pixel_rgb = rgb.flatten(2).transpose(1, 2).clamp(0.01, 0.99)
         color = torch.sigmoid(torch.logit(pixel_rgb) + raw_color)
-        return {
-            "scales": scales,
-            "rotations": _unit_quaternion(raw_rot),
-            "opacities": torch.sigmoid(raw_opacity.squeeze(-1)),
-            "colors": color,
-        }
+        if self.footprint == "pixel":  # the input pixel's own size, isotropic: a splatted warp's footprint
+            scales = (footprint * self.footprint_px).expand(n, h * w, 3)
+            rotations = _unit_quaternion(torch.zeros_like(raw_rot))
+        elif self.footprint == "surface":  # the pixel's own patch of the surface it sees
+            scales, rotations = surface_footprints(depth, self.footprint_px)
+        else:
+            scales = footprint * _bounded(raw_scale, *self.scale_range)
+            rotations = _unit_quaternion(raw_rot)
+        opacities = torch.sigmoid(raw_opacity.squeeze(-1))
+        if self.opacity == "opaque":
+            opacities = torch.ones_like(opacities)
+        return {"scales": scales, "rotations": rotations, "opacities": opacities, "colors": color}
 
 
 class VolumeGaussianHead(nn.Module):

@@ -150,7 +150,8 @@ class PixelBranch(nn.Module):
         self.full_res = ConvNormAct(bb.in_channels, cfg.pixel.decoder_widths[-1], 3, groups=bb.groups)
         self.decoder = PanoDecoder(att.dim * self.attention.num_outputs(), skip_channels, cfg.pixel.decoder_widths, bb.groups)
         self.out = PanoConv2d(cfg.pixel.decoder_widths[-1], 1 + cfg.pixel.feature_dim, 3)
-        self.gaussian_head = PixelGaussianHead(cfg.pixel.feature_dim, cfg.pixel.head_hidden, cfg.pixel.scale_range)
+        self.gaussian_head = PixelGaussianHead(cfg.pixel.feature_dim, cfg.pixel.head_hidden, cfg.pixel.scale_range,
+                                               cfg.pixel.footprint, cfg.pixel.footprint_px, cfg.pixel.opacity)
         self.token_stride = bb.token_stride
 
     def forward(

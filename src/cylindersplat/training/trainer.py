@@ -31,7 +31,7 @@ from torch import Tensor
 from .. import interrupt
 from ..data import Sample
 from ..model import CylinderSplat, load_model, save_model
-from ..render import available_backends, render_equirect
+from ..render import RasterSettings, available_backends, render_equirect
 from ..utils.atomic import atomic_write_text
 from ..utils.progress import Progress
 from .checkpoint import capture_rng, prune_checkpoints, read_state, resolve_checkpoint, restore_rng, save_checkpoint
@@ -202,7 +202,8 @@ class Trainer:
         """fp32 render of the batch's target views."""
         height, width = batch.target_images.shape[-2:]
         return render_equirect(gaussians, batch.target_poses.float(), height, width,
-                               background=tuple(self.config.train.background), backend=self.config.train.render_backend)
+                               background=tuple(self.config.train.background), backend=self.config.train.render_backend,
+                               settings=RasterSettings(dilation=self.model.config.render_dilation))
 
     def _watch_gaussian_grads(self, gaussians) -> None:
         """Record per Gaussian tensor whether its grad is finite; a device-side flag, no sync."""

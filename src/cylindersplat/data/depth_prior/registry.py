@@ -6,7 +6,9 @@ from typing import Callable
 
 from .adapters import DepthAnythingV2Adapter, ExportedDepthPrior, NetworkDepthPrior, UniK3DAdapter
 from .base import MISSING_PRIOR_HELP, ConstantPrior, DepthPrior, GroundTruthPrior, MissingPrior, NoPrior
+from .degraded import DegradedPrior
 from .files import FilePrior
+from .mixed import MixedPrior
 from .simulated import SimulatedPrior
 
 __all__ = ["DEPTH_PRIORS", "NETWORK_PRIORS", "register_depth_prior", "make_depth_prior", "parse_depth_prior",
@@ -35,7 +37,8 @@ _EXPORT_HINT = ("; Depth Anywhere and UniFuse have no package API to call: expor
 
 
 # The one positional argument a "name:value" spec fills in, per prior.
-_SPEC_ARGUMENT = {"constant": ("depth", float), "file": ("name", str), "simulated": ("seed", int),
+_SPEC_ARGUMENT = {"constant": ("depth", float), "file": ("name", str), "simulated": ("seed", int), "degraded": ("kind", str),
+                 "mixed": ("parts", str),
                   "exported": ("weights", str), "unik3d": ("weights", str), "depth_anything_v2": ("weights", str)}
 
 # Priors that run a depth network (what `cylindersplat data priors --net` accepts).
@@ -45,7 +48,7 @@ NETWORK_PRIORS = ("exported", "unik3d", "depth_anything_v2")
 def parse_depth_prior(spec: str, **kwargs) -> DepthPrior:
     """A prior from a command-line spec: ``name`` or ``name:value`` (``constant:2.5``, ``exported:net.pt2``,
     ``unik3d:/models/unik3d-vitl``, ``depth_anything_v2:depth-anything/Depth-Anything-V2-Small-hf``,
-    ``file:unik3d``, ``file:/priors/unik3d``, ``simulated:3`` (seed) or ``simulated:blur_sigma=0.5,seed=3``). ``kwargs`` go to the prior (e.g. ``device=`` of a network)."""
+    ``file:unik3d``, ``file:/priors/unik3d``, ``simulated:3`` (seed), ``simulated:blur_sigma=0.5,seed=3`` or ``degraded:mono`` / ``degraded:scale,seed=1``). ``kwargs`` go to the prior (e.g. ``device=`` of a network)."""
     name, sep, value = spec.partition(":")
     if name not in DEPTH_PRIORS:
         make_depth_prior(name)  # the unknown-name error
@@ -56,10 +59,14 @@ def parse_depth_prior(spec: str, **kwargs) -> DepthPrior:
         try:
             if name == "simulated":  # simulated:SEED or simulated:key=value,...
                 kwargs.update(SimulatedPrior.spec_arguments(value))
+            elif name == "degraded":  # degraded:KIND or degraded:KIND,seed=N
+                kwargs.update(DegradedPrior.spec_arguments(value))
+            elif name == "mixed":  # mixed:A+B[,seed=N]
+                kwargs.update(MixedPrior.spec_arguments(value))
             else:
                 kwargs[key] = kind(value)
         except ValueError as error:
-            detail = str(error) if str(error).startswith("simulated prior:") else f"{value!r} is not a valid {key}"
+            detail = str(error) if str(error).startswith(("simulated prior:", "degraded prior:", "mixed prior:")) else f"{value!r} is not a valid {key}"
             raise ValueError(f"depth prior spec {spec!r}: {detail}") from None
     elif name in NETWORK_PRIORS:
         raise FileNotFoundError(f"depth prior {name!r} needs its weights: write {name}:PATH (see docs/data.md)")
@@ -81,7 +88,7 @@ def parse_network_prior(spec: str, **kwargs) -> NetworkDepthPrior:
     return parse_depth_prior(spec, **kwargs)
 
 
-for _cls in (NoPrior, GroundTruthPrior, ConstantPrior, SimulatedPrior, FilePrior, ExportedDepthPrior, UniK3DAdapter,
+for _cls in (NoPrior, GroundTruthPrior, ConstantPrior, SimulatedPrior, DegradedPrior, MixedPrior, FilePrior, ExportedDepthPrior, UniK3DAdapter,
              DepthAnythingV2Adapter):
     register_depth_prior(_cls.name, _cls)
 

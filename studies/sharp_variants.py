@@ -1,0 +1,79 @@
+"""Issue 34: test-time variants of the shipped weights against the forward warp + inpaint, on the real fixture.
+
+    python studies/sharp_variants.py --data <pano_grf fixture> --out studies/results/sharp_variants_fixture.json
+
+Rows: FW + inpaint (the bar), and the shipped tiny-synth weights with the switches of docs/model.md ("Sharp pixel
+Gaussians") turned on one at a time; columns per protocol, size and prior: WS-PSNR all / occluded, SSIM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import torch
+
+from cylindersplat.data.datasets import make_dataset
+from cylindersplat.evaluation.evaluate import evaluate
+from cylindersplat.evaluation.methods import Method, forward_warp_method, model_method, with_fill
+from cylindersplat.model.pretrained import from_pretrained
+
+VARIANTS = {
+    "shipped": {},
+    "dilation 0": {"render_dilation": 0.0},
+    "+ pixel footprint": {"render_dilation": 0.0, "pixel.footprint": "pixel"},
+    "+ opaque": {"render_dilation": 0.0, "pixel.footprint": "pixel", "pixel.opacity": "opaque"},
+    "+ no refinement": {"render_dilation": 0.0, "pixel.footprint": "pixel", "pixel.opacity": "opaque",
+                        "pixel.max_log_depth_offset": 0.0},
+    "surface + opaque": {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.opacity": "opaque"},
+    "surface + opaque + no refinement": {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.opacity": "opaque",
+                                       "pixel.max_log_depth_offset": 0.0},
+    "surface 0.5 + opaque + no refinement": {"render_dilation": 0.0, "pixel.footprint": "surface",
+                                           "pixel.footprint_px": 0.5, "pixel.opacity": "opaque",
+                                           "pixel.max_log_depth_offset": 0.0},
+}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--data", required=True)
+    p.add_argument("--format", default="pano_grf")
+    p.add_argument("--sizes", default="64,128,256")
+    p.add_argument("--protocols", default="two_view,one_view")
+    p.add_argument("--priors", default="gt,degraded:mono")
+    p.add_argument("--variants", default=",".join(VARIANTS))
+    p.add_argument("--checkpoint", default="tiny-synth")
+    p.add_argument("--out", required=True)
+    args = p.parse_args()
+    base = from_pretrained(args.checkpoint)
+    models = {name: base.with_config(**VARIANTS[name]) for name in args.variants.split(",")}
+    results = {}
+    out = Path(args.out)
+    if out.exists():
+        results = json.loads(out.read_text())
+    for prior in args.priors.split(","):
+        for protocol in args.protocols.split(","):
+            for h in map(int, args.sizes.split(",")):
+                key = f"{protocol} {h}x{2 * h} {prior}"
+                if key in results:
+                    continue
+                start = time.time()
+                dataset = make_dataset(args.format, args.data, views=protocol, resolution=(h, 2 * h), depth_prior=prior)
+                methods = [with_fill(forward_warp_method(), "inpaint", "FW + inpaint")]
+                methods += [model_method(m, name) for name, m in models.items()]
+                res = evaluate(dataset, methods, progress=False)
+                results[key] = {m: {k: res.means[m].get(k) for k in ("ws_psnr", "ws_psnr_occluded", "ssim", "abs_rel")}
+                                for m in res.means}
+                print(key, f"{time.time() - start:.0f}s", flush=True)
+                for m, v in results[key].items():
+                    print(f"   {m:20s} " + "  ".join(f"{k}={v[k]:.3f}" if v[k] is not None else f"{k}=-" for k in v),
+                          flush=True)
+                out.parent.mkdir(parents=True, exist_ok=True)
+                out.write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    torch.set_grad_enabled(False)
+    main()
