@@ -74,6 +74,7 @@ def test_float64_matches_reference_to_rounding():
         torch.testing.assert_close(grad_fast[name], ref, atol=1e-9, rtol=1e-7, msg=name)
 
 
+@pytest.mark.slow  # 86 s at load 13 (2 shared cores)
 def test_gradients_match_finite_differences():
     g = shell_scene(4, seed=1, scale=(0.15, 0.35), radius=(1.0, 2.0), sh_degree=1)
     bg = torch.tensor([0.2, 0.3, 0.4], dtype=F64)

@@ -131,6 +131,7 @@ def test_demo_train_says_it_starts_over(tmp_path, monkeypatch, capsys):
     assert started == [None] and sorted(p.name for p in run.iterdir()) == ["notes.txt"]
 
 
+@pytest.mark.slow  # 64 s at load 14 (2 shared cores)
 def test_resume_with_other_stages_trains_them(synth_dataset, tmp_path, capsys):
     run = tmp_path / "run"
     assert main(_argv(synth_dataset(2, seed=5), run, "2")) == 0
