@@ -67,3 +67,19 @@ def test_bench_render_reports_a_reference_out_of_memory_instead_of_crashing(monk
     assert "| cpu | torch | 300 | 8x16 | out of memory | out of memory |  |" in out
     numba_row = next(line for line in out.splitlines() if line.startswith("| cpu | numba | 300 |"))
     assert float(numba_row.split("|")[5]) > 0  # its forward was timed
+
+
+def test_gpu_check_skips_what_would_start_past_its_total_budget(tmp_path):
+    """One run of the check has a total budget (9 minutes by default): an item that would start after it is
+    skipped and says so in the summary, instead of the run being cut off with no summary."""
+    import os
+    import subprocess
+
+    env = {**os.environ, "CHECK_TOTAL_SECONDS": "5", "CHECK_WORK": str(tmp_path / "work"), "CHECK_WHEELS": str(tmp_path)}
+    out = tmp_path / "check"
+    proc = subprocess.run(["bash", str(ROOT / "benchmarks/gpu_check.sh"), "--smoke", str(out), "render model"],
+                          env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    summary = (out / "summary.md").read_text()
+    assert "## render — skipped: the 5-second budget of this run is spent" in summary
+    assert "## model — skipped: the 5-second budget of this run is spent" in summary
