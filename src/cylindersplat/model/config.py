@@ -69,6 +69,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "prior_alignment": ("none", "photometric"),
     "pixel.footprint": ("learned", "pixel", "surface"),
     "pixel.opacity": ("learned", "opaque"),
+    "pixel.refine_depth": ("everywhere", "where_missing"),
 }
 
 
@@ -121,6 +122,9 @@ class PixelBranchConfig:
     footprint_px: float = 0.35
     # "learned" opacity from the head (the paper), or "opaque": 1 on every seen surface (edge fading still applies)
     opacity: str = "learned"
+    # "everywhere": the refined depth is prior x exp(offset) at every pixel (the paper); "where_missing": the prior is
+    # kept where it is valid and the offset only moves the filled-in depth of its holes (a depth the user trusts)
+    refine_depth: str = "everywhere"
 
 
 @dataclass

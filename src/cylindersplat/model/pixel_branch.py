@@ -176,6 +176,8 @@ class PixelBranch(nn.Module):
         skips = list(reversed(feats[:-1])) + [self.full_res(x)]
         out = self.out(self.decoder(token_map, skips))
         log_offset = self.cfg.max_log_depth_offset * torch.tanh(out[:, 0])
+        if self.cfg.refine_depth == "where_missing":  # measured depth is kept; only the prior's holes are inferred
+            log_offset = log_offset * (~valid).to(log_offset.dtype)
         depth = prior * torch.exp(log_offset)  # (BV, H, W)
         features = out[:, 1:]
 
