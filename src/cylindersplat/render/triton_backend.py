@@ -70,9 +70,10 @@ def composite_triton(
         raise UnsupportedSettings(f"the Triton backend needs a power-of-two tile size, got {tile}")
     h, w, c = proj.height, proj.width, proj.num_cameras
     num_tiles = c * bins.tiles_x * bins.tiles_y
-    counts = torch.bincount(bins.tile, minlength=num_tiles)
-    tile_start = torch.zeros(num_tiles + 1, dtype=torch.int64, device=counts.device)
-    tile_start[1:] = torch.cumsum(counts, 0)
+    # Pairs are sorted by tile: each tile's first pair by a binary search (bincount would synchronise with the
+    # host on CUDA to size its output).
+    tile_ids = torch.arange(num_tiles + 1, dtype=bins.tile.dtype, device=bins.tile.device)
+    tile_start = torch.searchsorted(bins.tile.contiguous(), tile_ids)
     packed = pack_projected(proj)
     out = _TritonComposite.apply(
         packed.float().contiguous(), bins.gaussian.contiguous(), bins.rows.contiguous(), bins.cols.contiguous(),
