@@ -37,7 +37,7 @@ from pathlib import Path
 
 import torch
 
-from ..utils.atomic import atomic_path
+from ..utils.atomic import atomic_path, written_at_once
 from .container import Gaussians
 from .ply import load_ply, save_ply
 from .splat import load_splat, save_splat
@@ -182,7 +182,8 @@ def save_gaussians(gaussians: Gaussians, path: str | Path, spz_version: int | No
         # splat-transform picks the format by the output's name, so it writes `<work>/<name>`, which then
         # takes the place of atomic_path's temporary file (same folder: plain renames throughout).
         source, target = Path(work) / "in.ply", Path(work) / path.name
-        save_ply(gaussians, source)
+        with written_at_once():  # the converter's input, read at once: not held back with a command's output set
+            save_ply(gaussians, source)
         _run(command, [*options, str(source), str(target)], splat_transform_timeout(gaussians=len(gaussians)),
              f"writing {len(gaussians):,} Gaussians to {path.name}")
         if not target.is_file():
