@@ -11,8 +11,8 @@ Public API::
 
 ``gaussians`` is unbatched (``means (N, 3)``) with ``c2w (V, 4, 4)`` or ``(4, 4)``, or batched
 (``means (B, N, 3)``) with ``c2w (B, V, 4, 4)``. Camera models (:mod:`.cameras`) project Gaussians;
-backends (``"torch"`` reference, ``"triton"`` on CUDA, or your own via :func:`register_backend`)
-rasterize projected Gaussians of any camera model.
+backends (``"torch"`` reference, ``"triton"`` on CUDA, ``"numba"`` on the CPU, or your own via
+:func:`register_backend`) rasterize projected Gaussians of any camera model; ``"auto"`` picks the device's.
 """
 
 from .api import Backend, RenderOutput, available_backends, register_backend, render, render_equirect
