@@ -179,6 +179,23 @@ def test_runs_started_at_the_same_instant_get_one_lock(tmp_path):
     assert sorted(results.get(timeout=5) for _ in workers) == ["locked"] + ["refused"] * 5
 
 
+def test_ranks_of_one_torchrun_job_share_the_lock_and_other_jobs_are_refused(tmp_path, monkeypatch):
+    job = {"WORLD_SIZE": "2", "TORCHELASTIC_RUN_ID": "none", "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": "29500"}
+    for name, value in job.items():
+        monkeypatch.setenv(name, value)
+    fd = lock_run_folder(tmp_path / "run")  # rank 0 takes it
+    try:
+        assert fd is not None and lock_run_folder(tmp_path / "run") is None  # rank 1 of the same job goes on
+        monkeypatch.setenv("MASTER_PORT", "29501")  # another job, with the same default rendezvous id
+        with pytest.raises(RunFolderInUse, match=f"process {os.getpid()}"):
+            lock_run_folder(tmp_path / "run")
+        monkeypatch.setenv("WORLD_SIZE", "1")  # a plain run
+        with pytest.raises(RunFolderInUse):
+            lock_run_folder(tmp_path / "run")
+    finally:
+        os.close(fd)
+
+
 @pytest.mark.slow
 def test_two_trains_into_one_folder_at_once_one_runs(synth_dataset, tmp_path):
     run = tmp_path / "run"
