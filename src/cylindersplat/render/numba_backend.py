@@ -7,7 +7,8 @@ pixels walk their pairs front to back, and the same walk backwards for gradients
 the reference's (vectorised PyTorch, differentiable); gradients reach it through the compositing's
 analytic backward. The rules, and so the images and gradients, are the reference's.
 
-The kernels compile at the first CPU render (a few seconds, then cached on disk by numba). Numba's
+The kernels compile at the first CPU render after an install (22 s forward + 11 s backward measured on the
+shared 2-core machine at load 10), then numba loads them from its on-disk cache (about a second). Numba's
 thread count follows ``torch.get_num_threads()``.
 """
 
