@@ -105,8 +105,8 @@ def test_training_checkpoints_survive_a_full_disk(tmp_path, monkeypatch, tiny_mo
     monkeypatch.undo()
     latest = resolve_checkpoint(tmp_path)
     assert latest.name == "step_0000001" and read_state(latest)["global_step"] == 1
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["latest", "step_0000001", "step_0000002"]
-    assert list((tmp_path / "step_0000002").iterdir()) == []  # nothing half-written
+    assert resolve_checkpoint(tmp_path / "step_0000001") == latest  # the earlier checkpoint is whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["latest", "step_0000001"]  # the half one is removed
 
 
 def test_atomic_outputs_get_ordinary_permissions(tmp_path):
