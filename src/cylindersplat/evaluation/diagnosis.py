@@ -5,8 +5,9 @@ that pixel. The pixel branch starts there (colour = pixel + residual, footprint 
 opacity), so the gap between the two can be walked one step at a time. :func:`ladder` builds Gaussians that
 change one thing per rung, from the splatted warp to the full model:
 
-1. ``splat warp``: the nearest input's pixels at the *prior's* depth, the pixel's colour, an isotropic footprint
-   of ``pixel_sigma`` pixels, opacity 1 (the forward warp, drawn by the Gaussian rasterizer);
+1. ``splat warp``: the nearest input's pixels at the *prior's* depth, the pixel's colour, each a flat Gaussian on
+   the pixel's own patch of surface (:func:`~cylindersplat.model.gaussian_heads.surface_footprints`, ``pixel_sigma``
+   times its extent), opacity 1: the forward warp, drawn by the Gaussian rasterizer;
 2. ``+ refined depth``: the same at the model's refined depth;
 3. ``+ all views``: every input's pixels (where two views see a surface, both are drawn);
 4. ``+ learned colour``: the pixel head's colours;
@@ -34,6 +35,8 @@ from ..baselines.forward_warp import forward_warp, nearest_source
 from ..data.occlusion import depth_edges, occluded_mask, sample_mask
 from ..gaussians import Gaussians
 from ..geometry import camera_to_world, equirect_rays
+from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
+from ..model.gaussian_heads import surface_footprints
 from ..metrics import ssim, ws_psnr
 from ..render import Equirect, render
 from ..render.api import RenderOutput
@@ -90,11 +93,6 @@ def _pixel_means(depth: Float[Tensor, "V H W"], c2w: Float[Tensor, "V 4 4"]) -> 
     return camera_to_world(rays * depth.reshape(v, h * w, 1), c2w).reshape(v * h * w, 3)
 
 
-def _isotropic_scales(depth: Float[Tensor, "V H W"], pixel_sigma: float) -> Float[Tensor, "V*H*W 3"]:
-    h = depth.shape[-2]
-    return (depth.reshape(-1, 1) * (math.pi / h) * pixel_sigma).expand(-1, 3).contiguous()
-
-
 def ladder(
     output,
     images: Float[Tensor, "V 3 H W"],
@@ -111,14 +109,14 @@ def ladder(
     refined = output.refined_depth[0]
     view_of = torch.arange(v, device=images.device).repeat_interleave(h * w)
     rgb = images.permute(0, 2, 3, 1).reshape(-1, 3).clamp(0, 1)
-    identity = torch.zeros(v * h * w, 4, dtype=images.dtype, device=images.device)
-    identity[:, 0] = 1
+    camera_rotation = matrix_to_quaternion(c2w[:, :3, :3]).repeat_interleave(h * w, dim=0)
 
     def gaussians(depth, colours, scales=None, rotations=None, opacities=None) -> Gaussians:
+        if scales is None:  # the pixel's own patch of surface, turned from the camera into the world frame
+            scales, local = surface_footprints(depth, pixel_sigma)
+            scales, rotations = scales.reshape(-1, 3), quaternion_multiply(camera_rotation, local.reshape(-1, 4))
         return Gaussians.from_rgb(
-            _pixel_means(depth, c2w),
-            _isotropic_scales(depth, pixel_sigma) if scales is None else scales,
-            identity if rotations is None else rotations,
+            _pixel_means(depth, c2w), scales, rotations,
             torch.ones(v * h * w, dtype=images.dtype, device=images.device) if opacities is None else opacities,
             colours,
         )
