@@ -81,7 +81,7 @@ def warn_if_not_metric(path: str | Path) -> None:
 
     try:
         data = json.loads(Path(path).read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # RecursionError: nested thousands deep (the reader says so)
         return
     if not isinstance(data, dict):
         return
