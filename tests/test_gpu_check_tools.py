@@ -75,7 +75,8 @@ def test_gpu_check_skips_what_would_start_past_its_total_budget(tmp_path):
     import os
     import subprocess
 
-    env = {**os.environ, "CHECK_TOTAL_SECONDS": "5", "CHECK_WORK": str(tmp_path / "work"), "CHECK_WHEELS": str(tmp_path)}
+    env = {**os.environ, "CHECK_TOTAL_SECONDS": "5", "CHECK_WORK": str(tmp_path / "work"),
+           "CHECK_WHEELS": str(tmp_path)}
     out = tmp_path / "check"
     proc = subprocess.run(["bash", str(ROOT / "benchmarks/gpu_check.sh"), "--smoke", str(out), "render model"],
                           env=env, capture_output=True, text=True, timeout=120)

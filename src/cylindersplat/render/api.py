@@ -51,7 +51,7 @@ Backend = Callable[[ProjectedGaussians, RasterSettings, "Tensor | None"], tuple[
 _reference_backend: Backend = rasterize
 _BACKENDS: dict[str, Backend] = {"torch": _reference_backend}
 _PROJECTIONS: dict = {}  # backend -> its own dense projection (projection.project_dense's signature)
-_AUTO_ORDER: dict[str, list[str]] = {}  # device type -> fast backends "auto" tries there, in order, before the reference
+_AUTO_ORDER: dict[str, list[str]] = {}  # device type -> fast backends "auto" tries there, in order
 _AUTO_DISABLED: set = set()  # fast backends that failed here; "auto" skips them
 _WARNED_NO_NUMBA: list[bool] = [False]
 

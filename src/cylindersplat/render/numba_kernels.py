@@ -10,8 +10,10 @@ numba's on-disk cache). The rules are the reference's (:mod:`.rasterize`), stage
   ``2 * row + interval`` (int64), which names its pixel rectangle without storing it.
 * **Compositing** (:func:`composite_forward`, one tile per parallel iteration): each pair visits only the
   pixels of its rectangle that can be inside its ellipse (per-row column ranges); ``du`` wraps into
-  ``[-W/2, W/2)``; fragments outside the ``sigma_extent`` ellipse or with ``alpha < alpha_min`` are skipped; the fragment that would bring ``T`` below
-  ``transmittance_min`` and all later ones are dropped; a tile stops once every pixel has.
+  ``[-W/2, W/2)``; fragments outside the ``sigma_extent`` ellipse or with ``alpha < alpha_min`` are skipped;
+  the fragment that would bring ``T`` below ``transmittance_min`` and all later ones are dropped; a tile stops
+  once every pixel has. The pairs' rows are first copied into pair order (:func:`gather_pairs`), so the loop
+  reads memory in order.
 * **Backward** (:func:`composite_backward`): the same walk, front to back, with
   ``dL/dalpha_i = T_i s_i - (S - P_i) / (1 - alpha_i)`` (``s_i = g . f_i``, ``S = g . out``, ``P_i`` the
   running sum of ``s_k w_k``), per-pair gradients summed over the pair's pixels without races (a pair

@@ -283,7 +283,8 @@ def project_backward(means, scales, quats, cams, valid, grad_geo, num_views, mod
             g_jac = np.empty(6)
             for r in range(2):
                 for k in range(3):
-                    g_jac[3 * r + k] = g_t[3 * r] * wm[3 * k] + g_t[3 * r + 1] * wm[3 * k + 1] + g_t[3 * r + 2] * wm[3 * k + 2]
+                    g_jac[3 * r + k] = (g_t[3 * r] * wm[3 * k] + g_t[3 * r + 1] * wm[3 * k + 1]
+                                        + g_t[3 * r + 2] * wm[3 * k + 2])
             if model == 0:
                 g_px, g_py, g_pz = _equirect_map_vjp(px, py, pz, consts, gg[0], gg[1], gg[7], g_jac)
             else:
