@@ -16,7 +16,6 @@ colour of all of a target's hidden pixels (the per-view one-colour oracle) or of
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np

@@ -11,7 +11,6 @@ run's weights hash and scores and says which runs are bit-identical.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import platform
 import subprocess

@@ -81,8 +81,8 @@ def poses_of(data: dict) -> np.ndarray:
 
 def render_middle(folder: Path, poses: np.ndarray, size: tuple[int, int]) -> tuple[float, torch.Tensor]:
     """WS-PSNR of panorama 01 rendered from 00 and 02 at ``poses`` (3 c2w, the frame of ``poses``), and the render."""
-    from cylindersplat.data.poses import PoseRecord, write_poses_json
     from cylindersplat.data.io import read_rgb
+    from cylindersplat.data.poses import PoseRecord, write_poses_json
     from cylindersplat.inference import load_panorama_folder, reconstruct_gaussians, render_views
     from cylindersplat.metrics.image import ws_psnr
     from cylindersplat.model.pretrained import from_pretrained

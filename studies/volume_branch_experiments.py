@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
 from colour_rule_oracle import nearest_visible, region_fill  # the fills of the true target, shared
+
 from cylindersplat.data import SyntheticDataset
 from cylindersplat.data.occlusion import occluded_mask
 from cylindersplat.data.synth import profile_config, write_synthetic_dataset

@@ -139,11 +139,12 @@ def clearing_probe(weights: Path, data: Path) -> dict[str, dict[str, float]]:
     """Test-time settings on one checkpoint, scored on the held-out hidden pixels: pixel clearing at several sigmas,
     clearing against the contexts' *true* depth (an oracle: which pixel Gaussians sit in space an input truly saw
     empty), and stronger edge fading. Per setting: the pixel Gaussians' mean alpha there and the fused WS-PSNR."""
+    from dataclasses import replace
+
     from cylindersplat.evaluation.masked import masked_ws_psnr
     from cylindersplat.model import load_model
     from cylindersplat.model.fusion import hidden_confidence
     from cylindersplat.render import render_equirect
-    from dataclasses import replace
 
     settings = {"as trained": {}, "no clearing": {"fusion.pixel_clearing": "none"},
                 "clearing sigma 0.03": {"fusion.sigma": 0.03}, "clearing sigma 0.3": {"fusion.sigma": 0.3},

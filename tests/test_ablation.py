@@ -8,7 +8,6 @@ from cylindersplat.cli import main
 from cylindersplat.data.synth import SequenceConfig, write_synthetic_dataset
 from cylindersplat.study import Schedule, Variant, all_variants, default_variants, run_study, study_table
 
-
 # The catalogue's overrides as the Python tables wrote them before they became data (issue 36): a variant's
 # overrides are recorded in every report and compared on resume, so their text must not change.
 EARLIER_TINY = ("model.volume.color=retrieval", "loss.volume_loss=scaled", "loss.volume_weight=0",

@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-import json
-import shutil
 import time
 
 import numpy as np
@@ -20,7 +18,6 @@ from cylindersplat.data.pano_grf import PanoGRFDataset
 from cylindersplat.inference import read_poses_file
 from cylindersplat.model import load_model
 from cylindersplat.model.pretrained import resolve_weights
-
 from test_data_pano_grf import write_panogrf_scene
 
 

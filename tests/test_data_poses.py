@@ -15,8 +15,8 @@ import pytest
 from PIL import Image
 
 from cylindersplat.cli import main
-from cylindersplat.data.poses.metric_scale import scale_from_camera_height, scale_from_depth
 from cylindersplat.data.poses.alignment import align_similarity, pose_errors
+from cylindersplat.data.poses.metric_scale import scale_from_camera_height, scale_from_depth
 
 
 def _image(path, height, width, seed=0):
@@ -149,8 +149,9 @@ def test_scale_from_depth_is_the_median_ratio():
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     distance = rng.uniform(1, 4, 200)
     xyz = directions * distance[:, None]
-    from cylindersplat.geometry.equirect import ray_to_uv
     import torch
+
+    from cylindersplat.geometry.equirect import ray_to_uv
 
     u, v = ray_to_uv(torch.from_numpy(directions), 64, 128)
     xy = np.stack([u.numpy(), v.numpy()], -1)

@@ -9,13 +9,12 @@ import torch
 
 from cylindersplat.data.depth_prior import (
     DEPTH_PRIORS,
+    ExportedDepthPrior,
     FilePrior,
     GroundTruthPrior,
     PriorQuery,
     SimulatedPrior,
     SimulatedPriorConfig,
-    DepthAnythingV2Adapter,
-    ExportedDepthPrior,
     UniK3DAdapter,
     make_depth_prior,
     parse_depth_prior,

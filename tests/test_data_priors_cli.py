@@ -15,13 +15,12 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import PANO_GRF_FIXTURE as FIXTURE  # $CYLINDERSPLAT_FIXTURES or ../shared/fixtures
+from conftest import fixture_skip_reason
 from cylindersplat.cli import main
 from cylindersplat.data import PanoGRFDataset, SyntheticDataset
 from cylindersplat.data.depth_prior import NoPrior, parse_depth_prior
 from cylindersplat.data.io import read_depth_npy, read_depth_png, read_rgb, write_depth_png
-
-from conftest import PANO_GRF_FIXTURE as FIXTURE  # $CYLINDERSPLAT_FIXTURES or ../shared/fixtures
-from conftest import fixture_skip_reason
 
 
 class DepthNet(torch.nn.Module):

@@ -95,9 +95,8 @@ def test_every_layout_has_one_spec_with_what_the_commands_ask():
 
 
 def test_data_info_and_preview_describe_a_360loc_root(tmp_path, capsys):
-    from test_data_loaders import write_loc360
-
     from cylindersplat.cli import main
+    from test_data_loaders import write_loc360
 
     write_loc360(tmp_path / "loc", frames=5)
     assert detect_layout(tmp_path / "loc") == "loc360"

@@ -9,9 +9,9 @@ import pytest
 from PIL import Image
 
 from cylindersplat.cli import main
-from cylindersplat.utils.picture_grid import LABEL_HEIGHT
 from cylindersplat.gaussians import load_ply
 from cylindersplat.scenes import demo_room
+from cylindersplat.utils.picture_grid import LABEL_HEIGHT
 
 # the model, its pixel branch and the forward warp, the last two also with each trivial fill behind
 DEMO_ROWS = {"CylinderSplat (tiny)", "its pixel branch alone", "its pixel branch alone + mean fill",

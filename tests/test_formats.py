@@ -203,7 +203,7 @@ def test_a_hanging_splat_transform_is_stopped_with_one_line(tmp_path, monkeypatc
 
     tool = tmp_path / "hanging_splat_transform.py"
     tool.write_text("import subprocess, sys, time\n"
-                    f"subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'])\ntime.sleep(600)\n")
+                    "subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(600)'])\ntime.sleep(600)\n")
     monkeypatch.setenv(SPLAT_TRANSFORM_ENV, f"{sys.executable} {tool}")
     monkeypatch.setenv(TIMEOUT_ENV, "1")
     start = time.monotonic()

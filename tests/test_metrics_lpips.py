@@ -9,8 +9,15 @@ import torch
 import torch.nn.functional as F
 from safetensors.torch import save_file
 
-from cylindersplat.metrics import (LPIPS, LPIPS_WEIGHTS_ENV, load_lpips, lpips, lpips_package_weights,
-                                   lpips_weights_available, torchvision_vgg16_weights)
+from cylindersplat.metrics import (
+    LPIPS,
+    LPIPS_WEIGHTS_ENV,
+    load_lpips,
+    lpips,
+    lpips_package_weights,
+    lpips_weights_available,
+    torchvision_vgg16_weights,
+)
 
 LPIPS_MODULE = importlib.import_module("cylindersplat.metrics.lpips")  # the attribute `lpips` is the function
 

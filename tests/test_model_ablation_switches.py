@@ -25,7 +25,6 @@ from cylindersplat.model.sampling import sample_panorama
 from cylindersplat.model.triplane import PLANE_AXES, encode_unit_coordinates
 from cylindersplat.model.triplane_attention import TriplaneImageAttention
 from cylindersplat.model.volume_branch import central_frame
-
 from model_inputs import make_inputs as shared_make_inputs
 
 H, W = 32, 64

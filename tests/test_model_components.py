@@ -6,12 +6,12 @@ import pytest
 import torch
 
 from cylindersplat.geometry import CylindricalCoords, SphericalCoords, make_c2w, project_equirect
+from cylindersplat.geometry.rotations import matrix_to_quaternion, quaternion_multiply, quaternion_to_matrix
 from cylindersplat.model.backbone import ResNetBackbone
 from cylindersplat.model.config import get_config
 from cylindersplat.model.fusion import depth_confidence
 from cylindersplat.model.gaussian_heads import local_to_cartesian_scales
 from cylindersplat.model.rgb_retrieval import retrieve_colors, retrieve_colors_window
-from cylindersplat.geometry.rotations import matrix_to_quaternion, quaternion_multiply, quaternion_to_matrix
 from cylindersplat.model.sampling import bilinear_sample
 from cylindersplat.model.triplane import sample_plane, sample_triplane, scatter_points_to_triplanes
 from cylindersplat.model.triplane_attention import CrossPlaneAttention
@@ -337,7 +337,8 @@ def test_hidden_confidence_keeps_only_space_no_view_saw():
     conf = hidden_confidence(points, c2w, depth, sigma=0.1)
     assert conf[0, 0] < 1e-3 and conf[0, 1] < 0.01 and conf[0, 2] == pytest.approx(1.0)
     # The product of the per-view front attenuations, each from the formula exp(-e^2 / (2 sigma^2)), e = min(0, d/d_pred - 1)
-    d0 = torch.linalg.vector_norm(points[0, 1]); d1 = torch.linalg.vector_norm(points[0, 1] - torch.tensor([2.0, 0, 0]))
+    d0 = torch.linalg.vector_norm(points[0, 1])
+    d1 = torch.linalg.vector_norm(points[0, 1] - torch.tensor([2.0, 0, 0]))
     expected = math.exp(-0.5 * (min(0.0, float(d0) / 3 - 1) / 0.1) ** 2) * math.exp(-0.5 * (min(0.0, float(d1) / 3 - 1) / 0.1) ** 2)
     assert float(conf[0, 1]) == pytest.approx(expected, rel=1e-4)
 

@@ -7,7 +7,6 @@ import torch
 
 from cylindersplat.geometry import equirect_rays
 from cylindersplat.model import from_config, get_config, load_model, save_model
-
 from model_inputs import make_inputs as shared_make_inputs
 
 H, W = 64, 128

@@ -6,7 +6,6 @@ outputs as they were (same bytes, same files) and the one-line error says which 
 """
 
 import errno
-import json
 import os
 import resource
 import subprocess

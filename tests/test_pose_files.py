@@ -14,10 +14,19 @@ import numpy as np
 import pytest
 import torch
 
-from cylindersplat.data.poses.colmap_model import read_colmap_model
-from cylindersplat.data.poses import (PoseRecord, c2w_to_colmap, colmap_to_c2w, read_colmap, read_metashape_xml,
-                                             read_openmvg, write_colmap, write_metashape_xml, write_openmvg)
+from cylindersplat.data.poses import (
+    PoseRecord,
+    c2w_to_colmap,
+    colmap_to_c2w,
+    read_colmap,
+    read_metashape_xml,
+    read_openmvg,
+    write_colmap,
+    write_metashape_xml,
+    write_openmvg,
+)
 from cylindersplat.data.poses.alignment import pose_errors
+from cylindersplat.data.poses.colmap_model import read_colmap_model
 from cylindersplat.geometry.equirect import ray_to_uv
 
 DATA = Path(__file__).parent / "data"

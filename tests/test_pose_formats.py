@@ -93,7 +93,6 @@ def _write_all_formats(folder, cams):
     """The same cameras as every supported file: {name: (path, reader)}."""
     folder.mkdir(parents=True, exist_ok=True)
     names = [f"pano_{k}.png" for k in range(len(cams))]
-    files = {}
     (folder / "opencv_c2w.json").write_text(json.dumps({"frames": [{"image": n, "c2w": c.tolist()} for n, c in zip(names, cams)]}))
     (folder / "opengl_c2w.json").write_text(json.dumps({"convention": "opengl_c2w", "poses": [(c @ GL).tolist() for c in cams]}))
     (folder / "opencv_w2c.json").write_text(json.dumps({"convention": "opencv_w2c", "poses": [torch.linalg.inv(c).tolist() for c in cams]}))

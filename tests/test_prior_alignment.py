@@ -101,7 +101,7 @@ def test_export_cli_rescales_a_half_scale_depth(wide_sample, tiny_checkpoint, tm
                                    wide_sample.context_gt_depths * 0.5)
     assert main(["export", "--input", str(folder), "--checkpoint", str(tiny_checkpoint), "--resolution", "64x128",
                  "--out", str(tmp_path / "scene.ply"), "--prior-scale", "photometric", "--skip-plausibility-checks"]) == 0
-    line = next(l for l in capsys.readouterr().out.splitlines() if l.startswith("depth rescaled"))
+    line = next(out for out in capsys.readouterr().out.splitlines() if out.startswith("depth rescaled"))
     factors = [float(part.split(" x")[1]) for part in line.split(": ", 1)[1].split(", ")]
     assert len(factors) == 2 and all(abs(f - 2.0) < 0.06 for f in factors), line
 

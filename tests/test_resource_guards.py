@@ -13,7 +13,6 @@ from cylindersplat.inference.memory import ReconstructionMemoryError, check_forw
 from cylindersplat.model import from_config, get_config, load_model, save_model
 from cylindersplat.render import render_equirect
 from cylindersplat.utils import atomic
-
 from model_inputs import make_inputs
 
 GiB = 2**30

@@ -13,8 +13,7 @@ from PIL import Image
 from cylindersplat.cli import main
 from cylindersplat.gaussians import save_ply
 from cylindersplat.inference.pipeline import iter_views
-from cylindersplat.render import Equirect, render
-from cylindersplat.render import rasterize
+from cylindersplat.render import Equirect, rasterize, render
 from cylindersplat.scenes import demo_room
 from cylindersplat.utils.notices import Notice
 

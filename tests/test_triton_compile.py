@@ -20,8 +20,8 @@ triton = pytest.importorskip("triton")
 from triton.compiler import ASTSource  # noqa: E402
 
 try:
-    from triton.backends.compiler import GPUTarget
     import triton.backends.nvidia as nvidia_backend
+    from triton.backends.compiler import GPUTarget
 except ImportError:  # pragma: no cover - a Triton without the NVIDIA backend
     nvidia_backend = None
 

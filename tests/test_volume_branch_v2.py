@@ -8,7 +8,7 @@ import typing
 import pytest
 import torch
 
-from cylindersplat.geometry import equirect_rays, make_c2w, project_equirect
+from cylindersplat.geometry import equirect_rays, make_c2w
 from cylindersplat.model import from_config
 from cylindersplat.model.config import CHOICES, COLOR_RULES, config_from_dict, config_to_dict, get_config
 from cylindersplat.model.fusion import fuse, hidden_confidence

@@ -14,7 +14,14 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-from ..geometry import camera_centers, camera_to_world, check_equirect_shape, equirect_rays, project_equirect, world_to_camera
+from ..geometry import (
+    camera_centers,
+    camera_to_world,
+    check_equirect_shape,
+    equirect_rays,
+    project_equirect,
+    world_to_camera,
+)
 from ..render.api import RenderOutput
 
 __all__ = ["forward_warp", "nearest_source"]

@@ -23,9 +23,7 @@ import torch
 
 from ..utils.atomic import atomic_write_text, output_set, written_at_once
 from ..utils.jsonfile import json_text
-
 from ._arguments import device, model_resolution, positive_int
-
 
 DEFAULT_STEPS = "400,100,100"
 

@@ -8,9 +8,7 @@ from pathlib import Path
 from ..dataset_layouts import DATASET_SPECS, dataset_spec
 from ..utils.atomic import atomic_write_text, output_set
 from ..utils.jsonfile import json_text
-
 from ._arguments import NearFar, device, equirect_resolution, fill_list, memory_advice, nonnegative_int, positive_int
-
 
 RELEASED_RESOLUTION = (256, 512)  # evaluate_mp3d_double_256.py of the authors' released code
 PROTOCOL_TITLES = {
@@ -151,7 +149,6 @@ def run(args: argparse.Namespace) -> int:
     if args.resolution is None and not args.no_model and protocols != ["released"]:
         # the model's size, not the stored one (read from its header); the released protocol keeps its own 256x512
         from ..model.pretrained import DEFAULT_PRETRAINED, weights_config
-
         from ._inference import model_size
 
         args.model_resolution = model_size(weights_config(args.checkpoint or DEFAULT_PRETRAINED), None)

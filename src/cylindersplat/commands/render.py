@@ -101,10 +101,10 @@ def _planned(args, view_poses, video) -> list[Path]:
 def run(args: argparse.Namespace) -> int:
     import torch
 
+    from ..data.poses import PoseRecord, write_poses_json
     from ..gaussians import save_ply
     from ..inference import depth_limits, flythrough_path, midpoint_poses, read_poses_file, write_flythrough, write_view
     from ..inference.pipeline import iter_views, sampled_depth_limits, write_metric_depth
-    from ..data.poses import PoseRecord, write_poses_json
     from ..inference.video import video_path_with_fallback
 
     if args.frames < 0:

@@ -40,9 +40,10 @@ import os
 from pathlib import Path
 from typing import Sequence
 
-import torch
 from torch import Tensor
 
+from ..utils.jsonfile import read_json_file
+from ..validation import check_translation_plausible
 from .base import ExampleRef, FrameRef, PanoramaDataset
 from .confine import confined_path
 from .depth_prior.base import DepthPrior, MissingPrior, StoredDepthPrior
@@ -50,8 +51,6 @@ from .depth_prior.files import PRIORS_DIR
 from .io import DEPTH_PNG_SCALE
 from .poses import POSE_CONVENTIONS, is_transforms_json, parse_pose_matrix, read_transforms_json, to_opencv_c2w
 from .views import ViewSplit, select_views
-from ..utils.jsonfile import read_json_file
-from ..validation import check_translation_plausible
 
 __all__ = ["FolderDataset", "FOLDER_VIEWS", "IMAGE_SUFFIXES", "POSES_FILE", "TRANSFORMS_FILE", "POSE_CONVENTIONS",
            "read_poses_file", "list_panoramas", "is_input_folder", "poses_path"]

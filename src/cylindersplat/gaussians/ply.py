@@ -22,7 +22,6 @@ import torch
 from plyfile import PlyData, PlyElement
 
 from ..utils.atomic import atomic_path
-
 from .container import Gaussians, sh_degree_from_count
 
 __all__ = ["save_ply", "load_ply"]

@@ -11,7 +11,7 @@ from ..geometry.rotations import matrix_to_quaternion, quaternion_to_matrix
 __all__ = ["slerp", "interpolate_poses", "flythrough_path", "midpoint_poses"]
 
 
-def slerp(q0: Float[Tensor, "4"], q1: Float[Tensor, "4"], t: Float[Tensor, "K"]) -> Float[Tensor, "K 4"]:
+def slerp(q0: Float[Tensor, "4"], q1: Float[Tensor, "4"], t: Float[Tensor, " K"]) -> Float[Tensor, "K 4"]:
     """Spherical linear interpolation of unit quaternions along the shorter arc."""
     dot = (q0 * q1).sum()
     if dot < 0:  # q and -q are the same rotation; take the short way round
@@ -25,7 +25,7 @@ def slerp(q0: Float[Tensor, "4"], q1: Float[Tensor, "4"], t: Float[Tensor, "K"])
     return q / q.norm(dim=-1, keepdim=True)
 
 
-def interpolate_poses(a: Float[Tensor, "4 4"], b: Float[Tensor, "4 4"], t: Float[Tensor, "K"]) -> Float[Tensor, "K 4 4"]:
+def interpolate_poses(a: Float[Tensor, "4 4"], b: Float[Tensor, "4 4"], t: Float[Tensor, " K"]) -> Float[Tensor, "K 4 4"]:
     """Poses at fractions ``t`` from ``a`` to ``b``: linear centres, slerped rotations."""
     qa, qb = matrix_to_quaternion(a[:3, :3]), matrix_to_quaternion(b[:3, :3])
     out = torch.eye(4, dtype=a.dtype).repeat(len(t), 1, 1)

@@ -16,8 +16,16 @@ from jaxtyping import Float
 from torch import Tensor
 
 from ..data.depth_prior import DepthPrior
-from ..data.folder import (IMAGE_SUFFIXES, POSE_CONVENTIONS, POSES_FILE, TRANSFORMS_FILE, FolderDataset,
-                           list_panoramas, poses_path, read_poses_file)
+from ..data.folder import (
+    IMAGE_SUFFIXES,
+    POSE_CONVENTIONS,
+    POSES_FILE,
+    TRANSFORMS_FILE,
+    FolderDataset,
+    list_panoramas,
+    poses_path,
+    read_poses_file,
+)
 from ..data.io import DEPTH_PNG_SCALE
 from ..data.poses.poses_json import warn_if_not_metric
 from ..utils.atomic import atomic_write_text

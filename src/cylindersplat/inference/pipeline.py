@@ -24,8 +24,14 @@ from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
 from ..utils.notices import Notice
 from ..utils.progress import Progress
-from ..validation import (check_c2w, check_depth_plausible, check_depths, check_images, check_opacity_threshold,
-                          check_scene_scale)
+from ..validation import (
+    check_c2w,
+    check_depth_plausible,
+    check_depths,
+    check_images,
+    check_opacity_threshold,
+    check_scene_scale,
+)
 from .camera_path import flythrough_path
 from .memory import check_forward_memory
 from .video import VideoWriter

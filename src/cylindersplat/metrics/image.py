@@ -46,7 +46,7 @@ def psnr(pred: Float[Tensor, "*b 3 H W"], target: Float[Tensor, "*b 3 H W"]) -> 
     return _mse_to_psnr(err.mean(dim=(-3, -2, -1))).to(pred.dtype)
 
 
-def ws_weights(height: int, device=None) -> Float[Tensor, "H"]:
+def ws_weights(height: int, device=None) -> Float[Tensor, " H"]:
     """Per-row WS-PSNR weight ``cos(latitude) = sin(pi * (i + 0.5) / H)``."""
     rows = torch.arange(height, device=device, dtype=torch.float64) + 0.5
     return torch.sin(math.pi * rows / height)

@@ -97,7 +97,7 @@ class LPIPS(nn.Module):
                 out.append(x)
         return out
 
-    def forward(self, pred: Float[Tensor, "B 3 H W"], target: Float[Tensor, "B 3 H W"]) -> Float[Tensor, "B"]:
+    def forward(self, pred: Float[Tensor, "B 3 H W"], target: Float[Tensor, "B 3 H W"]) -> Float[Tensor, " B"]:
         check_image_pair(pred, target, name="lpips")
         batch = pred.shape[:-3]
         pred = pred.reshape(-1, *pred.shape[-3:])

@@ -39,9 +39,9 @@ from .config import ExperimentConfig, config_as_dict
 from .data import ResumableBatchSampler, build_dataset, build_loader
 from .distributed import cleanup_distributed, init_distributed, unwrap, wrap_ddp
 from .logger import MetricLogger
-from .resume import curriculum_position
 from .losses import LossTerms, RenderLoss
 from .objective import Objective
+from .resume import curriculum_position
 from .schedule import cosine_schedule
 
 __all__ = ["Trainer", "batch_to_device", "select_device"]
