@@ -62,20 +62,29 @@ def demo_room(density: float = 12.0) -> Gaussians:
     half_x, half_z, floor_y, ceil_y = 3.0, 2.5, 1.6, -1.2
     n = lambda length: max(int(length * density), 1)  # noqa: E731
     parts = [
-        _surface((-half_x, floor_y, -half_z), (2 * half_x, 0, 0), (0, 0, 2 * half_z), n(6), n(5), _checker((0.85, 0.8, 0.7), (0.25, 0.2, 0.18), 0.5)),
-        _surface((-half_x, ceil_y, -half_z), (2 * half_x, 0, 0), (0, 0, 2 * half_z), n(6), n(5), _checker((0.95, 0.95, 0.95), (0.8, 0.8, 0.85), 1.0)),
-        _surface((-half_x, ceil_y, half_z), (2 * half_x, 0, 0), (0, 2.8, 0), n(6), n(2.8), _stripes((0.8, 0.3, 0.2), (0.95, 0.8, 0.5), 0.6)),
-        _surface((-half_x, ceil_y, -half_z), (2 * half_x, 0, 0), (0, 2.8, 0), n(6), n(2.8), _stripes((0.2, 0.4, 0.7), (0.8, 0.9, 0.95), 0.4)),
-        _surface((half_x, ceil_y, -half_z), (0, 0, 2 * half_z), (0, 2.8, 0), n(5), n(2.8), _stripes((0.3, 0.6, 0.3), (0.9, 0.95, 0.8), 0.8)),
-        _surface((-half_x, ceil_y, -half_z), (0, 0, 2 * half_z), (0, 2.8, 0), n(5), n(2.8), _checker((0.9, 0.85, 0.4), (0.5, 0.35, 0.2), 0.35)),
+        _surface((-half_x, floor_y, -half_z), (2 * half_x, 0, 0), (0, 0, 2 * half_z), n(6), n(5),
+                 _checker((0.85, 0.8, 0.7), (0.25, 0.2, 0.18), 0.5)),
+        _surface((-half_x, ceil_y, -half_z), (2 * half_x, 0, 0), (0, 0, 2 * half_z), n(6), n(5),
+                 _checker((0.95, 0.95, 0.95), (0.8, 0.8, 0.85), 1.0)),
+        _surface((-half_x, ceil_y, half_z), (2 * half_x, 0, 0), (0, 2.8, 0), n(6), n(2.8),
+                 _stripes((0.8, 0.3, 0.2), (0.95, 0.8, 0.5), 0.6)),
+        _surface((-half_x, ceil_y, -half_z), (2 * half_x, 0, 0), (0, 2.8, 0), n(6), n(2.8),
+                 _stripes((0.2, 0.4, 0.7), (0.8, 0.9, 0.95), 0.4)),
+        _surface((half_x, ceil_y, -half_z), (0, 0, 2 * half_z), (0, 2.8, 0), n(5), n(2.8),
+                 _stripes((0.3, 0.6, 0.3), (0.9, 0.95, 0.8), 0.8)),
+        _surface((-half_x, ceil_y, -half_z), (0, 0, 2 * half_z), (0, 2.8, 0), n(5), n(2.8),
+                 _checker((0.9, 0.85, 0.4), (0.5, 0.35, 0.2), 0.35)),
         # a table top and its front
-        _surface((0.5, 0.85, 0.8), (1.2, 0, 0), (0, 0, 0.8), n(1.2), n(0.8), _checker((0.55, 0.35, 0.2), (0.45, 0.28, 0.15), 0.2)),
-        _surface((0.5, 0.85, 0.8), (1.2, 0, 0), (0, 0.75, 0), n(1.2), n(0.75), _stripes((0.5, 0.3, 0.15), (0.35, 0.2, 0.1), 0.3)),
+        _surface((0.5, 0.85, 0.8), (1.2, 0, 0), (0, 0, 0.8), n(1.2), n(0.8),
+                 _checker((0.55, 0.35, 0.2), (0.45, 0.28, 0.15), 0.2)),
+        _surface((0.5, 0.85, 0.8), (1.2, 0, 0), (0, 0.75, 0), n(1.2), n(0.75),
+                 _stripes((0.5, 0.3, 0.15), (0.35, 0.2, 0.1), 0.3)),
     ]
     means, scales, rots, colors = (torch.cat([p[i] for p in parts]) for i in range(4))
     balls = []
     gen = torch.Generator().manual_seed(0)
-    for centre, color in (((-1.5, 1.2, 1.5), (0.9, 0.1, 0.1)), ((-1.0, 1.3, -1.6), (0.1, 0.7, 0.2)), ((1.8, 1.25, -1.2), (0.15, 0.3, 0.95))):
+    for centre, color in (((-1.5, 1.2, 1.5), (0.9, 0.1, 0.1)), ((-1.0, 1.3, -1.6), (0.1, 0.7, 0.2)),
+                          ((1.8, 1.25, -1.2), (0.15, 0.3, 0.95))):
         pts = torch.nn.functional.normalize(torch.randn(400, 3, generator=gen), dim=-1) * 0.35 + torch.tensor(centre)
         shade = 0.6 + 0.4 * (-(pts[:, 1] - centre[1]) / 0.35).clamp(-1, 1)[:, None]  # lit from above
         balls.append((pts, torch.full((400, 3), 0.06), shade * torch.tensor(color)))

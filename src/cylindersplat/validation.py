@@ -32,7 +32,8 @@ from .errors import ImplausibleInputError, InputError
 from .utils.notices import Notice
 
 __all__ = ["check_images", "check_depths", "check_c2w", "check_depth_plausible", "check_translation_plausible",
-           "check_opacity_threshold", "check_constant_depth", "farthest_camera", "check_scene_scale", "ScaleWarning", "PLAUSIBILITY_OVERRIDE", "MIN_DEPTH_M", "MAX_DEPTH_M", "MAX_TRANSLATION_M"]
+           "check_opacity_threshold", "check_constant_depth", "farthest_camera", "check_scene_scale", "ScaleWarning",
+           "PLAUSIBILITY_OVERRIDE", "MIN_DEPTH_M", "MAX_DEPTH_M", "MAX_TRANSLATION_M"]
 
 MIN_DEPTH_M = 0.01
 MAX_DEPTH_M = 1000.0
@@ -194,8 +195,9 @@ def check_translation_plausible(c2w: Tensor, where: str) -> None:
     """Camera positions within :data:`MAX_TRANSLATION_M` of the origin (float32 has centimetres to spare there)."""
     far = farthest_camera(c2w)
     if far > MAX_TRANSLATION_M:
-        raise ImplausibleInputError(f"{where}: a camera lies {far:.3g} m from the origin, beyond {MAX_TRANSLATION_M:g} m; "
-                                    "recentre the poses (subtract a common origin) and give them in metres")
+        raise ImplausibleInputError(f"{where}: a camera lies {far:.3g} m from the origin, "
+                                    f"beyond {MAX_TRANSLATION_M:g} m; recentre the poses (subtract a common origin) "
+                                    "and give them in metres")
 
 
 def check_opacity_threshold(value, name: str = "min_opacity") -> float:

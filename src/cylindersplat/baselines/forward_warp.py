@@ -40,7 +40,8 @@ def _splat_one(
     valid = (depth > 0) & torch.isfinite(depth)
     points = equirect_rays(h, w, device=depth.device, dtype=torch.float64)[valid] * depth[valid, None].double()
     colors = image.permute(1, 2, 0)[valid]
-    uv, dist = project_equirect(world_to_camera(camera_to_world(points, src_c2w.double()), tgt_c2w.double()), height, width)
+    uv, dist = project_equirect(world_to_camera(camera_to_world(points, src_c2w.double()), tgt_c2w.double()), height,
+                                width)
     out_depth = torch.full((height * width,), float("inf"), dtype=torch.float64, device=depth.device)
     out_rgb = torch.zeros(height * width, 3, dtype=image.dtype, device=image.device)
     in_front = dist > 1e-6
@@ -84,7 +85,8 @@ def forward_warp(
     ``"all"`` splats every input into one z-buffer. Depth ``<= 0`` marks unknown source pixels.
     """
     if images.ndim != 4 or images.shape[1] != 3 or depths.shape != (images.shape[0], *images.shape[2:]):
-        raise ValueError(f"forward_warp: images (V, 3, h, w) and depths (V, h, w) expected, got {tuple(images.shape)} and {tuple(depths.shape)}")
+        raise ValueError(f"forward_warp: images (V, 3, h, w) and depths (V, h, w) expected, got {tuple(images.shape)} "
+                         f"and {tuple(depths.shape)}")
     if sources not in ("nearest", "all"):
         raise ValueError(f"sources must be 'nearest' or 'all', got {sources!r}")
     height = height or images.shape[-2]

@@ -103,7 +103,8 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
             if name == "gsplat":
                 continue
             mse = float(((image - images["gsplat"]) ** 2).mean())
-            rows.append({"num": num, "agreement": f"{name} vs gsplat", "mean_abs": float((image - images["gsplat"]).abs().mean()),
+            rows.append({"num": num, "agreement": f"{name} vs gsplat",
+                         "mean_abs": float((image - images["gsplat"]).abs().mean()),
                          "psnr_db": 10 * math.log10(1.0 / max(mse, 1e-20))})
     return rows
 

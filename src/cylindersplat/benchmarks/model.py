@@ -94,11 +94,13 @@ def run_single(args) -> dict:
 def describe_device(device: str) -> str:
     if device.startswith("cuda"):
         return torch.cuda.get_device_name(0)
-    return f"CPU {platform.processor() or platform.machine()}, {os.cpu_count()} logical cores, torch threads {torch.get_num_threads()}"
+    return (f"CPU {platform.processor() or platform.machine()}, {os.cpu_count()} logical cores, "
+            f"torch threads {torch.get_num_threads()}")
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = OneLineErrorParser(prog="cylindersplat bench model", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = OneLineErrorParser(prog="cylindersplat bench model", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", default="tiny", help="model preset (tiny, paper)")
     parser.add_argument("--height", type=positive_int, default=None, help="input panorama height (width = 2 x height)")
     parser.add_argument("--views", type=positive_int, nargs="+", default=[1, 2, 3, 4])
@@ -108,7 +110,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--amp", choices=["bf16", "off"], default="bf16",
                         help="network forward under bf16 autocast on CUDA (as inference and training do)")
     parser.add_argument("--warmup", type=nonnegative_int, default=1)
-    parser.add_argument("--compile", action="store_true", help="projection through torch.compile (render.projection.compile_projection)")
+    parser.add_argument("--compile", action="store_true", help="projection through torch.compile "
+                                                               "(render.projection.compile_projection)")
     parser.add_argument("--repeats", type=positive_int, default=3)
     parser.add_argument("--single", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -126,15 +129,16 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps(run_single(args)))
         return
 
-    print(f"# CylinderSplat forward benchmark: config={args.config} mode={args.mode} input {args.height}x{2 * args.height}"
-          f"{' + 1 render' if args.render else ''}, amp {args.amp if args.device.startswith('cuda') else 'off'}; "
-          f"{describe_device(args.device)}")
+    print(f"# CylinderSplat forward benchmark: config={args.config} mode={args.mode} input "
+          f"{args.height}x{2 * args.height}{' + 1 render' if args.render else ''}, amp "
+          f"{args.amp if args.device.startswith('cuda') else 'off'}; {describe_device(args.device)}")
     print("| views | Gaussians | median latency (s) | min (s) | peak memory (MiB) |")
     print("|---|---|---|---|---|")
     for views in args.views:
         cmd = [sys.executable, __file__, "--single", "--config", args.config, "--height", str(args.height),
                "--views", str(views), "--mode", args.mode, "--device", args.device,
-               "--warmup", str(args.warmup), "--repeats", str(args.repeats), "--amp", args.amp] + (["--compile"] if args.compile else []) + (["--render"] if args.render else [])
+               "--warmup", str(args.warmup), "--repeats", str(args.repeats), "--amp", args.amp]
+        cmd += (["--compile"] if args.compile else []) + (["--render"] if args.render else [])
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
             sys.exit(f"benchmark with {views} views failed:\n{proc.stderr}")

@@ -102,7 +102,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=positive_int, default=5, help="timed steps per stage")
     parser.add_argument("--warmup", type=nonnegative_int, default=2)
     parser.add_argument("--lpips", choices=["random", "off"], default="random")
-    parser.add_argument("--compile", action="store_true", help="projection through torch.compile (render.projection.compile_projection)")
+    parser.add_argument("--compile", action="store_true", help="projection through torch.compile "
+                                                               "(render.projection.compile_projection)")
     args = parser.parse_args(argv)
     if args.compile:
         from cylindersplat.render.projection import compile_projection

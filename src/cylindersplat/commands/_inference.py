@@ -12,8 +12,9 @@ from ._arguments import device, model_resolution, opacity_threshold
 def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) -> None:
     parser.add_argument("--input", required=required, type=Path,
                         help="folder of equirect panoramas + poses.json (OpenCV c2w; see docs/inference.md)")
-    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train / demo), a run folder (or its checkpoints/latest), or a shipped "
-                        "model name (default: the shipped tiny-synth weights, trained on procedural scenes)")
+    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train / demo), a run folder (or "
+                        "its checkpoints/latest), or a shipped model name (default: the shipped tiny-synth weights, "
+                        "trained on procedural scenes)")
     parser.add_argument("--poses-file", type=Path, help="poses file (default INPUT/poses.json)")
     parser.add_argument("--allow-outside-paths", action="store_true",
                         help="read image/depth files the poses file names outside the input folder (absolute or ../ "
@@ -26,17 +27,18 @@ def add_input_arguments(parser: argparse.ArgumentParser, required: bool = True) 
                              "unik3d:WEIGHTS, depth_anything_v2:MODEL, constant:METRES, none (zeros, on request only) "
                              "(default: every frame needs <stem>_depth.png/.npy)")
     parser.add_argument("--prior-scale", choices=["model", "photometric", "none"], default="model",
-                        help="rescale each view's depth to the poses' metric scale by a cross-view colour search before "
-                             "the model reads it (photometric: for relative or scale-off depth networks; needs 2+ "
-                             "views some distance apart), use it as given (none), or do what the model was trained "
+                        help="rescale each view's depth to the poses' metric scale by a cross-view colour search "
+                             "before the model reads it (photometric: for relative or scale-off depth networks; needs "
+                             "2+ views some distance apart), use it as given (none), or do what the model was trained "
                              "with (model, the default)")
     parser.add_argument("--min-opacity", type=opacity_threshold, default=0.005,
                         help="drop Gaussians at or below this opacity, in [0, 1) (default 0.005)")
     parser.add_argument("--skip-plausibility-checks", action="store_true",
-                        help="accept depths whose median is outside 1 cm to 1 km (refused by default as a unit mistake) "
-                        "and silence the scene-scale warnings (median depth beyond 100 m or below 5 cm, camera "
-                        "spacing out of proportion with the depth)")
-    parser.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
+                        help="accept depths whose median is outside 1 cm to 1 km (refused by default as a unit "
+                        "mistake) and silence the scene-scale warnings (median depth beyond 100 m or below 5 cm, "
+                        "camera spacing out of proportion with the depth)")
+    parser.add_argument("--device", type=device, default="auto",
+                        help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
 
 
 def model_size(config, given: tuple[int, int] | None, option: str = "--resolution") -> tuple[int, int]:
@@ -98,7 +100,8 @@ def reconstruct_from_args(args: argparse.Namespace):
     from ..model.pretrained import DEFAULT_PRETRAINED, from_pretrained
 
     if args.checkpoint is None:
-        print(f"using the shipped {DEFAULT_PRETRAINED} weights (trained on procedural scenes; --checkpoint for your own)")
+        print(f"using the shipped {DEFAULT_PRETRAINED} weights (trained on procedural scenes; --checkpoint for your "
+              "own)")
     # refuses missing files, pickles, broken or diverged weights by name
     model = from_pretrained(args.checkpoint or DEFAULT_PRETRAINED, map_location=args.device)
     size = model_size(model.config, args.resolution)

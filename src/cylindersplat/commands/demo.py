@@ -31,15 +31,17 @@ DEFAULT_STEPS = "400,100,100"
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "demo",
-        help="the main job: synthetic data -> shipped (or --train: your own) tiny model -> reconstruct a held-out scene, vs a baseline",
+        help="the main job: synthetic data -> shipped (or --train: your own) tiny model -> reconstruct a held-out "
+             "scene, vs a baseline",
         description="Generate procedural panoramas, take the shipped tiny-synth weights (or, with --train, train the "
-        "tiny model for a few minutes on CPU; or --checkpoint), reconstruct a held-out scene from 2 panoramas and compare the novel view with ground truth "
-        "and with forward-warping the nearest input panorama. Writes renders, depth colormaps, a PLY, a fly-through "
-        "and a metrics table to --out. Needs no download.",
+        "tiny model for a few minutes on CPU; or --checkpoint), reconstruct a held-out scene from 2 panoramas and "
+        "compare the novel view with ground truth and with forward-warping the nearest input panorama. Writes renders, "
+        "depth colormaps, a PLY, a fly-through and a metrics table to --out. Needs no download.",
     )
     p.add_argument("--out", type=Path, default=Path("outputs/demo"), help="output folder (default outputs/demo)")
     p.add_argument("--scenes", type=positive_int, default=28, help="procedural scenes to generate (default 28)")
-    p.add_argument("--held-out", type=int, default=8, help="last N scenes are not trained on and are scored (default 8)")
+    p.add_argument("--held-out", type=int, default=8,
+                   help="last N scenes are not trained on and are scored (default 8)")
     p.add_argument("--resolution", type=model_resolution, default=(64, 128), help="panorama HxW (default 64x128)")
     p.add_argument("--steps", default=DEFAULT_STEPS,
                    help=f"training steps of curriculum stages 1 (pixel), 2 (volume) and 3 (joint); 0 skips a stage "
@@ -51,7 +53,8 @@ def register(subparsers) -> None:
                    "weights; a later --train run reuses OUT/train/model.safetensors")
     p.add_argument("--retrain", action="store_true", help="train anew even if OUT/train/model.safetensors exists")
     p.add_argument("--frames", type=int, default=16, help="fly-through frames, 0 = none (default 16)")
-    p.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
+    p.add_argument("--device", type=device, default="auto",
+                   help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
     p.add_argument("--room", action="store_true", help="only render the built-in Gaussian room (renderer smoke test)")
     p.set_defaults(func=run)
 
@@ -60,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
     if args.room:
         return render_room(args)
     if args.held_out < 1 or args.scenes - args.held_out < 1:
-        raise ValueError(f"need at least one training and one held-out scene (--scenes {args.scenes}, --held-out {args.held_out})")
+        raise ValueError(f"need at least one training and one held-out scene (--scenes {args.scenes}, --held-out "
+                         f"{args.held_out})")
     args.steps = _parse_steps(args.steps)  # a bad --steps fails before any work, --train or not
     _check_resolution(args.resolution)
     start = time.perf_counter()
@@ -149,7 +153,8 @@ def train_or_reuse(args, data: Path) -> Path:
     train_ids, _ = _scene_ids(args)
     config = load_config("tiny", changes={
         "data.root": data, "output_dir": run_dir, "data.resolution": list(args.resolution),
-        "data.options": {"scenes": train_ids}, "train.stages": stages, "train.steps_per_stage": [n for n in steps if n > 0],
+        "data.options": {"scenes": train_ids}, "train.stages": stages,
+        "train.steps_per_stage": [n for n in steps if n > 0],
         "train.lr": args.lr, "train.warmup_steps": 10, "train.device": str(args.device), "train.checkpoint_every": 100,
         "train.image_every": 50,
     })
@@ -182,8 +187,10 @@ def score_held_out(args, data: Path, checkpoint: Path) -> str:
         pixel_only = load_model(checkpoint, map_location=args.device).set_mode("pixel")
         methods += fill_methods(model_method(pixel_only, "its pixel branch alone", device=args.device), FILLS)
     result = evaluate(dataset, methods + fill_methods(forward_warp_method(), FILLS),
-                      example_dir=args.out / "examples", num_pictures=len(held_out), depth_range=DepthRange(0.05, 1000.0))
-    results = {f"Held-out synthetic scenes — two_view ({result.num_examples} scenes, {args.resolution[0]}x{args.resolution[1]})":
+                      example_dir=args.out / "examples", num_pictures=len(held_out),
+                      depth_range=DepthRange(0.05, 1000.0))
+    results = {f"Held-out synthetic scenes — two_view ({result.num_examples} scenes, "
+               f"{args.resolution[0]}x{args.resolution[1]})":
                {name: dict(m) for name, m in result.means.items()}}
     table = results_to_markdown(results, title="Demo: novel views of unseen scenes", backgrounds=result.backgrounds)
     atomic_write_text(args.out / "results.md", table)
@@ -227,7 +234,8 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
     warp = forward_warp(sample.context_images, sample.context_priors, sample.context_poses, sample.target_poses, h, w,
                         background=(0.0, 0.0, 0.0))
     near, far = depth_limits(sample.target_depths)
-    write_view(args.out / "novel_view_rgb.png", args.out / "novel_view_depth.png", ours.rgb[0], ours.depth[0], ours.alpha[0],
+    write_view(args.out / "novel_view_rgb.png", args.out / "novel_view_depth.png", ours.rgb[0], ours.depth[0],
+               ours.alpha[0],
                near, far)
     sheet = comparison_image(sample.target_images[0], sample.target_depths[0], {
         "CylinderSplat": (ours.rgb[0], ours.depth[0], ours.alpha[0]),
@@ -254,14 +262,16 @@ def render_room(args) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     gaussians = demo_room().to(args.device)
     xs = torch.linspace(-1.0, 1.0, 3)
-    poses = torch.stack([make_c2w(translation=torch.tensor([float(x), 0.0, 0.3 * float(x)])) for x in xs]).to(args.device)
+    poses = torch.stack([make_c2w(translation=torch.tensor([float(x), 0.0, 0.3 * float(x)]))
+                         for x in xs]).to(args.device)
     height = 256
     start = time.perf_counter()
     out = render_equirect(gaussians, poses, height, 2 * height, background=(1.0, 1.0, 1.0))
     elapsed = time.perf_counter() - start
     for i in range(len(poses)):
-        write_view(args.out / f"room_rgb_{i:02d}.png", args.out / f"room_depth_{i:02d}.png", out.rgb[i], out.depth[i], out.alpha[i])
+        write_view(args.out / f"room_rgb_{i:02d}.png", args.out / f"room_depth_{i:02d}.png", out.rgb[i], out.depth[i],
+                   out.alpha[i])
     ply = save_ply(gaussians.to("cpu"), args.out / "demo_room.ply")
-    print(f"rendered {len(gaussians)} Gaussians into {len(poses)} panoramas of {height}x{2 * height} in {elapsed:.2f} s "
-          f"on {args.device}\nwrote {args.out}/room_rgb_*.png, room_depth_*.png and {ply}")
+    print(f"rendered {len(gaussians)} Gaussians into {len(poses)} panoramas of {height}x{2 * height} "
+          f"in {elapsed:.2f} s on {args.device}\nwrote {args.out}/room_rgb_*.png, room_depth_*.png and {ply}")
     return 0

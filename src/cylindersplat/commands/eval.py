@@ -38,7 +38,8 @@ def eval_runs(args) -> list[tuple[str, str, dict]]:
                          f"all_between); the {args.format} format has fixed protocols: use --protocols")
     if getattr(args, "targets", None):  # a folder of panoramas with held-out frames: one table
         if not spec.accepts("targets"):
-            raise ValueError(f"--targets holds out frames of a folder of panoramas (--format folder), not of {args.format} data")
+            raise ValueError("--targets holds out frames of a folder of panoramas (--format folder), not of "
+                             f"{args.format} data")
         return [("held_out", "held_out", {})]
     runs = []
     for protocol in args.protocols.split(","):
@@ -107,7 +108,8 @@ def _apply_preset(args) -> None:
         preset = load_config(args.config)
     if args.format is None and preset is None:
         args.format = _detect_format(args.data)
-    defaults = {"format": ("synthetic", lambda c: c.data.format), "depth_prior": ("default", lambda c: c.data.depth_prior),
+    defaults = {"format": ("synthetic", lambda c: c.data.format),
+                "depth_prior": ("default", lambda c: c.data.depth_prior),
                 "pcc_reference": ("gt", lambda c: c.eval.pcc_reference)}
     for key, (default, from_preset) in defaults.items():
         if getattr(args, key) is None:
@@ -154,13 +156,15 @@ def run(args: argparse.Namespace) -> int:
         args.model_resolution = model_size(weights_config(args.checkpoint or DEFAULT_PRETRAINED), None)
     # Every dataset first: a missing prior or reference fails before any model is loaded.
     runs = eval_runs(args)
-    datasets = {label: (protocol, options, open_eval_dataset(args, protocol, options)) for label, protocol, options in runs}
+    datasets = {label: (protocol, options, open_eval_dataset(args, protocol, options))
+                for label, protocol, options in runs}
     methods = []
     if not args.no_model:
         from ..model.pretrained import DEFAULT_PRETRAINED, from_pretrained
 
         if args.checkpoint is None:
-            print(f"using the shipped {DEFAULT_PRETRAINED} weights (--checkpoint for your own, --no-model for the baseline only)")
+            print(f"using the shipped {DEFAULT_PRETRAINED} weights (--checkpoint for your own, --no-model for the "
+                  "baseline only)")
         model = from_pretrained(args.checkpoint or DEFAULT_PRETRAINED, map_location=args.device)
         if model.mode == "pixel":  # a pixel-only model leaves holes: its fill rows beside it
             methods += fill_methods(model_method(model, "CylinderSplat (pixel only)", device=args.device), args.fills)
@@ -207,7 +211,8 @@ def run(args: argparse.Namespace) -> int:
             if spacing:
                 result.notes.append(spacing)
         if args.pcc_reference != "gt":
-            result.notes.append(f"PCC against {args.pcc_reference} (AbsRel, RMSE, δ1 against the ground truth, where there is one)")
+            result.notes.append(f"PCC against {args.pcc_reference} (AbsRel, RMSE, δ1 against the ground truth, where "
+                                "there is one)")
         for note in result.notes:
             print(f"{label}: {note}")
             notes.append(f"{label}: {note}")
@@ -242,24 +247,26 @@ def register(subparsers) -> None:
             "methods; RGB | depth). See docs/evaluation.md."
         ),
     )
-    parser.add_argument("--data", required=True, help="dataset folder (synthetic output, png_render_* folder, 360Loc root or a folder of posed panoramas)")
+    parser.add_argument("--data", required=True, help="dataset folder (synthetic output, png_render_* folder, 360Loc "
+                                                      "root or a folder of posed panoramas)")
     parser.add_argument("--format", "--layout", dest="format", choices=list(DATASET_SPECS),
-                        help="dataset layout (default: the --config preset's, else detected from --data as the data commands do); folder: posed panoramas in the "
-                        "input format of docs/inference.md (one folder, or a folder of them), frames held out with "
-                        "--targets or by --protocols two_view/one_view/n_view in poses-file order")
+                        help="dataset layout (default: the --config preset's, else detected from --data as the data "
+                        "commands do); folder: posed panoramas in the input format of docs/inference.md (one folder, "
+                        "or a folder of them), frames held out with --targets or by --protocols "
+                        "two_view/one_view/n_view in poses-file order")
     parser.add_argument("--config", help="training preset or YAML (e.g. paper) whose data.format, data.depth_prior and "
                         "eval.pcc_reference are the defaults of --format, --depth-prior and --pcc-reference")
-    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train), a run folder or a shipped model "
-                        "name (default: the shipped tiny-synth weights)")
+    parser.add_argument("--checkpoint", help="model .safetensors (from cylindersplat train), a run folder or a shipped "
+                        "model name (default: the shipped tiny-synth weights)")
     parser.add_argument("--no-model", action="store_true", help="score only the forward-warp baseline")
-    parser.add_argument("--protocols", default="two_view", help="comma list of two_view, one_view, n_view, all_between, "
-                        "released (default two_view). released: the authors' released scoring (first+last frame in, all "
-                        "three frames scored, the inputs included; 256x512 unless --resolution), the one to put beside the "
-                        "paper's Table 1; two_view scores only the novel middle frame")
+    parser.add_argument("--protocols", default="two_view", help="comma list of two_view, one_view, n_view, "
+                        "all_between, released (default two_view). released: the authors' released scoring (first+last "
+                        "frame in, all three frames scored, the inputs included; 256x512 unless --resolution), the one "
+                        "to put beside the paper's Table 1; two_view scores only the novel middle frame")
     parser.add_argument("--fills", type=fill_list, default=["mean", "inpaint"], metavar="FILL[,FILL...]",
-                        help="fill rows: the forward warp (and a model's pixel branch) again with mean (the inputs' mean "
-                        "colour) or inpaint (a 2-D inpaint) behind the pixels it leaves uncovered; none for no fill rows "
-                        "(default mean,inpaint)")
+                        help="fill rows: the forward warp (and a model's pixel branch) again with mean (the inputs' "
+                        "mean colour) or inpaint (a 2-D inpaint) behind the pixels it leaves uncovered; none for no "
+                        "fill rows (default mean,inpaint)")
     parser.add_argument("--views", type=positive_int_list, metavar="N[,N...]",
                         help="360Loc (all_between): context views per example, e.g. 3 or 2,3,4 for the paper's "
                         "multi-view table (default 2); one table each")
@@ -277,19 +284,24 @@ def register(subparsers) -> None:
     parser.add_argument("--scenes", help="synthetic data: comma list of scene ids to use")
     parser.add_argument("--targets", help="--format folder: comma list of frames (image names or stems) held out as "
                         "targets, the other frames being the inputs (instead of --protocols)")
-    parser.add_argument("--depth-prior", help="depth prior given to the methods: default (the dataset's; an error where it "
-                        "has none), file:NAME (from `cylindersplat data priors`), gt, simulated, constant:METRES, "
-                        "exported:NET.pt2, unik3d:WEIGHTS, depth_anything_v2:MODEL, or none (zeros, on request only)")
+    parser.add_argument("--depth-prior", help="depth prior given to the methods: default (the dataset's; an error "
+                        "where it has none), file:NAME (from `cylindersplat data priors`), gt, simulated, "
+                        "constant:METRES, exported:NET.pt2, unik3d:WEIGHTS, depth_anything_v2:MODEL, or none (zeros, "
+                        "on request only)")
     parser.add_argument("--pcc-reference", help="reference depth of the PCC column: gt (default) or file:NAME, e.g. "
                         "file:depth_anywhere as in the paper (files from `cylindersplat data priors`)")
-    parser.add_argument("--depth-range", nargs=2, action=NearFar, metavar=("NEAR", "FAR"), help="valid reference depth (default 0.45 10 for pano_grf, else 0.05 1000)")
+    parser.add_argument("--depth-range", nargs=2, action=NearFar, metavar=("NEAR", "FAR"),
+                        help="valid reference depth (default 0.45 10 for pano_grf, else 0.05 1000)")
     parser.add_argument("--allow-outside-paths", action="store_true",
                         help="--format folder: read image/depth files its poses files name outside their folder "
                         "(absolute or ../ paths); refused by default")
     parser.add_argument("--max-examples", type=positive_int, help="score only the first N examples")
-    parser.add_argument("--pictures", type=nonnegative_int, default=4, help="comparison pictures per protocol (default 4)")
-    parser.add_argument("--lpips", default="auto", choices=["auto", "on", "off"], help="LPIPS column: auto uses local weights when found")
+    parser.add_argument("--pictures", type=nonnegative_int, default=4,
+                        help="comparison pictures per protocol (default 4)")
+    parser.add_argument("--lpips", default="auto", choices=["auto", "on", "off"],
+                        help="LPIPS column: auto uses local weights when found")
     parser.add_argument("--lpips-weights", help="LPIPS-VGG weights file (else $CYLINDERSPLAT_LPIPS_WEIGHTS)")
     parser.add_argument("--no-baseline", action="store_true", help="do not score the forward-warp baseline")
-    parser.add_argument("--device", type=device, default="auto", help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
+    parser.add_argument("--device", type=device, default="auto",
+                        help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
     parser.set_defaults(func=run)

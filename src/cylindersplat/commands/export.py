@@ -26,7 +26,8 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
-        "export", help="reconstruct posed panoramas into Gaussians and save them (3DGS PLY, .splat, .spz, .compressed.ply, .sog)",
+        "export", help="reconstruct posed panoramas into Gaussians and save them (3DGS PLY, .splat, .spz, "
+                       ".compressed.ply, .sog)",
         description="Run a trained model on a folder of posed equirect panoramas and write the Gaussians as a "
         "standard 3DGS PLY (world frame of the poses; opens in SuperSplat and other 3DGS viewers) or a compressed "
         "splat format (.spz, .compressed.ply, .sog: through PlayCanvas splat-transform). "
@@ -35,9 +36,9 @@ def register(subparsers) -> None:
     add_input_arguments(parser)
     parser.add_argument("--out", type=Path, default=Path("outputs/export/gaussians.ply"),
                         help="output, format by name: .ply (standard 3DGS PLY, all SH), .splat (32 bytes per Gaussian, "
-                        "degree-0 colour), .spz (Niantic), .compressed.ply (PlayCanvas/SuperSplat) or .sog (PlayCanvas); "
-                        "the last three need splat-transform (npm install -g @playcanvas/splat-transform) "
-                        "(default outputs/export/gaussians.ply)")
+                        "degree-0 colour), .spz (Niantic), .compressed.ply (PlayCanvas/SuperSplat) or .sog "
+                        "(PlayCanvas); the last three need splat-transform (npm install -g "
+                        "@playcanvas/splat-transform) (default outputs/export/gaussians.ply)")
     parser.add_argument("--spz-version", type=int, choices=(3, 4),
                         help="SPZ version for .spz (default 4, splat-transform's; 3 is the older gzip container)")
     parser.set_defaults(func=run)

@@ -1,4 +1,5 @@
-"""``cylindersplat render``: posed panoramas (or any 3DGS splat file) -> novel views (RGB + depth), a fly-through, a PLY."""
+"""``cylindersplat render``: posed panoramas (or any 3DGS splat file) -> novel views (RGB + depth), a fly-through,
+a PLY."""
 
 from __future__ import annotations
 
@@ -52,7 +53,8 @@ def camera_record(camera, fov: float | None = None) -> dict:
     if isinstance(camera, Pinhole):
         k = camera.intrinsics
         return {"model": "pinhole", "height": camera.height, "width": camera.width, "K": k.tolist(),
-                "fov_x_deg": fov, "note": "OpenCV intrinsics, pixel centres at +0.5 (principal point W/2, H/2 when centred)"}
+                "fov_x_deg": fov, "note": "OpenCV intrinsics, pixel centres at +0.5 (principal point W/2, H/2 when "
+                "centred)"}
     return {"model": "equirect", "height": camera.height, "width": camera.width}
 
 
@@ -112,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
     if args.fps < 1:
         raise ValueError("--fps must be >= 1")
     if not all(math.isfinite(c) and 0 <= c <= 1 for c in args.background):
-        raise ValueError(f"--background must be three numbers in [0, 1] (R G B), got {' '.join(map(str, args.background))}")
+        raise ValueError("--background must be three numbers in [0, 1] (R G B), got "
+                         f"{' '.join(map(str, args.background))}")
     check_output(args.out, folder=True)
     # Everything that can be checked is checked before minutes of reconstruction and rendering.
     view_poses = torch.stack([pose for _, pose, _ in read_poses_file(args.views)]) if args.views else None
@@ -129,11 +132,12 @@ def run(args: argparse.Namespace) -> int:
         if args.input or args.checkpoint:
             raise ValueError("give either --ply or --input/--checkpoint, not both")
         if view_poses is None and path_poses is None:
-            raise ValueError("rendering a PLY needs camera poses: --views POSES (views, and a fly-through through them) "
-                             "and/or --camera-path POSES (a fly-through along exactly those poses)")
+            raise ValueError("rendering a PLY needs camera poses: --views POSES (views, and a fly-through through "
+                             "them) and/or --camera-path POSES (a fly-through along exactly those poses)")
     else:
         if not args.input:
-            raise ValueError("give --input (with --checkpoint, or the shipped weights) or --ply to render an existing 3DGS scene")
+            raise ValueError("give --input (with --checkpoint, or the shipped weights) or --ply to render an existing "
+                             "3DGS scene")
     if args.output_resolution:
         _camera(args, *args.output_resolution)  # a bad size fails now, not after the reconstruction
     turn = _yaw(args.yaw)
@@ -221,15 +225,17 @@ def register(subparsers) -> None:
     )
     add_input_arguments(parser, required=False)
     parser.add_argument("--ply", type=Path, metavar="SPLATS",
-                        help="render this 3DGS scene instead of reconstructing: any splat file `view` reads (.ply, .splat; "
-                        ".spz, .compressed.ply, .sog, .ksplat with splat-transform), from cylindersplat or any 3DGS tool; "
-                        "needs --views and/or --camera-path")
-    parser.add_argument("--out", type=Path, default=Path("outputs/render"), help="output folder (default outputs/render)")
+                        help="render this 3DGS scene instead of reconstructing: any splat file `view` reads (.ply, "
+                        ".splat; .spz, .compressed.ply, .sog, .ksplat with splat-transform), from cylindersplat or any "
+                        "3DGS tool; needs --views and/or --camera-path")
+    parser.add_argument("--out", type=Path, default=Path("outputs/render"),
+                        help="output folder (default outputs/render)")
     parser.add_argument("--views", type=Path, help="poses file of the views to render: poses.json (any \"convention\") "
                         "or nerfstudio transforms.json")
     parser.add_argument("--camera", choices=["equirect", "pinhole"], default="equirect",
                         help="equirect panoramas (default) or pinhole (perspective) views looking along each pose's +z")
-    parser.add_argument("--fov", type=float, default=90.0, help="pinhole horizontal field of view in degrees (default 90)")
+    parser.add_argument("--fov", type=float, default=90.0,
+                        help="pinhole horizontal field of view in degrees (default 90)")
     parser.add_argument("--yaw", type=float, default=0.0,
                         help="turn every rendered camera by this many degrees about its own vertical axis, positive to "
                         "the right (e.g. to point a pinhole view elsewhere than the panorama's centre column)")

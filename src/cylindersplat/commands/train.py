@@ -60,7 +60,8 @@ def _train(args: argparse.Namespace, config, resume) -> int:
         _say_resume(resume, config)
     trainer = Trainer(config, resume=args.resume)
     summary = trainer.fit(max_steps=args.max_steps)
-    state = "finished" if summary["finished"] else f"stopped at step {summary['global_step']} (resume with --resume {config.output_dir})"
+    state = ("finished" if summary["finished"]
+             else f"stopped at step {summary['global_step']} (resume with --resume {config.output_dir})")
     print(f"training {state}; mean step {summary['mean_step_time']:.2f} s; run folder {config.output_dir}")
     if summary["finished"]:
         print(f"weights: {summary['weights']}")
@@ -77,8 +78,8 @@ def _resume_point(args: argparse.Namespace):
         preset_name = load_config(args.config).name
         if preset_name != resume.saved.get("name"):
             raise ValueError(f"--resume continues {resume.run_folder} with its own config (preset "
-                             f"{resume.saved.get('name')!r}), not --config {args.config}; leave out --config and change "
-                             "single settings with KEY=VALUE (e.g. train.steps_per_stage=[8])")
+                             f"{resume.saved.get('name')!r}), not --config {args.config}; leave out --config and "
+                             "change single settings with KEY=VALUE (e.g. train.steps_per_stage=[8])")
     return resume
 
 
@@ -138,14 +139,16 @@ def register(subparsers) -> None:
     parser.add_argument("--out", help="run folder for checkpoints, logs, weights (same as output_dir=...)")
     parser.add_argument("--stages", type=stage_list,
                         help="comma list of curriculum stages to run, e.g. 1,2,3 or 3 (same as train.stages)")
-    parser.add_argument("--steps", type=count_list, help="optimizer steps per stage: one number or a comma list per stage")
+    parser.add_argument("--steps", type=count_list,
+                        help="optimizer steps per stage: one number or a comma list per stage")
     parser.add_argument("--init", help="model.safetensors to start from (fine-tuning)")
     parser.add_argument("--resume", metavar="RUN",
                         help="run folder or checkpoint to continue, with the run's own config and schedule; "
                              "KEY=VALUE settings given with it change that config (and are reported)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace the run already in the output folder (its checkpoints, logs and weights)")
-    parser.add_argument("--max-steps", type=positive_int, help="stop (with a checkpoint) after this many steps of this call")
+    parser.add_argument("--max-steps", type=positive_int,
+                        help="stop (with a checkpoint) after this many steps of this call")
     parser.add_argument("--device", help="cpu, cuda, cuda:1 ... (default: cuda when available)")
     parser.add_argument("--print-config", action="store_true", help="print the resolved config as YAML and exit")
     parser.set_defaults(func=run)

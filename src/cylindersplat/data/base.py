@@ -66,8 +66,9 @@ class PanoramaDataset(Dataset):
 
     Every frame a sample loads is checked once, cheaply (a median per depth map), and a corrupt or absurd one
     stops with one line naming its file (:meth:`check_frame`): a non-finite or non-rigid pose, a depth file
-    without a single positive pixel (unless the prior allows zeros: ``none``), and (unless ``check_plausibility`` is False) a camera beyond 10 km or a
-    depth file whose median lies outside 1 cm to 1 km (:mod:`cylindersplat.validation`).
+    without a single positive pixel (unless the prior allows zeros: ``none``), and (unless ``check_plausibility``
+    is False) a camera beyond 10 km or a depth file whose median lies outside 1 cm to 1 km
+    (:mod:`cylindersplat.validation`).
     """
 
     dataset_name = "base"
@@ -109,7 +110,8 @@ class PanoramaDataset(Dataset):
 
     # -- shared loading ----------------------------------------------------------------------------
     def load_frame(self, frame: FrameRef) -> tuple[Tensor, Tensor | None]:
-        """One stored panorama at the dataset's resolution: ``(rgb (3, H, W) in [0, 1], depth (H, W) in metres or None)``."""
+        """One stored panorama at the dataset's resolution: ``(rgb (3, H, W) in [0, 1], depth (H, W) in metres or
+        None)``."""
         image = read_rgb(frame.rgb, size=self.resolution, expected=self.stored_size)
         return image, self._read_depth(frame, tuple(image.shape[-2:]))
 

@@ -51,7 +51,8 @@ def lift_to_world(depth: Float[Tensor, "H W"], c2w: Float[Tensor, "4 4"]) -> Flo
 
 
 def reproject(
-    src_depth: Float[Tensor, "H W"], src_c2w: Float[Tensor, "4 4"], dst_c2w: Float[Tensor, "4 4"], dst_size: tuple[int, int]
+    src_depth: Float[Tensor, "H W"], src_c2w: Float[Tensor, "4 4"], dst_c2w: Float[Tensor, "4 4"],
+    dst_size: tuple[int, int]
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Where every source pixel's 3D point lands in a destination panorama of ``dst_size``: pixel
     coordinates ``u, v`` and its distance from the destination camera, each ``(H*W,)``."""

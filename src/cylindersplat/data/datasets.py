@@ -85,7 +85,8 @@ def check_prior_files(dataset: PanoramaDataset, prior, frames: list[FrameRef], o
                                 + prior.missing_help(missing[0].rgb, dataset.data_root))
 
 
-def attach_reference(dataset: PanoramaDataset, reference: str, option: str, targets: list[FrameRef] | None = None) -> None:
+def attach_reference(dataset: PanoramaDataset, reference: str, option: str,
+                     targets: list[FrameRef] | None = None) -> None:
     """Make ``dataset`` deliver the ``reference`` depth of its targets (see the module docstring), or fail now."""
     check_reference_spec(reference, option)
     if reference == "none":
@@ -95,9 +96,9 @@ def attach_reference(dataset: PanoramaDataset, reference: str, option: str, targ
     if reference == "gt":
         lacking = [f for f in targets if f.depth is None]
         if lacking:
-            raise ValueError(f"{option}=gt but {lacking[0].rgb} (and {len(lacking) - 1} more) has no ground-truth depth "
-                             f"({type(dataset).__name__}); choose {option}=prior (the input prior of the target views), "
-                             f"{option}=file:NAME (files from `cylindersplat data priors`) or {option}=none")
+            raise ValueError(f"{option}=gt but {lacking[0].rgb} (and {len(lacking) - 1} more) has no ground-truth "
+                             f"depth ({type(dataset).__name__}); choose {option}=prior (the input prior of the target "
+                             f"views), {option}=file:NAME (files from `cylindersplat data priors`) or {option}=none")
         return
     if reference == "prior":
         prior = dataset.depth_prior

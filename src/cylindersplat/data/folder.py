@@ -22,8 +22,9 @@ or gives only poses, matched to the folder's images in name order::
 Poses are OpenCV camera-to-world (+x right, +y down, +z forward; 3x4 or 4x4) in metres, unless
 ``"convention"`` says ``opengl_c2w``/``blender_c2w`` (+y up, +z back), ``opencv_w2c`` or ``opengl_w2c``. A folder
 with a nerfstudio ``transforms.json`` (``"camera_model": "EQUIRECTANGULAR"``) instead of ``poses.json`` is read
-as well (:mod:`cylindersplat.data.poses`, which owns every pose convention). Every problem (missing/corrupt file, non-2:1 image, count
-mismatch, non-finite or non-rigid pose, depth of the wrong size) raises an error naming the file.
+as well (:mod:`cylindersplat.data.poses`, which owns every pose convention). Every problem (missing/corrupt file,
+non-2:1 image, count mismatch, non-finite or non-rigid pose, depth of the wrong size) raises an error naming the
+file.
 
 :class:`FolderDataset` reads such folders through the machinery every dataset shares
 (:class:`~cylindersplat.data.base.PanoramaDataset`): ``render``/``export``/``view`` (through
@@ -328,7 +329,8 @@ class FolderDataset(PanoramaDataset):
             elif isinstance(target, str) and target in names + short + stems:
                 index = next(k for k in range(n) if target in (names[k], short[k], stems[k]))
             else:
-                raise ValueError(f"{where}: no frame {target!r} to hold out as a target; its frames: {', '.join(short)}")
+                raise ValueError(f"{where}: no frame {target!r} to hold out as a target; its frames: "
+                                 f"{', '.join(short)}")
             held.append(index)
         context = tuple(k for k in range(n) if k not in held)
         if not context:

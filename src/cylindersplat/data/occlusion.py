@@ -109,8 +109,8 @@ def occluded_mask(
         raise ValueError(f"occluded_mask needs target depth (H, W), context depths (V, H, W) and poses (V, 4, 4); got "
                          f"{tuple(target_depth.shape)}, {tuple(context_depths.shape)}, {tuple(context_c2w.shape)}")
     if min(context_window, edge_band) < 0 or rel_tol < 0 or edge_tol <= 0:
-        raise ValueError(f"occluded_mask: context_window and edge_band must be >= 0, rel_tol >= 0 and edge_tol > 0; got "
-                         f"{context_window}, {edge_band}, {rel_tol}, {edge_tol}")
+        raise ValueError("occluded_mask: context_window and edge_band must be >= 0, rel_tol >= 0 and edge_tol > 0; "
+                         f"got {context_window}, {edge_band}, {rel_tol}, {edge_tol}")
     size = tuple(out_size) if out_size is not None else tuple(target_depth.shape)
     if target_depth.shape[0] < decision_height:  # nearest upsampling: the tolerances become sub-pixel
         factor = -(-decision_height // target_depth.shape[0])

@@ -40,7 +40,8 @@ __all__ = ["PanoGRFDataset", "panogrf_c2w", "panogrf_folder_name", "PANOGRF_NAME
 
 PANOGRF_NAMES = ("m3d", "replica", "residential")
 # Any text after "_dist_": PanoGRF's own folders end in a distance (0.5, 1.0, ...), others in e.g. "var".
-_FOLDER = re.compile(r"png_render_(?P<split>\w+?)_(?P<w>\d+)x(?P<h>\d+)_seq_len_(?P<n>\d+)_(?P<name>\w+?)_dist_(?P<d>.+)")
+_FOLDER = re.compile(r"png_render_(?P<split>\w+?)_(?P<w>\d+)x(?P<h>\d+)_seq_len_(?P<n>\d+)"
+                     r"_(?P<name>\w+?)_dist_(?P<d>.+)")
 _HABITAT_TO_OPENCV = np.diag([1.0, -1.0, -1.0])
 
 
@@ -93,8 +94,8 @@ class PanoGRFDataset(PanoramaDataset):
             if stored_size is None:
                 inside = sorted(p.name for p in folder.glob("png_render_*") if _FOLDER.fullmatch(p.name))
                 hint = f" (here: {', '.join(inside[:3])}{' ...' if len(inside) > 3 else ''})" if inside else ""
-                raise ValueError(f"{folder}: not a png_render_{{split}}_{{W}}x{{H}}_seq_len_3_{{name}}_dist_{{d}} folder; "
-                                 f"give that folder itself as --data (data.root){hint}")
+                raise ValueError(f"{folder}: not a png_render_{{split}}_{{W}}x{{H}}_seq_len_3_{{name}}_dist_{{d}} "
+                                 f"folder; give that folder itself as --data (data.root){hint}")
             folder = folder / panogrf_folder_name(split, stored_size, name, dist)
         match = _FOLDER.fullmatch(folder.name)
         if not folder.is_dir():
@@ -131,5 +132,6 @@ class PanoGRFDataset(PanoramaDataset):
             )
             for d in frame_dirs
         ]
-        meta = {"dist": self.dist, "nominal_baseline": None if self.dist is None else 2 * self.dist, "split": self.split}
+        meta = {"dist": self.dist, "nominal_baseline": None if self.dist is None else 2 * self.dist,
+                "split": self.split}
         return ExampleRef(scene, frames, select_views(len(frames), self.views), meta)

@@ -92,7 +92,8 @@ def _stored_depth(frame: FrameRef, expected: tuple[int, int] | None) -> torch.Te
     if Path(frame.depth).suffix.lower() == ".npy":
         depth = read_depth_npy(frame.depth)
         return depth if frame.depth_scale is None else depth / frame.depth_scale
-    return read_depth_png(frame.depth, expected=expected, **({} if frame.depth_scale is None else {"scale": frame.depth_scale}))
+    return read_depth_png(frame.depth, expected=expected,
+                          **({} if frame.depth_scale is None else {"scale": frame.depth_scale}))
 
 
 def occlusion_summary(dataset: PanoramaDataset, count: int = 64) -> dict | None:

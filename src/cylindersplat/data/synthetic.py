@@ -72,8 +72,8 @@ class SyntheticDataset(PanoramaDataset):
         self.scenes = [s for s in listed if (root / s / "meta.json").is_file()]
         if self.scenes and len(self.scenes) < len(listed):  # an interrupted `data synth`: say so, read the rest
             absent = [s for s in listed if s not in self.scenes]
-            warnings.warn(f"{root}: {len(absent)} of {len(listed)} scenes listed in meta.json are missing or incomplete "
-                          f"({', '.join(absent[:3])}{', ...' if len(absent) > 3 else ''}); using the other "
+            warnings.warn(f"{root}: {len(absent)} of {len(listed)} scenes listed in meta.json are missing or "
+                          f"incomplete ({', '.join(absent[:3])}{', ...' if len(absent) > 3 else ''}); using the other "
                           f"{len(self.scenes)} (run data synth again to finish them)", Notice, stacklevel=2)
         if not self.scenes:
             raise ValueError(f"{root}: no complete scenes (each needs <id>/meta.json)")

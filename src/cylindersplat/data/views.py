@@ -81,7 +81,8 @@ def _check_all_between(gap: int, views: int, layout: str) -> None:
     if isinstance(views, bool) or not isinstance(views, int) or views < 2:
         raise ValueError(f"all_between needs an integer number of context views >= 2, got {views!r}")
     if layout == "released" and views > 4:
-        raise ValueError(f"the released layout exists for 2, 3 and 4 context views only, not {views}; use layout spaced")
+        raise ValueError(f"the released layout exists for 2, 3 and 4 context views only, not {views}; use layout "
+                         "spaced")
 
 
 def all_between_span(gap: int, views: int = 2, layout: str = "spaced") -> int:

@@ -152,7 +152,8 @@ def score_views(render, target_images, target_depths, lpips_net=None, depth_rang
 
 def comparison_image(target_rgb, target_depth, renders: dict, labels: bool = True) -> np.ndarray:
     """uint8 grid, one row per source (ground truth first, then each method): RGB | depth colormap; with
-    ``labels``, column titles on top and each row's name above it (:func:`~cylindersplat.utils.picture_grid.picture_grid`)."""
+    ``labels``, column titles on top and each row's name above it
+    (:func:`~cylindersplat.utils.picture_grid.picture_grid`)."""
     near, far = depth_limits(target_depth) if target_depth is not None else (None, None)
     blank = np.zeros_like(to_uint8(target_rgb))
     gt_depth = colorize_depth(target_depth, near, far, as_uint8=True) if target_depth is not None else blank
@@ -191,7 +192,8 @@ def evaluate(
     rows: list[dict] = []
     notes: list[str] = []
     pictures = 0
-    for index in tqdm(range(count), desc="evaluate", unit="example", disable=None if progress else True):  # None: no bar when output is not a terminal
+    # None: no bar when output is not a terminal
+    for index in tqdm(range(count), desc="evaluate", unit="example", disable=None if progress else True):
         sample = dataset[index]
         pcc_depths = None
         if pcc_reference != "gt":

@@ -28,7 +28,8 @@ MIN_OCCLUDED_PIXELS = 16
 def _prepare(pred: Tensor, target: Tensor, mask: Tensor, name: str) -> tuple[Tensor, Tensor]:
     check_image_pair(pred, target, name=name)
     if mask.shape != pred.shape[:-3] + pred.shape[-2:]:
-        raise ValueError(f"{name}: mask {tuple(mask.shape)} does not match images {tuple(pred.shape)} (expected (..., H, W))")
+        raise ValueError(f"{name}: mask {tuple(mask.shape)} does not match images {tuple(pred.shape)} "
+                         "(expected (..., H, W))")
     err = pred.double().clamp(0, 1) - target.double().clamp(0, 1)
     return err, mask.bool()[..., None, :, :].double()
 

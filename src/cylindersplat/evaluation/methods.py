@@ -53,7 +53,8 @@ def reconstruct(model, sample: Sample, device: torch.device | str = "cpu"):
     return reconstruct_gaussians(model, sample.context_images, sample.context_priors, sample.context_poses, device)
 
 
-def model_method(model, name: str = "CylinderSplat", device: torch.device | str = "cpu", background=(0.0, 0.0, 0.0)) -> Method:
+def model_method(model, name: str = "CylinderSplat", device: torch.device | str = "cpu",
+                 background=(0.0, 0.0, 0.0)) -> Method:
     model = model.to(device)
     settings = raster_settings(model.config)
 

@@ -16,7 +16,8 @@ METRIC_COLUMNS = [
     ("abs_rel", "AbsRel ↓", False, "{:.3f}"),
     ("rmse", "RMSE ↓", False, "{:.3f}"),
     ("delta1", "δ1 ↑", True, "{:.3f}"),
-    # the paper's LRCE: the depth seam |d(col 0) - d(col W-1)| against the ground truth's, in metres (metrics.depth.lrce)
+    # the paper's LRCE: the depth seam |d(col 0) - d(col W-1)| against the ground truth's, in metres
+    # (metrics.depth.lrce)
     ("lrce", "LRCE ↓", False, "{:.4f}"),
     ("time_s", "Time (s) ↓", False, "{:.2f}"),
     # On the occluded pixels only: target pixels no input view sees (docs/evaluation.md, "Occluded pixels").

@@ -77,7 +77,8 @@ def load_ply(path: str | Path, device=None, dtype=torch.float32) -> Gaussians:
     except Exception as exc:  # plyfile raises several types for corrupt files
         raise ValueError(f"could not read a 3DGS PLY from {path}: {exc}") from exc
     props = {p.name for p in vertex.properties}
-    required = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    required = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1", "scale_2", "rot_0",
+                "rot_1", "rot_2", "rot_3"]
     missing = [name for name in required if name not in props]
     if missing:
         raise ValueError(f"{path} is not a 3DGS PLY: missing vertex properties {missing}")
@@ -94,14 +95,17 @@ def load_ply(path: str | Path, device=None, dtype=torch.float32) -> Gaussians:
     else:
         sh = f_dc
     fields = {"position (x, y, z)": stack(["x", "y", "z"]), "colour (f_dc_*, f_rest_*)": sh, "opacity": col("opacity"),
-              "scale (scale_*)": stack(["scale_0", "scale_1", "scale_2"]), "rotation (rot_*)": stack(["rot_0", "rot_1", "rot_2", "rot_3"])}
+              "scale (scale_*)": stack(["scale_0", "scale_1", "scale_2"]),
+              "rotation (rot_*)": stack(["rot_0", "rot_1", "rot_2", "rot_3"])}
     for name, values in fields.items():
         bad = ~np.isfinite(values).reshape(n, -1).all(axis=1)
         if bad.any():
-            raise ValueError(f"{path}: {int(bad.sum())} of {n} Gaussians have a non-finite {name}, e.g. vertex {int(np.argmax(bad))}")
+            raise ValueError(f"{path}: {int(bad.sum())} of {n} Gaussians have a non-finite {name}, e.g. vertex "
+                             f"{int(np.argmax(bad))}")
     log_scales = fields["scale (scale_*)"].astype(np.float64)
     if (log_scales > 30).any():  # exp(30) m = 1e13 m: an overflowing or corrupt scale, not a scene
-        raise ValueError(f"{path}: scale_* (log standard deviation) up to {log_scales.max():.3g}; values above 30 are not plausible")
+        raise ValueError(f"{path}: scale_* (log standard deviation) up to {log_scales.max():.3g}; values above 30 are "
+                         "not plausible")
     if n and (np.linalg.norm(fields["rotation (rot_*)"], axis=1) == 0).any():
         raise ValueError(f"{path}: a Gaussian has the zero quaternion as rotation (rot_0..rot_3 all 0)")
     opacity = 1.0 / (1.0 + np.exp(-col("opacity").astype(np.float64)))

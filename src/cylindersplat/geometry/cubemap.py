@@ -34,7 +34,8 @@ def cubemap_rotations(device=None, dtype=torch.float32) -> Tensor:
 def cubemap_intrinsics(face_size: int, device=None, dtype=torch.float32) -> Tensor:
     """Pinhole intrinsics ``K`` (3x3) of a 90-degree face of ``face_size`` pixels."""
     f = face_size / 2.0
-    return torch.tensor([[f, 0.0, face_size / 2.0], [0.0, f, face_size / 2.0], [0.0, 0.0, 1.0]], device=device, dtype=dtype)
+    return torch.tensor([[f, 0.0, face_size / 2.0], [0.0, f, face_size / 2.0], [0.0, 0.0, 1.0]], device=device,
+                        dtype=dtype)
 
 
 def cubemap_face_c2w(c2w: Tensor) -> Tensor:

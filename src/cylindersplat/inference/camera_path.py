@@ -25,7 +25,8 @@ def slerp(q0: Float[Tensor, "4"], q1: Float[Tensor, "4"], t: Float[Tensor, " K"]
     return q / q.norm(dim=-1, keepdim=True)
 
 
-def interpolate_poses(a: Float[Tensor, "4 4"], b: Float[Tensor, "4 4"], t: Float[Tensor, " K"]) -> Float[Tensor, "K 4 4"]:
+def interpolate_poses(a: Float[Tensor, "4 4"], b: Float[Tensor, "4 4"],
+                      t: Float[Tensor, " K"]) -> Float[Tensor, "K 4 4"]:
     """Poses at fractions ``t`` from ``a`` to ``b``: linear centres, slerped rotations."""
     qa, qb = matrix_to_quaternion(a[:3, :3]), matrix_to_quaternion(b[:3, :3])
     out = torch.eye(4, dtype=a.dtype).repeat(len(t), 1, 1)

@@ -42,7 +42,8 @@ def check_video_format(path: str | Path) -> None:
     if suffix not in VIDEO_SUFFIXES:
         raise ValueError(f"{path}: video must be .gif, .mp4, .webm or .mkv")
     if suffix != ".gif" and not ffmpeg_available():
-        raise ValueError(f"cannot write {suffix} videos: no ffmpeg backend; install it with {FFMPEG_HINT}, or write a .gif")
+        raise ValueError(f"cannot write {suffix} videos: no ffmpeg backend; install it with {FFMPEG_HINT}, or write a "
+                         ".gif")
 
 
 def video_path_with_fallback(path: str | Path) -> tuple[Path, str | None]:

@@ -144,7 +144,8 @@ class LPIPS(nn.Module):
 
 
 def _split_state(state: dict[str, Tensor]) -> tuple[dict[str, Tensor], dict[int, Tensor]]:
-    """A flat state dict -> (trunk entries ``"{index}.{weight|bias}"``, heads ``{k: weight}``); other keys are ignored."""
+    """A flat state dict -> (trunk entries ``"{index}.{weight|bias}"``, heads ``{k: weight}``); other keys are
+    ignored."""
     features: dict[str, Tensor] = {}
     lins: dict[int, Tensor] = {}
     for key, value in state.items():
@@ -221,8 +222,8 @@ def _no_weights_message(file: Path | None, need: list[str]) -> str:
         f"no weights file (pass a path or set {LPIPS_WEIGHTS_ENV}=/path/to/lpips_vgg.safetensors: torchvision vgg16 "
         "'features.*' keys + lpips 'lin{k}.model.1.weight' keys)")
     return (f"LPIPS needs local weights: {where}; the linear heads are also taken from the lpips package (pip install "
-            f"lpips; {'found: ' + str(package) if package else 'not installed'}) and the VGG16 trunk from torchvision's "
-            f"cache {trunk} ({'found' if trunk.is_file() else 'missing'}); nothing is downloaded "
+            f"lpips; {'found: ' + str(package) if package else 'not installed'}) and the VGG16 trunk from "
+            f"torchvision's cache {trunk} ({'found' if trunk.is_file() else 'missing'}); nothing is downloaded "
             "(see cylindersplat.metrics.lpips)")
 
 

@@ -36,7 +36,8 @@ def capture_rng() -> dict[str, Any]:
         "torch": torch.get_rng_state(),
         "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
         # numpy's state as plain types so the file loads with torch.load(weights_only=True)
-        "numpy": [np_state[0], torch.from_numpy(np_state[1].copy()), int(np_state[2]), int(np_state[3]), float(np_state[4])],
+        "numpy": [np_state[0], torch.from_numpy(np_state[1].copy()), int(np_state[2]), int(np_state[3]),
+                  float(np_state[4])],
         "python": random.getstate(),
     }
 
@@ -94,7 +95,8 @@ def read_state(folder: Path, map_location: str | torch.device = "cpu") -> dict[s
     except OSError:
         raise
     except Exception as exc:  # noqa: BLE001 - truncated, foreign, random bytes: the unpickler fails in any way
-        raise ValueError(f"{path}: cannot read this training state ({' '.join(str(exc).split())[:200]}); {advice}") from None
+        raise ValueError(f"{path}: cannot read this training state ({' '.join(str(exc).split())[:200]}); "
+                         f"{advice}") from None
     missing = [key for key in STATE_KEYS if key not in state] if isinstance(state, dict) else list(STATE_KEYS)
     if missing:
         raise ValueError(f"{path} is not a training state written by cylindersplat (no {', '.join(missing)}); {advice}")

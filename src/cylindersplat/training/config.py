@@ -295,14 +295,17 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     if cfg.loss.volume_weight < 0:
         raise ValueError(f"loss.volume_weight must be >= 0, got {cfg.loss.volume_weight}")
     if cfg.train.stage2_render not in STAGE2_RENDERS:
-        raise ValueError(f"train.stage2_render must be one of {', '.join(STAGE2_RENDERS)}, got {cfg.train.stage2_render!r}")
+        raise ValueError(f"train.stage2_render must be one of {', '.join(STAGE2_RENDERS)}, got "
+                         f"{cfg.train.stage2_render!r}")
     if not cfg.train.volume_lr_scale > 0:
         raise ValueError(f"train.volume_lr_scale must be > 0, got {cfg.train.volume_lr_scale}")
     if cfg.train.max_nonfinite_steps < 0:
-        raise ValueError(f"train.max_nonfinite_steps must be >= 0 (0 = never give up), got {cfg.train.max_nonfinite_steps}")
+        raise ValueError("train.max_nonfinite_steps must be >= 0 (0 = never give up), got "
+                         f"{cfg.train.max_nonfinite_steps}")
     t, d = cfg.train, cfg.data
     limits = [
-        ("data.batch_size", d.batch_size, 1), ("data.num_workers", d.num_workers, 0), ("train.log_every", t.log_every, 1),
+        ("data.batch_size", d.batch_size, 1), ("data.num_workers", d.num_workers, 0),
+        ("train.log_every", t.log_every, 1),
         ("train.checkpoint_every", t.checkpoint_every, 1), ("train.keep_checkpoints", t.keep_checkpoints, 0),
         ("train.image_every", t.image_every, 0), ("train.warmup_steps", t.warmup_steps, 0),
     ] + [("train.steps_per_stage", n, 0) for n in t.steps_per_stage]
@@ -326,7 +329,8 @@ def _check_ranges(cfg: ExperimentConfig) -> None:
             raise ValueError(f"loss.{f.name} must be >= 0, got {value:g}")
     epochs = cfg.train.epochs_per_stage
     if epochs is not None and (isinstance(epochs, bool) or not isinstance(epochs, (int, float)) or not epochs > 0):
-        raise ValueError(f"train.epochs_per_stage must be a number > 0 (or null to use steps_per_stage), got {epochs!r}")
+        raise ValueError("train.epochs_per_stage must be a number > 0 (or null to use steps_per_stage), got "
+                         f"{epochs!r}")
     size = cfg.data.resolution
     if size is not None and (len(size) != 2 or size[1] != 2 * size[0] or size[0] < 8):
         raise ValueError(f"data.resolution must be [H, W] with W == 2H and H >= 8, e.g. [128, 256]; got {list(size)}")

@@ -87,7 +87,8 @@ class ResumePoint:
     def __init__(self, checkpoint: Path, saved: dict[str, Any], state: dict[str, Any]) -> None:
         self.checkpoint, self.saved = checkpoint, saved
         self.run_folder = checkpoint.parent.parent
-        self.global_step, self.stage_index, self.stage_step = (int(state[k]) for k in ("global_step", "stage_index", "stage_step"))
+        self.global_step, self.stage_index, self.stage_step = (int(state[k])
+                                                               for k in ("global_step", "stage_index", "stage_step"))
         self.saved_stages = [int(s) for s in state["stages"]]
 
     def finished(self, config: ExperimentConfig) -> bool:

@@ -290,7 +290,8 @@ class Trainer:
         tcfg = self.config.train
         if self.dist.is_main:
             self.output_dir.mkdir(parents=True, exist_ok=True)
-            atomic_write_text(self.output_dir / "config.yaml", yaml.safe_dump(config_as_dict(self.config), sort_keys=False))
+            atomic_write_text(self.output_dir / "config.yaml",
+                              yaml.safe_dump(config_as_dict(self.config), sort_keys=False))
         history: list[dict[str, float]] = []
         step_times: list[float] = []
         budget = max_steps
@@ -322,7 +323,8 @@ class Trainer:
                         self.logger.log(self.global_step, {f"train/{k}": v for k, v in parts.items()}, stage=self.stage)
                     if tcfg.image_every > 0 and self.global_step % tcfg.image_every == 0:
                         self.log_images()
-                    if tcfg.checkpoint_every > 0 and self.global_step % tcfg.checkpoint_every == 0 and self.stage_step < total:
+                    checkpoint_due = tcfg.checkpoint_every > 0 and self.global_step % tcfg.checkpoint_every == 0
+                    if checkpoint_due and self.stage_step < total:
                         self.save_checkpoint()
                     self._rng_after_step = capture_rng()
                 bar.close()

@@ -1,6 +1,7 @@
 """JSON files in and out. In: :func:`read_json_file`, every input JSON file's reader (one line for a missing,
-undecodable or absurdly nested file instead of a traceback). Out: strict JSON text for result files: ``json.dumps`` writes ``inf`` / ``nan`` as ``Infinity`` / ``NaN``,
-which most JSON parsers (JavaScript, jq, Go, ...) refuse. Result files write them as ``null`` instead;
+undecodable or absurdly nested file instead of a traceback). Out: strict JSON text for result files:
+``json.dumps`` writes ``inf`` / ``nan`` as ``Infinity`` / ``NaN``, which most JSON parsers (JavaScript, jq, Go, ...)
+refuse. Result files write them as ``null`` instead;
 where a value is infinite on purpose (a PSNR of a render equal to its target) the file's notes say so."""
 
 from __future__ import annotations
@@ -41,4 +42,5 @@ def read_json_file(path, what: str = "file") -> Any:
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
     except RecursionError:
-        raise ValueError(f"{path}: JSON nested too deeply to read (thousands of levels); is it the right file?") from None
+        raise ValueError(f"{path}: JSON nested too deeply to read (thousands of levels); is it the right "
+                         "file?") from None

@@ -56,7 +56,8 @@ class Progress:
                 self._bar.set_postfix_str(note)
         elif any(before < mark <= self.done for mark in self._marks):
             extra = f", {note}" if note else ""
-            print(f"{self.desc}: {self.done}/{self.total} {self.unit}s ({time.perf_counter() - self._start:.1f} s{extra})",
+            print(f"{self.desc}: {self.done}/{self.total} {self.unit}s "
+                  f"({time.perf_counter() - self._start:.1f} s{extra})",
                   file=self.stream, flush=True)
 
     def close(self) -> None:

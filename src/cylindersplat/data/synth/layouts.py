@@ -13,7 +13,8 @@ import torch
 from .materials import PATTERNS, Lighting, Material, Sky
 from .scene import SceneBuilder, SynthScene
 
-__all__ = ["LAYOUTS", "OCCLUDER_KINDS", "random_material", "indoor_scene", "outdoor_scene", "random_scene", "add_occluders"]
+__all__ = ["LAYOUTS", "OCCLUDER_KINDS", "random_material", "indoor_scene", "outdoor_scene", "random_scene",
+           "add_occluders"]
 
 LAYOUTS = ("room", "l_shape", "two_rooms", "outdoor")
 WALL = 0.2  # slab thickness (m)
@@ -24,7 +25,8 @@ def _palette(rng: np.random.Generator, value=(0.35, 0.95), saturation=(0.05, 0.7
     h = rng.uniform()
     s, v = rng.uniform(*saturation), rng.uniform(*value)
     a = colorsys.hsv_to_rgb(h, s, v)
-    b = colorsys.hsv_to_rgb((h + rng.uniform(-0.15, 0.15)) % 1.0, min(1.0, s * rng.uniform(0.6, 1.5)), v * rng.uniform(0.4, 0.8))
+    b = colorsys.hsv_to_rgb((h + rng.uniform(-0.15, 0.15)) % 1.0, min(1.0, s * rng.uniform(0.6, 1.5)),
+                            v * rng.uniform(0.4, 0.8))
     return tuple(float(x) for x in a), tuple(float(x) for x in b)
 
 
@@ -78,12 +80,14 @@ def _non_manhattan(b: SceneBuilder, rng, region, ceiling: float | None) -> None:
     x0, x1, z0, z1 = region
     for _ in range(rng.integers(0, 3)):
         r = rng.uniform(0.15, 0.5)
-        b.sphere((rng.uniform(x0 + r, x1 - r), -r - rng.choice([0.0, rng.uniform(0, 0.8)]), rng.uniform(z0 + r, z1 - r)),
+        b.sphere((rng.uniform(x0 + r, x1 - r), -r - rng.choice([0.0, rng.uniform(0, 0.8)]),
+                  rng.uniform(z0 + r, z1 - r)),
                  r, b.material(random_material(rng)))
     for _ in range(rng.integers(0, 3)):
         r = rng.uniform(0.1, 0.4)
         top = ceiling if (ceiling is not None and rng.uniform() < 0.5) else -rng.uniform(0.4, 1.2)
-        b.cylinder(rng.uniform(x0 + r, x1 - r), rng.uniform(z0 + r, z1 - r), r, top, 0.0, b.material(random_material(rng)))
+        b.cylinder(rng.uniform(x0 + r, x1 - r), rng.uniform(z0 + r, z1 - r), r, top, 0.0,
+                   b.material(random_material(rng)))
     if rng.uniform() < 0.7:
         w, length, tilt = rng.uniform(0.5, 1.5), rng.uniform(1.0, 2.2), rng.uniform(0.2, 1.2)
         yaw = rng.uniform(0, 2 * np.pi)
@@ -157,7 +161,8 @@ def outdoor_scene(rng: np.random.Generator) -> SynthScene:
     """Open ground plane, sky gradient (depth 0), scattered buildings, trees, poles, rocks."""
     b = SceneBuilder()
     extent = 40.0
-    ground = b.material(random_material(rng, patterns=("noise", "checker", "tiles"), scale=(0.3, 2.0), value=(0.3, 0.7)))
+    ground = b.material(random_material(rng, patterns=("noise", "checker", "tiles"), scale=(0.3, 2.0),
+                                        value=(0.3, 0.7)))
     b.box((-extent, 0.0, -extent), (extent, 0.5, extent), ground)
     for _ in range(rng.integers(6, 16)):
         dist, az = rng.uniform(2.5, 25.0), rng.uniform(0, 2 * np.pi)
@@ -304,7 +309,8 @@ def add_occluders(scene: SynthScene, rng: np.random.Generator, path: np.ndarray,
             gx = np.linspace(cx - hx, cx + hx, max(2, int(np.ceil(2 * hx / 0.2)) + 1))
             gz = np.linspace(cz - hz, cz + hz, max(2, int(np.ceil(2 * hz / 0.2)) + 1))
             gy = np.linspace(-0.1, -h + 0.1, max(2, int(np.ceil(h / 0.3)) + 1))
-            grid = torch.tensor(np.stack(np.meshgrid(gx, gy, gz, indexing="ij"), -1).reshape(-1, 3), dtype=torch.float32)
+            grid = torch.tensor(np.stack(np.meshgrid(gx, gy, gz, indexing="ij"), -1).reshape(-1, 3),
+                                dtype=torch.float32)
             if not bool(scene.clearance_ok(grid, 0.03).all()):
                 continue
             scene = scene.extended(b)

@@ -52,7 +52,8 @@ class SynthScene:
     doorways: tuple[tuple[float, float, float, float], ...] = ()  # (x, z, normal_x, normal_z): centre, through-axis
     floor_y: float = 0.0
     ceiling_y: float | None = None
-    noise_table: Tensor = field(default_factory=lambda: torch.rand(32, 32, 32, generator=torch.Generator().manual_seed(0)))
+    noise_table: Tensor = field(default_factory=lambda: torch.rand(32, 32, 32,
+                                                                   generator=torch.Generator().manual_seed(0)))
     lighting: Lighting = Lighting()
 
     def num_primitives(self) -> int:

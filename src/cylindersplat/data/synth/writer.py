@@ -42,7 +42,8 @@ def config_record(cfg: SequenceConfig) -> dict:
     record = asdict(cfg)
     defaults = {f.name: f.default for f in fields(SequenceConfig)}
     for name in _LATER_FIELDS:
-        if record[name] == defaults[name] or (isinstance(record[name], tuple) and record[name] == tuple(defaults[name])):
+        if record[name] == defaults[name] or (isinstance(record[name], tuple)
+                                              and record[name] == tuple(defaults[name])):
             del record[name]
     return record
 
@@ -62,7 +63,8 @@ def _check_same_settings(meta_path: Path, settings: dict) -> None:
     labels = {"format": "format", "seed": "--seed", "resolution": "--resolution", "config": "generator settings"}
     differ = [label for key, label in labels.items() if old.get(key) != settings[key]]
     if differ:
-        shown = {"seed": lambda v: str(v), "resolution": lambda v: "x".join(map(str, v)) if isinstance(v, list) else repr(v)}
+        shown = {"seed": lambda v: str(v),
+                 "resolution": lambda v: "x".join(map(str, v)) if isinstance(v, list) else repr(v)}
         said = "; ".join(f"{label} {shown[key](old.get(key))} there, {shown[key](settings[key])} now" if key in shown
                          else f"other {label}" for key, label in labels.items() if label in differ)
         raise ValueError(f"{meta_path.parent} already holds a synthetic dataset made with other settings ({said}); "
@@ -91,7 +93,8 @@ def write_synthetic_dataset(
     out.mkdir(parents=True, exist_ok=True)
     remove_temporaries(out)  # left by a killed run
     atomic_write_text(out / "meta.json", json.dumps(settings, indent=1))
-    for index in tqdm(range(scenes), desc="synth scenes", unit="scene", disable=None if progress else True):  # None: no bar when output is not a terminal
+    # None: no bar when output is not a terminal
+    for index in tqdm(range(scenes), desc="synth scenes", unit="scene", disable=None if progress else True):
         folder = out / ids[index]
         if (folder / "meta.json").is_file():
             continue
@@ -101,7 +104,8 @@ def write_synthetic_dataset(
         for k, name in enumerate(names):
             write_rgb(folder / name / "rgb.png", rgb[k])
             write_depth_png(folder / name / "depth.png", depth[k])
-        atomic_write_text(folder / "poses.json", json.dumps({n: p.tolist() for n, p in zip(names, seq.poses)}, indent=1))
+        atomic_write_text(folder / "poses.json",
+                          json.dumps({n: p.tolist() for n, p in zip(names, seq.poses)}, indent=1))
         meta = {
             "scene": ids[index], "index": index, "seed": seed, "kind": seq.scene.kind,
             "spacing": seq.spacing, "frames": names, "resolution": [height, width],
@@ -109,5 +113,6 @@ def write_synthetic_dataset(
         }
         if cfg.target_offset[1] > 0:  # metres the middle frame stands off the first-last line
             meta["target_offset"] = round(target_offset(seq.poses), 4)
-        atomic_write_text(folder / "meta.json", json.dumps(meta, indent=1))  # last, whole or not at all: marks the scene done
+        # last, whole or not at all: marks the scene done
+        atomic_write_text(folder / "meta.json", json.dumps(meta, indent=1))
     return out
