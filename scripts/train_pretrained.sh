@@ -4,7 +4,8 @@
 # held-out scenes stay unseen), 1200 / 400 / 400 steps of stages 1 / 2 / 3 with the tiny preset (issue 23's
 # recipe), except that stage 3 leaves the volume branch's own render loss out and runs at lr 5e-4: with it, the
 # retrained weights lost 1.5 dB on the real Matterport3D example and gained nothing on the procedural scenes
-# (benchmarks/RESULTS.md, "Volume branch, second attempt", item 6). ~75 min on 2 shared CPU cores.
+# (benchmarks/RESULTS.md, "Volume branch, second attempt", item 6). ~75 min on 2 shared CPU cores. The weights are
+# then drawn with recipes/tiny_sharp (issue 34: sharp as a forward warp; benchmarks/RESULTS.md, "Sharp as a warp").
 #   bash scripts/train_pretrained.sh [OUT]          (default outputs/pretrained)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,5 +22,17 @@ cylindersplat train --config tiny --data "$OUT/data" --out "$OUT/stages12" --ove
 cylindersplat train --config tiny --data "$OUT/data" --out "$OUT/stage3" --overwrite \
   --init "$OUT/stages12/model.safetensors" train.stages=[3] train.steps_per_stage=[400] train.lr=5e-4 \
   loss.volume_weight=0 "${COMMON[@]}"
-cp "$OUT/stage3/model.safetensors" src/cylindersplat/weights/tiny_synth.safetensors
+# Issue 34: the same weights, drawn as configs/recipes/tiny_sharp.yaml says (four switches that change no parameter:
+# no dilation, pixel Gaussians flat on their pixel's surface patch, opaque, a valid prior's depth kept)
+"$PYTHON" - "$OUT/stage3/model.safetensors" src/cylindersplat/weights/tiny_synth.safetensors <<'PY'
+import sys
+
+from cylindersplat.model import CylinderSplat
+from cylindersplat.model.checkpoint import load_model, save_model
+from cylindersplat.training import load_config
+
+sharp = CylinderSplat(load_config("recipes/tiny_sharp").model)
+sharp.load_state_dict(load_model(sys.argv[1]).state_dict())
+save_model(sharp.set_mode("both"), sys.argv[2])
+PY
 echo "shipped weights updated: src/cylindersplat/weights/tiny_synth.safetensors (logs: $OUT/stages12, $OUT/stage3)"

@@ -2,8 +2,11 @@
 
     python studies/sharp_variants.py --data <pano_grf fixture> --out studies/results/sharp_variants_fixture.json
 
-Rows: FW + inpaint (the bar), and the shipped tiny-synth weights with the switches of docs/model.md ("Sharp pixel
-Gaussians") turned on one at a time; columns per protocol, size and prior: WS-PSNR all / occluded, SSIM.
+Rows: FW + inpaint (the bar), and the tiny-synth weights drawn with the switches of docs/model.md ("Sharp pixel
+Gaussians") turned on one at a time (``--variants``; ``tiny_sharp`` is the shipped drawing, ``tiny (the paper's
+drawing)`` the same weights drawn as the paper does), their pixel branches with a fill behind (``--pixel-rows``);
+per protocol, size and prior (``--priors``: gt, degraded:KIND, constant:M, default): WS-PSNR all / occluded, SSIM,
+AbsRel. Results are appended to ``--out`` (settings already there are skipped).
 """
 
 from __future__ import annotations
@@ -20,6 +23,10 @@ from cylindersplat.evaluation.evaluate import evaluate
 from cylindersplat.evaluation.methods import Method, forward_warp_method, model_method, with_fill
 from cylindersplat.model.pretrained import from_pretrained
 
+SHARP = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5, "pixel.opacity": "opaque"}
+# the shipped weights' drawing: configs/recipes/tiny_sharp.yaml
+RECIPE = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5, "pixel.opacity": "opaque",
+          "pixel.refine_depth": "where_missing"}
 VARIANTS = {
     "shipped": {},
     "dilation 0": {"render_dilation": 0.0},
@@ -33,6 +40,10 @@ VARIANTS = {
     "surface 0.5 + opaque + no refinement": {"render_dilation": 0.0, "pixel.footprint": "surface",
                                            "pixel.footprint_px": 0.5, "pixel.opacity": "opaque",
                                            "pixel.max_log_depth_offset": 0.0},
+    "sharp": SHARP,
+    "sharp + measured depth kept": {**SHARP, "pixel.refine_depth": "where_missing"},
+    "tiny_sharp": RECIPE,
+    "tiny (the paper's drawing)": "paper",
 }
 
 
@@ -45,10 +56,15 @@ def main() -> None:
     p.add_argument("--priors", default="gt,degraded:mono")
     p.add_argument("--variants", default=",".join(VARIANTS))
     p.add_argument("--checkpoint", default="tiny-synth")
+    p.add_argument("--scenes", default=None, help="synthetic data: comma list of scene ids")
+    p.add_argument("--pixel-rows", default="", help="variants whose pixel branch + inpaint fill gets a row too")
     p.add_argument("--out", required=True)
     args = p.parse_args()
     base = from_pretrained(args.checkpoint)
-    models = {name: base.with_config(**VARIANTS[name]) for name in args.variants.split(",")}
+    paper = {"render_dilation": 0.3, "pixel.footprint": "learned", "pixel.opacity": "learned",
+             "pixel.refine_depth": "everywhere"}
+    models = {name: base.with_config(**(paper if VARIANTS[name] == "paper" else VARIANTS[name]))
+              for name in args.variants.split(",")}
     results = {}
     out = Path(args.out)
     if out.exists():
@@ -60,9 +76,14 @@ def main() -> None:
                 if key in results:
                     continue
                 start = time.time()
-                dataset = make_dataset(args.format, args.data, views=protocol, resolution=(h, 2 * h), depth_prior=prior)
+                options = {"scenes": args.scenes.split(",")} if args.scenes else {}
+                dataset = make_dataset(args.format, args.data, views=protocol, resolution=(h, 2 * h), depth_prior=prior,
+                                       **options)
                 methods = [with_fill(forward_warp_method(), "inpaint", "FW + inpaint")]
                 methods += [model_method(m, name) for name, m in models.items()]
+                for name in filter(None, args.pixel_rows.split(",")):
+                    pixel_only = model_method(models[name].with_config().set_mode("pixel"), name)
+                    methods += [with_fill(pixel_only, fill, f"{name}: pixel branch + {fill}") for fill in ("inpaint", "mean")]
                 res = evaluate(dataset, methods, progress=False)
                 results[key] = {m: {k: res.means[m].get(k) for k in ("ws_psnr", "ws_psnr_occluded", "ssim", "abs_rel")}
                                 for m in res.means}

@@ -24,12 +24,17 @@ def test_every_listed_model_ships_and_loads():
         assert all(torch.isfinite(p).all() for p in model.parameters())
 
 
-def test_shipped_weights_have_the_tiny_presets_model():
+def test_shipped_weights_have_the_tiny_sharp_recipes_model():
     """The shipped file is the tiny training preset's model (issue 23's recipe: surface colour, pixel clearing,
-    rescaled priors, 8x32x16 cells), as scripts/train_pretrained.sh trains it."""
+    rescaled priors, 8x32x16 cells), as scripts/train_pretrained.sh trains it, drawn with recipes/tiny_sharp (issue
+    34: switches that change no parameter)."""
     from cylindersplat.training import load_config
 
-    assert from_pretrained(DEFAULT_PRETRAINED).config == load_config("tiny").model
+    shipped = from_pretrained(DEFAULT_PRETRAINED).config
+    assert shipped == load_config("recipes/tiny_sharp").model
+    sharp = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5,
+             "pixel.opacity": "opaque", "pixel.refine_depth": "where_missing"}
+    assert load_config("tiny").model.replace(**sharp) == shipped
 
 
 def test_from_pretrained_takes_a_file_or_a_run_folder(tmp_path):
@@ -50,8 +55,11 @@ def test_shipped_weights_are_trained(tmp_path):
     write_synthetic_dataset(tmp_path, 2, (64, 128), profile_config("occlusion"), seed=7)
     dataset = SyntheticDataset(tmp_path, views="two_view")
     torch.manual_seed(0)
-    methods = [model_method(from_pretrained(DEFAULT_PRETRAINED), "shipped"),
-               model_method(from_config(from_pretrained(DEFAULT_PRETRAINED).config).eval(), "untrained")]
+    # both drawn as the paper draws them: with the shipped drawing an untrained pixel branch is already a sharp warp
+    paper = {"render_dilation": 0.3, "pixel.footprint": "learned", "pixel.opacity": "learned",
+             "pixel.refine_depth": "everywhere"}
+    shipped = from_pretrained(DEFAULT_PRETRAINED).with_config(**paper)
+    methods = [model_method(shipped, "shipped"), model_method(from_config(shipped.config).eval(), "untrained")]
     means = evaluate(dataset, methods, depth_range=DepthRange(0.05, 1000.0), progress=False).means
     # An untrained pixel branch already splats the input pixels at the prior's depth (a forward warp, 18.8 dB
     # here); training adds 1.7 dB on the images and cuts the depth error (AbsRel) by 40 %.
