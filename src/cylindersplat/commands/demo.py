@@ -215,6 +215,7 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
         write_panorama_folder,
         write_view,
     )
+    from ..inference.pipeline import raster_settings
     from ..model import load_model
     from ..utils.atomic import atomic_path
 
@@ -230,7 +231,8 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
     model = load_model(checkpoint, map_location=args.device)
     gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, min_opacity=0.005)
     h, w = args.resolution
-    ours = render_views(gaussians, sample.target_poses, h, w)
+    settings = raster_settings(model.config)  # the model's own drawing (its render_dilation)
+    ours = render_views(gaussians, sample.target_poses, h, w, settings=settings)
     warp = forward_warp(sample.context_images, sample.context_priors, sample.context_poses, sample.target_poses, h, w,
                         background=(0.0, 0.0, 0.0))
     near, far = depth_limits(sample.target_depths)
@@ -248,7 +250,7 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
           f"RGB | depth) -> {args.out / 'comparison.png'}")
     if args.frames:
         video = write_flythrough(args.out / "flythrough.gif", gaussians, inputs.c2w, h, w, frames=args.frames, fps=8,
-                                 near=near, far=far)
+                                 near=near, far=far, settings=settings)
         print(f"  fly-through -> {video}")
 
 

@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     from ..data.poses import PoseRecord, write_poses_json
     from ..gaussians import save_ply
     from ..inference import depth_limits, flythrough_path, midpoint_poses, read_poses_file, write_flythrough, write_view
-    from ..inference.pipeline import iter_views, sampled_depth_limits, write_metric_depth
+    from ..inference.pipeline import iter_views, raster_settings, sampled_depth_limits, write_metric_depth
     from ..inference.video import video_path_with_fallback
 
     if args.frames < 0:
@@ -147,9 +147,10 @@ def run(args: argparse.Namespace) -> int:
 
         gaussians = load_gaussians(args.ply, device=args.device)  # the loader of `view`: every splat format
         print(f"loaded {len(gaussians):,} Gaussians from {args.ply}")
-        inputs = None
+        inputs, settings = None, None  # a splat file is drawn as 3DGS draws it
     else:
-        inputs, gaussians, _ = reconstruct_from_args(args)
+        inputs, gaussians, model = reconstruct_from_args(args)
+        settings = raster_settings(model.config)  # the model's own drawing (its render_dilation)
     h, w = _size(args, inputs.size[0] if inputs is not None else PLY_DEFAULT_HEIGHT)
     camera = _camera(args, h, w)
     record = camera_record(camera, args.fov if args.camera == "pinhole" else None)
@@ -173,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
             view_dir.mkdir(exist_ok=True)
             records, index, covered = [], 0, 0
             for out in iter_views(gaussians, view_poses, h, w, background, args.view_batch, progress=True,
-                                  desc="novel views", camera=camera):
+                                  desc="novel views", camera=camera, settings=settings):
                 covered += int((out.alpha > 0.5).sum())
                 for k in range(len(out.rgb)):  # written as rendered: memory holds one chunk of views
                     stem = f"view_{index:03d}"
@@ -204,7 +205,8 @@ def run(args: argparse.Namespace) -> int:
             else:
                 frames = flythrough_path(keys, args.frames) @ turn
             written = write_flythrough(video, gaussians, None, h, w, fps=args.fps, near=near, far=far,
-                                       background=background, camera=camera, poses=frames, chunk=args.view_batch)
+                                       background=background, camera=camera, poses=frames, chunk=args.view_batch,
+                                       settings=settings)
             poses_file = write_poses_json(args.out / "flythrough_poses.json", [PoseRecord(None, p) for p in frames],
                                           fps=args.fps, camera=record)
             said.append(f"wrote {written} ({len(frames)} frames, RGB above depth) and {poses_file.name}")

@@ -245,18 +245,19 @@ def write_flythrough(
     poses: Float[Tensor, "K 4 4"] | None = None,
     chunk: int | None = 2,
     progress: bool = True,
+    settings: RasterSettings | None = None,
 ) -> Path:
     """Render a looped path of ``frames`` poses through the cameras ``c2w`` (or exactly the poses ``poses``,
     one frame each) as RGB above depth and stream the frames into a video (``.gif``, or ``.mp4``/``.webm``
     with ffmpeg): ``chunk`` frames are rendered at a time (None: automatic, see :func:`iter_views`) and written
     at once, so memory never holds the whole video. ``camera``: default panoramas, or e.g.
-    ``Pinhole(K, height, width)`` for a perspective fly-through. Returns the video's path; nothing is left at
-    ``path`` if rendering or writing fails."""
+    ``Pinhole(K, height, width)`` for a perspective fly-through; ``settings``: the rasterizer's constants (a model's
+    :func:`raster_settings`). Returns the video's path; nothing is left at ``path`` if rendering or writing fails."""
     if poses is None:
         poses = flythrough_path(c2w, frames, loop=True)
     with VideoWriter(path, fps) as video:
         for out in iter_views(gaussians, poses, height, width, background, chunk, progress, "fly-through", camera,
-                              "frame"):
+                              "frame", settings):
             for i in range(len(out.rgb)):
                 video.append(view_picture(out.rgb[i], out.depth[i], out.alpha[i], near, far))
     return video.path
