@@ -42,7 +42,8 @@ RULES = [
 ]
 
 
-def knn_colours(points: torch.Tensor, images: torch.Tensor, depth: torch.Tensor, c2w: torch.Tensor, k: int) -> torch.Tensor:
+def knn_colours(points: torch.Tensor, images: torch.Tensor, depth: torch.Tensor, c2w: torch.Tensor,
+                k: int) -> torch.Tensor:
     """Mean colour of the ``k`` observed 3D points (every context pixel lifted with its depth) nearest each point."""
     _, v, _, h, w = images.shape
     rays = equirect_rays(h, w, dtype=points.dtype)

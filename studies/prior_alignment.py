@@ -22,7 +22,8 @@ import torch
 
 from cylindersplat.model.prior_alignment import photometric_prior_scales
 
-FIXTURE = Path(__file__).resolve().parents[1] / ".." / "shared/fixtures/pano_grf/png_render_test_1024x512_seq_len_3_m3d_dist_0.5"
+FIXTURE = (Path(__file__).resolve().parents[1] / ".." / "shared/fixtures/pano_grf"
+           / "png_render_test_1024x512_seq_len_3_m3d_dist_0.5")
 KNOWN_ERRORS = ([1.0, 1.0], [0.8, 1.25], [0.6, 1.5], [1.3, 0.9], [0.5, 2.0])
 
 

@@ -44,7 +44,8 @@ report = run_study({data!r}, {out!r}, variant, seeds=({seed},), schedule=Schedul
 metrics = report["variants"][{variant!r}]["metrics"]
 weights = open({out!r} + "/runs/{variant}/seed{seed}/model.safetensors", "rb").read()
 print(json.dumps({{"sha256": hashlib.sha256(weights).hexdigest(),
-                  **{{k: metrics[k]["seeds"][0] for k in ("ws_psnr", "ssim", "abs_rel", "ws_psnr_occluded", "train_s")}}}}))
+                  **{{k: metrics[k]["seeds"][0]
+                     for k in ("ws_psnr", "ssim", "abs_rel", "ws_psnr_occluded", "train_s")}}}}))
 """
     start = time.perf_counter()
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -38,12 +38,14 @@ FRAMES = ("00", "01", "02")
 def true_poses(fixture: Path) -> np.ndarray:
     from cylindersplat.data.pano_grf import panogrf_c2w
 
-    return np.stack([panogrf_c2w(np.loadtxt(fixture / f / "rot.txt"), np.loadtxt(fixture / f / "tran.txt")).double().numpy()
+    return np.stack([panogrf_c2w(np.loadtxt(fixture / f / "rot.txt"),
+                                 np.loadtxt(fixture / f / "tran.txt")).double().numpy()
                      for f in FRAMES])
 
 
 def make_folder(fixture: Path, folder: Path, depth: str) -> None:
-    """Panoramas ``pano_NN.png``; ``depth``: ``files`` (``pano_NN_depth.png``), ``blur`` (``priors/blur/``) or ``none``."""
+    """Panoramas ``pano_NN.png``; ``depth``: ``files`` (``pano_NN_depth.png``), ``blur`` (``priors/blur/``) or
+    ``none``."""
     from PIL import Image
     from scipy.ndimage import gaussian_filter
 
@@ -159,7 +161,8 @@ def main() -> None:
 
     result["render"] = {
         "model": "tiny-synth (shipped)", "resolution": f"{size[0]}x{size[1]}", "inputs": "pano_00, pano_02",
-        "target": "pano_01 (real)", "ws_psnr_true_poses": round(psnr_true, 3), "ws_psnr_recovered_poses": round(psnr_sfm, 3),
+        "target": "pano_01 (real)", "ws_psnr_true_poses": round(psnr_true, 3),
+        "ws_psnr_recovered_poses": round(psnr_sfm, 3),
         "difference_db": round(psnr_sfm - psnr_true, 3),
         "ws_psnr_recovered_vs_true_render": round(float(ws_psnr(rgb_sfm, rgb_true)), 3),
     }

@@ -17,9 +17,9 @@ by side): volume only and full with finer triplane grids on 200 scenes (session 
 one seed. ``decoded_colour_at_scale`` (session 9, about 20 min): the same volume-only run with colours decoded
 from the triplane instead of retrieved from the inputs.
 
-Unless a suite says otherwise, every variant trains the tiny model for 600 steps (300 / 150 / 150 over the stages it runs) on 20
-procedural scenes of the occlusion profile at 64x128 and is scored on the same 8 held-out scenes,
-all pixels and pixels no input view sees.
+Unless a suite says otherwise, every variant trains the tiny model for 600 steps (300 / 150 / 150 over the stages it
+runs) on 20 procedural scenes of the occlusion profile at 64x128 and is scored on the same 8 held-out scenes, all
+pixels and pixels no input view sees.
 """
 
 import argparse
@@ -52,12 +52,15 @@ PAPER = VOLUME_ONLY  # the paper's recipe on the tiny model: concatenated Gaussi
 RECIPES = [
     Variant("pixel_only", "pixel branch only", PAPER, kind="pixel"),
     Variant("paper_recipe", "concat fusion, volume-only stage 2", PAPER),
-    Variant("own_view_fusion", "depth_prune side=front", ("model.fusion.strategy=depth_prune", "model.fusion.side=front",
+    Variant("own_view_fusion", "depth_prune side=front",
+            ("model.fusion.strategy=depth_prune", "model.fusion.side=front",
                                                           "train.stage2_render=volume")),
     Variant("hidden_fusion", "depth_prune side=hidden", ("train.stage2_render=volume",)),
     Variant("hidden_fusion_fused_stage2", "the tiny preset's recipe", ()),
-    Variant("fine_grid_own_view_fusion", "grid 8x32x16", ("model.volume.grid=[8,32,16]", "model.volume.image_grid=[4,16,8]",
-                                                          "model.fusion.strategy=depth_prune", "model.fusion.side=front",
+    Variant("fine_grid_own_view_fusion", "grid 8x32x16",
+            ("model.volume.grid=[8,32,16]", "model.volume.image_grid=[4,16,8]",
+                                                          "model.fusion.strategy=depth_prune",
+             "model.fusion.side=front",
                                                           "train.stage2_render=volume")),
     Variant("recipe_occluded_weight_4", "the recipe + loss.occluded_weight=4", ("loss.occluded_weight=4",)),
 ]
@@ -115,7 +118,8 @@ def scores(model, dataset) -> str:
 
 
 def branches(weights: Path, dataset) -> str:
-    return "; ".join(f"{mode} {scores(load_model(weights).set_mode(mode), dataset)}" for mode in ("pixel", "volume", "both"))
+    return "; ".join(f"{mode} {scores(load_model(weights).set_mode(mode), dataset)}"
+                     for mode in ("pixel", "volume", "both"))
 
 
 def test_time_fusion(weights: Path, dataset) -> list[str]:
@@ -134,7 +138,8 @@ def branch_coverage(weights: Path, dataset) -> dict[str, float]:
     model = load_model(weights)
     acc: dict[str, list[float]] = {}
     for sample in dataset:
-        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths, sample.context_poses)
+        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths,
+                             sample.context_poses)
         if not mask.any():
             continue
         h, w = sample.target_images.shape[-2:]
@@ -144,7 +149,8 @@ def branch_coverage(weights: Path, dataset) -> dict[str, float]:
             out = render_views(reconstruct(model.set_mode(mode), sample), sample.target_poses, h, w, (0, 0, 0))
             rgb, alpha = out.rgb[0].double(), out.alpha[0].double()
             painted = weight * (alpha > 0.3)
-            for key, image, wt in ((f"{mode} WS-PSNR", rgb, weight), (f"{mode} colour WS-PSNR", rgb / alpha.clamp_min(1e-3), painted)):
+            for key, image, wt in ((f"{mode} WS-PSNR", rgb, weight),
+                                   (f"{mode} colour WS-PSNR", rgb / alpha.clamp_min(1e-3), painted)):
                 if wt.sum() > 0:
                     mse = float((((image.clamp(0, 1) - truth) ** 2).mean(0) * wt).sum() / wt.sum())
                     acc.setdefault(key, []).append(-10 * np.log10(mse))
@@ -159,7 +165,8 @@ def oracle_mean_fill(dataset, regions: str = "target") -> float:
     Oracles that know what colour hidden regions have on average but nothing of their texture."""
     values = []
     for sample in dataset:
-        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths, sample.context_poses)
+        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths,
+                             sample.context_poses)
         if not mask.any():
             continue
         truth = sample.target_images[0].double().numpy()
@@ -183,7 +190,8 @@ def completion_figure(checkpoints: dict[str, Path], dataset, path: Path, example
     rows = []
     for index in range(min(examples, len(dataset))):
         sample = dataset[index]
-        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths, sample.context_poses)
+        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths,
+                             sample.context_poses)
         h, w = sample.target_images.shape[-2:]
         def highlight(tile):  # visible pixels: half-bright grey; occluded pixels: as rendered
             return torch.where(mask, tile, tile.mean(0, keepdim=True) * 0.5)
@@ -204,7 +212,8 @@ def nearest_visible_fill(dataset) -> float:
     visible one: what copying the surroundings (a 2D inpainting with perfect neighbours) would score."""
     values = []
     for sample in dataset:
-        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths, sample.context_poses)
+        mask = occluded_mask(sample.target_depths[0], sample.target_poses[0], sample.context_gt_depths,
+                             sample.context_poses)
         if not mask.any():
             continue
         truth = sample.target_images[0].double().numpy()
@@ -349,7 +358,8 @@ def decoded_colour_at_scale(out: Path) -> None:
 def ceilings(out: Path) -> None:
     """What copying the surroundings, or knowing the hidden regions' mean colours, scores on occluded pixels."""
     for label, data in (("study data", ensure_dataset(out / "data", profile_config("occlusion"))),
-                        ("wide holes", ensure_dataset(out / "data_wide_holes", profile_config("occlusion", **WIDE_HOLES)))):
+                        ("wide holes", ensure_dataset(out / "data_wide_holes",
+                                                      profile_config("occlusion", **WIDE_HOLES)))):
         test = held_out(data)
         oracles = ", ".join(f"{regions} {oracle_mean_fill(test, regions):.2f}"
                             for regions in ("target", "component", "component_depth"))

@@ -37,7 +37,8 @@ assert set(RECIPE) == set(SURFACE_RECIPE)  # one definition of the recipe's swit
 # every variant is a switch on the tiny preset as it was when this study ran (issue 23's recipe is its default now)
 VARIANTS = pinned_to_earlier_tiny([
     Variant("pixel_only", "pixel branch only (tiny preset: edge fading)", kind="pixel"),
-    Variant("pixel_only_no_edge_fading", "pixel branch only, no edge fading", ("model.pixel.edge_sigma=0",), kind="pixel"),
+    Variant("pixel_only_no_edge_fading", "pixel branch only, no edge fading", ("model.pixel.edge_sigma=0",),
+            kind="pixel"),
     Variant("full", "the tiny preset (Eq. 6 colour, no volume loss)"),
     Variant("surface", "full, nearest-observed-surface colour (9x9 taps, T = 0.1 m)", SURFACE),
     Variant("surface_vloss", "full, surface colour + the released stage-3 volume loss", SURFACE + VOLUME_LOSS),
@@ -46,12 +47,15 @@ VARIANTS = pinned_to_earlier_tiny([
     Variant("recipe_released_mlp", "the recipe with the released tap MLP colour",
             ("model.volume.color=released_mlp",) + VOLUME_LOSS + CLEARING),
     Variant("recipe_learned_T", "the recipe, temperature learned", RECIPE + ("model.volume.learn_temperature=true",)),
-    Variant("recipe_all_views", "the recipe, triplane-to-image attention over all views", RECIPE + ("model.volume.image_views=all",)),
+    Variant("recipe_all_views", "the recipe, triplane-to-image attention over all views",
+            RECIPE + ("model.volume.image_views=all",)),
     Variant("recipe_k3", "the recipe, 3 Gaussians per cell", RECIPE + ("model.volume.gaussians_per_cell=3",)),
-    Variant("recipe_edge_0.1", "the recipe with stronger edge fading (pixel.edge_sigma 0.1)", RECIPE + ("model.pixel.edge_sigma=0.1",)),
+    Variant("recipe_edge_0.1", "the recipe with stronger edge fading (pixel.edge_sigma 0.1)",
+            RECIPE + ("model.pixel.edge_sigma=0.1",)),
     # ground-truth depth as the input prior (an oracle input): can the recipe clear the bar with sharp depth?
     Variant("recipe_gt_prior", "the recipe, ground-truth input depth", RECIPE + ("data.depth_prior=gt",)),
-    Variant("pixel_only_gt_prior", "pixel branch only, ground-truth input depth", ("data.depth_prior=gt",), kind="pixel"),
+    Variant("pixel_only_gt_prior", "pixel branch only, ground-truth input depth", ("data.depth_prior=gt",),
+            kind="pixel"),
     # the inputs' depth priors rescaled to the poses' metric scale (photometric search), for both sides of the bar
     Variant("full_aligned", "the tiny preset, depth priors photometrically rescaled", ALIGNED),
     Variant("recipe_aligned", "the recipe, depth priors photometrically rescaled", RECIPE + ALIGNED),
@@ -63,10 +67,12 @@ VARIANTS = pinned_to_earlier_tiny([
     # the colour oracle's widest window (17x17 taps: 19.45 dB hidden with the rescaled prior vs 19.08 for 9x9) and
     # stronger edge fading (the probe's +0.2 dB at test time), with the pixel-only row given the same edge fading
     Variant("recipe_aligned_grid2x_w8_edge0.1", "recipe, priors rescaled, 8x32x16 grid, 17x17 colour taps, "
-            "pixel.edge_sigma 0.1", RECIPE + ALIGNED + GRID2X + ("model.volume.surface_window=8", "model.pixel.edge_sigma=0.1")),
+            "pixel.edge_sigma 0.1", RECIPE + ALIGNED + GRID2X + ("model.volume.surface_window=8",
+                                                                 "model.pixel.edge_sigma=0.1")),
     Variant("pixel_only_aligned_edge0.1", "pixel branch only, priors rescaled, pixel.edge_sigma 0.1",
             ALIGNED + ("model.pixel.edge_sigma=0.1",), kind="pixel"),
-    Variant("volume_only_cylindrical", "volume only, cylindrical, surface colour", VOLUME_ONLY + SURFACE, kind="volume"),
+    Variant("volume_only_cylindrical", "volume only, cylindrical, surface colour", VOLUME_ONLY + SURFACE,
+            kind="volume"),
     Variant("volume_only_spherical", "volume only, spherical, surface colour",
             VOLUME_ONLY + SURFACE + ("model.volume.coordinates=spherical",), kind="volume"),
     Variant("volume_only_cartesian", "volume only, Cartesian, surface colour",
@@ -117,7 +123,8 @@ def branch_report(weights: Path, data: Path) -> dict[str, float]:
         clearing = model.config.fusion.pixel_clearing
         for setting in dict.fromkeys((clearing, "none")):
             model.config.fusion.pixel_clearing = setting
-            out = model.set_mode("both")(sample.context_images[None], sample.context_priors[None], sample.context_poses[None])
+            out = model.set_mode("both")(sample.context_images[None], sample.context_priors[None],
+                                         sample.context_poses[None])
             n = out.pixel_gaussians.num_gaussians
             fused = out.gaussians
             parts[f"pixel alpha ({setting})"] = render(_slice(fused, 0, n)).alpha[0, 0]
@@ -130,7 +137,8 @@ def branch_report(weights: Path, data: Path) -> dict[str, float]:
             if "alpha" in key:
                 acc.setdefault(key, []).append(float((value * weight).sum() / weight.sum()))
             else:
-                acc.setdefault(f"WS-PSNR hidden, {key}", []).append(float(masked_ws_psnr(value.clamp(0, 1), truth, mask)))
+                hidden = float(masked_ws_psnr(value.clamp(0, 1), truth, mask))
+                acc.setdefault(f"WS-PSNR hidden, {key}", []).append(hidden)
     return {k: sum(v) / len(v) for k, v in acc.items()}
 
 
@@ -172,7 +180,8 @@ def clearing_probe(weights: Path, data: Path) -> dict[str, dict[str, float]]:
             rgb = render_equirect(fused, sample.target_poses[None, :1], h, w).rgb[0, 0]
             part = acc.setdefault(name, {})
             part.setdefault("pixel alpha hidden", []).append(float((pixel_alpha * weight).sum() / weight.sum()))
-            part.setdefault("WS-PSNR hidden", []).append(float(masked_ws_psnr(rgb.clamp(0, 1), sample.target_images[0], mask)))
+            hidden = float(masked_ws_psnr(rgb.clamp(0, 1), sample.target_images[0], mask))
+            part.setdefault("WS-PSNR hidden", []).append(hidden)
             part.setdefault("WS-PSNR all", []).append(float(masked_ws_psnr(rgb.clamp(0, 1), sample.target_images[0],
                                                                            torch.ones_like(mask))))
     return {name: {k: sum(v) / len(v) for k, v in part.items()} for name, part in acc.items()}
@@ -200,7 +209,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, help="the wide-holes data (default OUT/data; generated when absent)")
     parser.add_argument("--table", action="store_true", help="score every variant with finished runs of all seeds")
     parser.add_argument("--json", type=Path, help="copy the report here")
-    parser.add_argument("--probe", help="a variant: test-time clearing / edge-fading settings on its seed-0 run, printed")
+    parser.add_argument("--probe", help="a variant: test-time clearing / edge-fading settings on its seed-0 run, "
+                                        "printed")
     parser.add_argument("--branches", action="store_true",
                         help="with --table: per variant and seed, each branch's alpha and WS-PSNR on hidden pixels")
     args = parser.parse_args()
@@ -224,7 +234,8 @@ def main() -> None:
                 continue
             report["variants"][v.name]["branches"] = per_seed = {}
             for seed in args.seeds:
-                per_seed[str(seed)] = branch_report(args.out / "runs" / v.name / f"seed{seed}" / "model.safetensors", data)
+                per_seed[str(seed)] = branch_report(args.out / "runs" / v.name / f"seed{seed}" / "model.safetensors",
+                                                    data)
                 print(v.name, seed, {k: round(x, 3) for k, x in per_seed[str(seed)].items()}, flush=True)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

@@ -39,6 +39,8 @@ def degenerate_scenes():
     yield "at camera centre", Gaussians.from_rgb(one(0.0, 0.0, 0.0), one(0.1, 0.1, 0.1), q, torch.ones(1), one(1, 1, 1))
     yield "very close", Gaussians.from_rgb(one(0.0, 0.0, 0.011), one(0.1, 0.1, 0.1), q, torch.ones(1), one(1, 1, 1))
     yield "north pole", Gaussians.from_rgb(one(0.0, -2.0, 0.0), one(0.1, 0.1, 0.1), q, torch.ones(1), one(1, 1, 1))
-    yield "south pole, flat", Gaussians.from_rgb(one(0.0, 1.0, 0.0), one(1.0, 1e-6, 1.0), q, torch.ones(1), one(1, 1, 1))
-    yield "unnormalised quaternion", Gaussians.from_rgb(one(1.0, 0.0, 2.0), one(0.1, 0.3, 0.1), one(5.0, 1.0, -2.0, 0.5), torch.ones(1), one(1, 1, 1))
+    yield "south pole, flat", Gaussians.from_rgb(one(0.0, 1.0, 0.0), one(1.0, 1e-6, 1.0), q, torch.ones(1),
+                                                 one(1, 1, 1))
+    yield "unnormalised quaternion", Gaussians.from_rgb(one(1.0, 0.0, 2.0), one(0.1, 0.3, 0.1),
+                                                        one(5.0, 1.0, -2.0, 0.5), torch.ones(1), one(1, 1, 1))
     yield "no gaussians", Gaussians.empty()

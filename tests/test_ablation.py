@@ -102,7 +102,8 @@ def test_study_trains_scores_resumes_and_tabulates(tmp_path):
     assert set(saved["variants"]) == {"full", "pixel_only"} | fill_rows
     # A fill row is the same weights with a fill behind: its image scores differ, its depth scores do not.
     plain, filled = (saved["variants"][k]["metrics"] for k in ("pixel_only", "pixel_only + mean fill"))
-    assert filled["abs_rel"]["seeds"] == plain["abs_rel"]["seeds"] and filled["ws_psnr"]["seeds"] != plain["ws_psnr"]["seeds"]
+    assert filled["abs_rel"]["seeds"] == plain["abs_rel"]["seeds"]
+    assert filled["ws_psnr"]["seeds"] != plain["ws_psnr"]["seeds"]
     assert len(saved["variants"]["forward_warp"]["metrics"]["ws_psnr"]["seeds"]) == 1
     ws = saved["variants"]["full"]["metrics"]["ws_psnr"]
     assert len(ws["seeds"]) == 2 and ws["mean"] == pytest.approx(sum(ws["seeds"]) / 2)
@@ -113,7 +114,8 @@ def test_study_trains_scores_resumes_and_tabulates(tmp_path):
     table = (tmp_path / "study" / "ablation.md").read_text()
     assert "| full |" in table and "| pixel_only |" in table and "WS-PSNR" in table
     assert "| pixel_only + mean fill |" in table and "| forward_warp + inpaint fill |" in table
-    assert "Background where a render covers no pixel: black, except the fill rows (+ mean fill: the inputs' mean colour" in table
+    assert ("Background where a render covers no pixel: black, except the fill rows (+ mean fill: the inputs' mean "
+            "colour") in table
     # A second call scores the finished runs without training them again.
     again = run_study(data, tmp_path / "study", variants, seeds=(0, 1), schedule=Schedule(3, 2, 2), held_out=1,
                       resolution=(32, 64), log=lambda *_: None)
@@ -138,7 +140,8 @@ def test_a_variant_is_scored_with_the_depth_prior_it_trains_with(tmp_path, monke
     data = tmp_path / "data"
     write_synthetic_dataset(data, 2, (32, 64), SequenceConfig(frames=3), seed=3, progress=False)
     priors, make_dataset = [], datasets.make_dataset
-    monkeypatch.setattr(datasets, "make_dataset", lambda *a, **k: priors.append(k.get("depth_prior")) or make_dataset(*a, **k))
+    monkeypatch.setattr(datasets, "make_dataset", lambda *a, **k: priors.append(k.get("depth_prior"))
+                        or make_dataset(*a, **k))
     variant = Variant("gt_prior", "pixel branch on ground-truth depth", ("data.depth_prior=gt",), kind="pixel")
     assert variant.depth_prior == "gt" and Variant("x", "y").depth_prior == "default"
     run_study(data, tmp_path / "s", [variant], seeds=(0,), schedule=Schedule(2, 0, 0), held_out=1, resolution=(32, 64),

@@ -53,7 +53,8 @@ def test_a_stored_config_asking_for_terabytes_is_refused_before_allocating(tiny_
     (lambda t: t.to(torch.int32), "is torch.int32, not floating point"),
 ])
 def test_scaled_or_integer_weights_are_refused(tiny_checkpoint, tmp_path, change, message):
-    bad = _rewrite(tiny_checkpoint, tmp_path / "bad.safetensors", tensors=lambda s: {k: change(v) for k, v in s.items()})
+    bad = _rewrite(tiny_checkpoint, tmp_path / "bad.safetensors",
+                   tensors=lambda s: {k: change(v) for k, v in s.items()})
     with pytest.raises(ValueError, match=message) as info:
         from_pretrained(bad)
     assert str(info.value).startswith(f"{bad}: weight ") and "\n" not in str(info.value)

@@ -58,15 +58,18 @@ def _wrapped(exc):
      "disk full while writing out/g.ply: free space or choose another --out"),
     (OSError(errno.ENOSPC, "No space left on device"), "disk full: free space or choose another --out"),
     (OSError(errno.EDQUOT, "Disk quota exceeded", "out/g.ply"), "disk quota exceeded while writing out/g.ply"),
-    (OSError(errno.EROFS, "Read-only file system", "/mnt/ro/x"), "read-only file system at /mnt/ro/x: choose another --out"),
+    (OSError(errno.EROFS, "Read-only file system", "/mnt/ro/x"),
+     "read-only file system at /mnt/ro/x: choose another --out"),
     (OSError(errno.EFBIG, "File too large", "out/v.mp4"), "file too large while writing out/v.mp4"),
     (PermissionError(errno.EACCES, "Permission denied", "/root/x"), "permission denied for /root/x"),
-    (_wrapped(OSError(errno.ENOSPC, "No space left on device", "run/state.pt")), "disk full while writing run/state.pt"),
-    (RuntimeError('Error while serializing: I/O error: No space left on device (os error 28) at path "w/m.safetensors"'),
+    (_wrapped(OSError(errno.ENOSPC, "No space left on device", "run/state.pt")),
+     "disk full while writing run/state.pt"),
+    (RuntimeError('Error while serializing: I/O error: No space left on device (os error 28) at path '
+                  '"w/m.safetensors"'),
      "disk full while writing w/m.safetensors"),
     (torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 20 GiB"), "out of memory"),
-    (RuntimeError("[enforce fail at alloc_cpu.cpp:127] DefaultCPUAllocator: can't allocate memory: you tried to allocate "
-                  "70368744177664 bytes."), "--resolution"),
+    (RuntimeError("[enforce fail at alloc_cpu.cpp:127] DefaultCPUAllocator: can't allocate memory: you tried to "
+                  "allocate 70368744177664 bytes."), "--resolution"),
     (MemoryError(), "out of memory: use a smaller resolution"),
     (MemoryError("this render needs about 9.1 GiB"), "this render needs about 9.1 GiB"),
     (RuntimeError("Torch not compiled with CUDA enabled"), "--device cpu"),
@@ -133,7 +136,8 @@ def _checkpoint_variant(kind, good, tmp_path):
     elif kind == "random":
         path.write_bytes(bytes(torch.randint(0, 256, (4096,), generator=torch.Generator().manual_seed(0)).tolist()))
     elif kind == "wrong_config":  # tiny weights under the paper's config
-        save_file(load_file(str(good)), str(path), metadata={"cylindersplat_config": json.dumps(config_to_dict(get_config("paper")))})
+        save_file(load_file(str(good)), str(path),
+                  metadata={"cylindersplat_config": json.dumps(config_to_dict(get_config("paper")))})
     elif kind == "pickle":  # torch.save renamed to .safetensors
         torch.save({"weight": torch.zeros(3)}, path)
     elif kind == "latest_dir":  # a run's checkpoints/latest given as a folder
@@ -189,7 +193,8 @@ def _export_case(tmp_path, folder, checkpoint, monkeypatch, case):
     elif kind == "oom":
         from cylindersplat.model import CylinderSplat
 
-        error = torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 20.00 GiB") if detail == "torch" else MemoryError()
+        error = (torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 20.00 GiB") if detail == "torch"
+                 else MemoryError())
 
         def forward(*args, **kwargs):
             raise error
@@ -290,7 +295,8 @@ def test_render_failures_are_one_line_and_keep_earlier_views(tmp_path, panorama_
     ("resume_missing", ["no training checkpoint at"]),
     ("init_pickle", ["init.safetensors is a PyTorch pickle"]),
 ])
-def test_train_failures_are_one_line_and_keep_the_run(tmp_path, synth_dataset, tiny_checkpoint, capsys, case, fragments):
+def test_train_failures_are_one_line_and_keep_the_run(tmp_path, synth_dataset, tiny_checkpoint, capsys, case,
+                                                      fragments):
     run = tmp_path / "run"
     state = run / "checkpoints" / "step_0000001" / "state.pt"
     state.parent.mkdir(parents=True)
@@ -298,7 +304,8 @@ def test_train_failures_are_one_line_and_keep_the_run(tmp_path, synth_dataset, t
     state.write_bytes(PREVIOUS)
     (run / "checkpoints" / "latest").write_text("step_0000001\n")
     (tmp_path / "afile").write_bytes(PREVIOUS)
-    argv = ["train", "--data", str(synth_dataset(2, seed=3)), "--out", str(tmp_path / "new"), "--stages", "1", "--steps", "1",
+    argv = ["train", "--data", str(synth_dataset(2, seed=3)), "--out", str(tmp_path / "new"), "--stages", "1",
+            "--steps", "1",
             "train.tensorboard=false", "loss.use_lpips=off", "train.progress=false"]
     if case == "out_is_file":
         argv[4] = str(tmp_path / "afile")
@@ -342,8 +349,10 @@ def test_read_only_out_folder_is_refused_before_any_work(tmp_path, panorama_fold
 
 
 @pytest.mark.parametrize("argv,fragments", [
-    (["data", "synth", "--scenes", "1", "--resolution", "16x32", "--out", "FILE"], ["FILE is a file where a folder is needed"]),
-    (["data", "synth", "--scenes", "1", "--resolution", "16x32", "--out", "FILE/sub"], ["FILE is a file where a folder", "(for"]),
+    (["data", "synth", "--scenes", "1", "--resolution", "16x32", "--out", "FILE"],
+     ["FILE is a file where a folder is needed"]),
+    (["data", "synth", "--scenes", "1", "--resolution", "16x32", "--out", "FILE/sub"],
+     ["FILE is a file where a folder", "(for"]),
     (["eval", "--data", "DATA", "--checkpoint", "FILE", "--out", "OUT"], ["FILE is not a readable .safetensors file"]),
     (["eval", "--data", "DATA", "--out", "FILE"], ["FILE is a file where a folder is needed"]),
     (["train", "--config", "BAD_YAML", "--data", "DATA"], ["bad.yaml: malformed YAML"]),

@@ -169,7 +169,8 @@ def test_eval_cli_on_a_folder(tmp_path, tiny_checkpoint, capsys):
     assert main(["eval", "--data", str(path), "--targets", "pano_01.png", *common]) == 0
     assert "data layout: folder (detected" in capsys.readouterr().out
     # --targets belongs to folders: a synthetic dataset named explicitly stops with the format it needs
-    assert main(["eval", "--format", "synthetic", "--data", str(path), "--targets", "pano_01.png", "--out", str(out)]) == 1
+    assert main(["eval", "--format", "synthetic", "--data", str(path), "--targets", "pano_01.png", "--out",
+                 str(out)]) == 1
     assert "--format folder" in capsys.readouterr().err
 
 

@@ -33,7 +33,8 @@ def test_any_panogrf_dist_suffix_is_read(tmp_path):
 
 def test_a_root_without_a_png_render_name_names_the_cli_option(tmp_path, capsys):
     write_panogrf_scene(tmp_path / "png_render_test_16x8_seq_len_3_m3d_dist_var", "00000001")
-    with pytest.raises(ValueError, match=r"give that folder itself as --data .*png_render_test_16x8_seq_len_3_m3d_dist_var"):
+    with pytest.raises(ValueError, match=r"give that folder itself as --data "
+                                         r".*png_render_test_16x8_seq_len_3_m3d_dist_var"):
         PanoGRFDataset(tmp_path)
     assert main(["eval", "--format", "pano_grf", "--data", str(tmp_path), "--no-model", "--depth-prior", "none",
                  "--out", str(tmp_path / "e")]) == 1

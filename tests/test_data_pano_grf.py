@@ -34,7 +34,8 @@ def _check(sample, flip_translation=False):
         pose = sample.context_poses[k].clone()
         if flip_translation:
             pose[:3, 3] *= -1
-        results.append(reprojection_consistency(*src, sample.context_images[k], sample.context_gt_depths[k], pose, rel_tol=0.1))
+        results.append(reprojection_consistency(*src, sample.context_images[k], sample.context_gt_depths[k], pose,
+                                                rel_tol=0.1))
     return results
 
 
@@ -173,5 +174,6 @@ def test_no_default_silently_feeds_zero_priors(tiny_root, tmp_path, capsys):
         cfg = load_config("tiny", [f"data.root={folder}", "data.format=pano_grf", "data.split=test",
                                    f"data.depth_prior={choice}"])
         assert len(build_dataset(cfg.data)) == 2
-    assert main(["eval", "--format", "pano_grf", "--data", str(folder), "--out", str(tmp_path / "ev"), "--lpips", "off"]) == 1
+    assert main(["eval", "--format", "pano_grf", "--data", str(folder), "--out", str(tmp_path / "ev"), "--lpips",
+                 "off"]) == 1
     assert "--depth-prior=gt" in capsys.readouterr().err

@@ -72,7 +72,8 @@ def test_file_prior_png_npy_and_mirror(tmp_path):
 
 
 def test_registry_and_adapters(tmp_path):
-    assert set(DEPTH_PRIORS) == {"none", "gt", "simulated", "file", "constant", "exported", "unik3d", "depth_anything_v2",
+    assert set(DEPTH_PRIORS) == {"none", "gt", "simulated", "file", "constant", "exported", "unik3d",
+                                 "depth_anything_v2",
                                  "degraded", "mixed"}  # degraded:KIND and mixed: issue 34's detail diagnosis
     assert isinstance(make_depth_prior("simulated", seed=3), SimulatedPrior)
     with pytest.raises(ValueError, match="unknown depth prior"):

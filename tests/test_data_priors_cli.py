@@ -130,7 +130,8 @@ def test_priors_on_synthetic_data_npy_batched_resume_overwrite(synth, tmp_path, 
     assert len(err) == 1 and "--overwrite" in err[0]
     assert main(other_args + ["--overwrite"]) == 0
     assert "6 written" in capsys.readouterr().out
-    torch.testing.assert_close(read_depth_npy(files[1]), expected_depth(synth / files[1].relative_to(tree).with_suffix(".png"), None, 1.5))
+    torch.testing.assert_close(read_depth_npy(files[1]),
+                               expected_depth(synth / files[1].relative_to(tree).with_suffix(".png"), None, 1.5))
 
 
 @pytest.mark.parametrize("net, fragment", [

@@ -81,7 +81,8 @@ def test_generated_views_are_multiview_consistent(index):
     assert res.consistent_fraction > 0.85 and res.weighted_l1 < 0.08
     flipped = seq.poses[0].clone()
     flipped[:3, 3] = 2 * seq.poses[1][:3, 3] - flipped[:3, 3]
-    assert reprojection_consistency(rgb[1], depth[1], seq.poses[1], rgb[0], depth[0], flipped, rel_tol=0.1).consistent_fraction < res.consistent_fraction - 0.1
+    assert reprojection_consistency(rgb[1], depth[1], seq.poses[1], rgb[0], depth[0], flipped,
+                                    rel_tol=0.1).consistent_fraction < res.consistent_fraction - 0.1
 
 
 def test_outdoor_sky_has_zero_depth():
@@ -92,7 +93,8 @@ def test_outdoor_sky_has_zero_depth():
 
 
 def test_write_and_load_synthetic(tmp_path):
-    out = write_synthetic_dataset(tmp_path / "syn", scenes=2, resolution=(16, 32), cfg=SequenceConfig(frames=3), seed=1, progress=False)
+    out = write_synthetic_dataset(tmp_path / "syn", scenes=2, resolution=(16, 32), cfg=SequenceConfig(frames=3), seed=1,
+                                  progress=False)
     meta = json.loads((out / "meta.json").read_text())
     assert meta["scenes"] == ["00000000", "00000001"] and meta["resolution"] == [16, 32]
     assert (out / "00000001" / "02" / "depth.png").is_file()
@@ -117,7 +119,8 @@ def test_write_and_load_synthetic(tmp_path):
 def test_synthetic_loader_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="meta.json"):
         SyntheticDataset(tmp_path)
-    out = write_synthetic_dataset(tmp_path / "s", scenes=1, resolution=(8, 16), cfg=SequenceConfig(frames=2), seed=0, progress=False)
+    out = write_synthetic_dataset(tmp_path / "s", scenes=1, resolution=(8, 16), cfg=SequenceConfig(frames=2), seed=0,
+                                  progress=False)
     poses = json.loads((out / "00000000" / "poses.json").read_text())
     poses["01"][0][3] = float("nan")
     (out / "00000000" / "poses.json").write_text(json.dumps(poses))
@@ -139,12 +142,16 @@ _FINGERPRINT = {
         ("indoor-two_rooms", 0.5, 19, [-3.56316, -1.41021, -1.82821], [-3.5561, -1.41021, -0.82823], -0.7486, -0.66303),
     ],
     (0.5, 1.0): [
-        ("indoor-l_shape", 0.60615, 19, [-0.31309, -1.68547, -0.40478], [0.89819, -1.68547, -0.45455], -0.64046, -0.76799),
-        ("indoor-two_rooms", 0.94084, 28, [-2.26199, -1.42395, 2.88723], [-3.9155, -1.42395, 1.9891], -0.86605, 0.49996),
+        ("indoor-l_shape", 0.60615, 19, [-0.31309, -1.68547, -0.40478], [0.89819, -1.68547, -0.45455], -0.64046,
+         -0.76799),
+        ("indoor-two_rooms", 0.94084, 28, [-2.26199, -1.42395, 2.88723], [-3.9155, -1.42395, 1.9891], -0.86605,
+         0.49996),
         ("outdoor", 0.57222, 19, [-5.99208, -1.62473, -4.4434], [-5.8134, -1.62473, -5.57381], -0.13214, 0.99123),
-        ("indoor-two_rooms", 0.94075, 19, [1.98711, -1.59273, -1.12751], [0.15469, -1.59273, -1.55443], -0.97363, 0.22815),
+        ("indoor-two_rooms", 0.94075, 19, [1.98711, -1.59273, -1.12751], [0.15469, -1.59273, -1.55443], -0.97363,
+         0.22815),
         ("indoor-l_shape", 0.62294, 18, [0.78747, -1.22793, 0.425], [1.22225, -1.22793, -0.74256], 0.85991, 0.51045),
-        ("indoor-two_rooms", 0.8451, 19, [-3.56316, -1.41021, -1.82821], [-3.55122, -1.41021, -0.13805], -0.7486, -0.66303),
+        ("indoor-two_rooms", 0.8451, 19, [-3.56316, -1.41021, -1.82821], [-3.55122, -1.41021, -0.13805], -0.7486,
+         -0.66303),
     ],
 }
 
@@ -161,7 +168,8 @@ def test_default_sequences_are_unchanged(spacing):
 
 
 def test_default_meta_has_only_the_original_keys(tmp_path):
-    out = write_synthetic_dataset(tmp_path / "d", scenes=1, resolution=(8, 16), cfg=SequenceConfig(), seed=0, progress=False)
+    out = write_synthetic_dataset(tmp_path / "d", scenes=1, resolution=(8, 16), cfg=SequenceConfig(), seed=0,
+                                  progress=False)
     meta = json.loads((out / "meta.json").read_text())
     assert set(meta["config"]) == {"frames", "spacing", "height", "clearance", "random_yaw", "layouts",
                                    "outdoor_fraction", "attempts"}

@@ -152,8 +152,8 @@ def test_a_non_finite_pose_is_named_by_its_image(synth_copy):
     broken.c2w[0, 3] = float("nan")
     with pytest.raises(ValueError) as info:
         ds.check_frame(broken, None)
-    assert str(info.value) == (f"pose of {frame.rgb} contains non-finite values (NaN or Inf); fix the dataset's pose of "
-                               "this frame (OpenCV camera-to-world, metres)")
+    assert str(info.value) == (f"pose of {frame.rgb} contains non-finite values (NaN or Inf); fix the dataset's pose "
+                               "of this frame (OpenCV camera-to-world, metres)")
 
 
 def test_checking_frames_costs_little_next_to_reading_them():

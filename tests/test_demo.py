@@ -35,7 +35,8 @@ def test_demo_end_to_end_and_reuse(tmp_path, capsys):
     assert all(m["lrce"] is not None and m["lrce"] >= 0 for m in means.values())  # the depth LRCE, vs the truth
     assert "Background where a render covers no pixel: black (CylinderSplat (tiny), its pixel branch alone" in table
     # comparison: 3 rows (ground truth, ours, baseline) x (RGB | depth), each with its caption, titles on top, at 2x
-    assert Image.open(out / "comparison.png").size == (2 * (2 * 32 + 4), 2 * (LABEL_HEIGHT + 3 * (4 + LABEL_HEIGHT + 16)))
+    assert Image.open(out / "comparison.png").size == (2 * (2 * 32 + 4),
+                                                       2 * (LABEL_HEIGHT + 3 * (4 + LABEL_HEIGHT + 16)))
     assert Image.open(out / "flythrough.gif").n_frames == 3
     assert len(load_ply(out / "gaussians.ply")) > 0
     assert "training the tiny model" in capsys.readouterr().out
@@ -47,7 +48,8 @@ def test_demo_end_to_end_and_reuse(tmp_path, capsys):
 @pytest.mark.slow  # 19 s at load 4.5 (2 shared cores)
 def test_demo_uses_the_shipped_weights_by_default(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out), "--scenes", "2", "--held-out", "1", "--resolution", "16x32", "--frames", "0"]) == 0
+    assert main(["demo", "--out", str(out), "--scenes", "2", "--held-out", "1", "--resolution", "16x32", "--frames",
+                 "0"]) == 0
     printed = capsys.readouterr().out
     assert "using the shipped tiny-synth weights" in printed and "training the tiny model" not in printed
     assert not (out / "train").exists()

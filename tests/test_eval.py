@@ -35,8 +35,10 @@ def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
     assert "0.94 m between neighbouring contexts, 1.88 m first to last" in printed  # 3 views, frames 0.47 m apart
     data = json.loads((out / "results.json").read_text(), parse_constant=_refuse)  # strict JSON: no Infinity/NaN
     assert data["settings"] == {
-        "all_between_2views_gap2": {"protocol": "all_between", "context_views": 2, "gap": 2, "context_layout": "spaced"},
-        "all_between_3views_gap2": {"protocol": "all_between", "context_views": 3, "gap": 2, "context_layout": "spaced"}}
+        "all_between_2views_gap2": {"protocol": "all_between", "context_views": 2, "gap": 2,
+                                    "context_layout": "spaced"},
+        "all_between_3views_gap2": {"protocol": "all_between", "context_views": 3, "gap": 2,
+                                    "context_layout": "spaced"}}
     # 9 frames, 100 starts: 2 views span 2 -> first starts 0, 0; 3 views span 4 -> 0, 0: targets 0..2 and 0..4
     rows = data["views"]["all_between_3views_gap2"]
     assert len(rows) == 2 * 5 * 2 and {r["view"] for r in rows} == set(range(5))  # examples x targets x methods
@@ -56,8 +58,10 @@ def test_eval_cli_loc360_context_views_and_gaps(tiny_model, tmp_path, capsys):
     assert len(list((out / "examples" / "all_between_3views_gap2").glob("*.png"))) == 1
     # released layout, 4 views: contexts (s, s+1, s+3, s+4), targets s+1..s+3
     assert main(["eval", "--format", "loc360", "--data", str(tmp_path / "loc"), "--views", "4", "--gap", "2",
-                 "--views-layout", "released", "--protocols", "all_between", "--depth-prior", "constant:2", "--no-model",
-                 "--fills", "none", "--max-examples", "1", "--pictures", "0", "--lpips", "off", "--out", str(tmp_path / "e4")]) == 0
+                 "--views-layout", "released", "--protocols", "all_between", "--depth-prior", "constant:2",
+                 "--no-model",
+                 "--fills", "none", "--max-examples", "1", "--pictures", "0", "--lpips", "off", "--out",
+                 str(tmp_path / "e4")]) == 0
     data = json.loads((tmp_path / "e4" / "results.json").read_text())
     assert [r["view"] for r in data["views"]["all_between_4views_gap2_released"]] == [0, 1, 2]
     # errors: one line, exit 1
@@ -112,7 +116,8 @@ def synth_root(synth_dataset):  # conftest.py; the same data as test_eval_occlud
 
 def _seam_error(depth, ref, depth_range):
     """The released evaluation's ``continuity`` (paper: LRCE), written out: rows whose reference ends are valid."""
-    rows = [i for i in range(ref.shape[0]) if all(depth_range.near < float(ref[i, j]) < depth_range.far for j in (0, -1))]
+    rows = [i for i in range(ref.shape[0])
+            if all(depth_range.near < float(ref[i, j]) < depth_range.far for j in (0, -1))]
     return np.mean([abs(float(depth[i, 0] - depth[i, -1]) - float(ref[i, 0] - ref[i, -1])) for i in rows])
 
 
@@ -135,7 +140,8 @@ def test_scores_equal_direct_metric_calls(synth_root, tiny_model, tmp_path):
             for view in range(gt.shape[0]):
                 per_view.append({
                     "ws_psnr": ws_psnr(rgb, gt)[view], "psnr": psnr(rgb, gt)[view], "ssim": ssim(rgb, gt)[view],
-                    "lrce": _seam_error(depth[view], ref[view], depth_range), "pcc": pcc(depth, ref, depth_range=depth_range)[view],
+                    "lrce": _seam_error(depth[view], ref[view], depth_range),
+                    "pcc": pcc(depth, ref, depth_range=depth_range)[view],
                     "abs_rel": abs_rel(depth, ref, depth_range=depth_range)[view],
                     "rmse": rmse(depth, ref, depth_range=depth_range)[view],
                     "delta1": delta1(depth, ref, depth_range=depth_range)[view],
@@ -151,7 +157,8 @@ def test_scores_equal_direct_metric_calls(synth_root, tiny_model, tmp_path):
     pictures = sorted(tmp_path.glob("example_*.png"))
     assert len(pictures) == 2  # one target per example, fewer than the 3 asked for
     sheet = np.asarray(Image.open(pictures[0]))
-    assert sheet.shape == (LABEL_HEIGHT + 3 * (4 + LABEL_HEIGHT + 32), 2 * 64 + 4, 3)  # titles; GT + 2 methods, captioned
+    # titles; GT + 2 methods, captioned
+    assert sheet.shape == (LABEL_HEIGHT + 3 * (4 + LABEL_HEIGHT + 32), 2 * 64 + 4, 3)
 
 
 def test_known_values_of_an_oracle(synth_root):
@@ -166,7 +173,8 @@ def test_known_values_of_an_oracle(synth_root):
         return RenderOutput(rgb, depth, torch.ones_like(depth))
 
     dataset = SyntheticDataset(synth_root, views="one_view")
-    means = evaluate(dataset, [Method("oracle", run)], depth_range=DepthRange(0.05, 1000.0), progress=False).means["oracle"]
+    means = evaluate(dataset, [Method("oracle", run)], depth_range=DepthRange(0.05, 1000.0),
+                     progress=False).means["oracle"]
     assert means["psnr"] == pytest.approx(40.0, abs=1e-3)
     assert means["ws_psnr"] == pytest.approx(40.0, abs=1e-3)
     assert means["abs_rel"] == pytest.approx(0.1, rel=1e-4)

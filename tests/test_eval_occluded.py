@@ -91,7 +91,8 @@ def test_score_views_occluded_columns(synth_root):
     first = rows[0]
     assert first["occluded_pixels"] == int(masks[0].sum()) >= MIN_OCCLUDED_PIXELS
     assert first["occluded_share"] == pytest.approx(occluded_fraction(masks[0]))
-    assert first["ws_psnr_occluded"] == pytest.approx(float(masked_ws_psnr(rgb, sample.target_images, masks)[0]), rel=1e-5)
+    assert first["ws_psnr_occluded"] == pytest.approx(float(masked_ws_psnr(rgb, sample.target_images, masks)[0]),
+                                                      rel=1e-5)
     assert first["psnr_occluded"] == pytest.approx(float(masked_psnr(rgb, sample.target_images, masks)[0]), rel=1e-5)
     assert first["l1_occluded"] == pytest.approx(float(masked_l1(rgb, sample.target_images, masks)[0]), rel=1e-5)
     expected = abs_rel(depth, sample.target_depths.float(), mask=masks, depth_range=RANGE)[0]
@@ -220,7 +221,8 @@ def test_eval_cli_writes_occluded_columns(synth_root, tmp_path, capsys):
 @pytest.mark.slow
 def test_eval_cli_on_the_real_triplet(pano_grf_fixture, tmp_path, capsys):
     out = tmp_path / "eval"
-    assert main(["eval", "--format", "pano_grf", "--data", str(pano_grf_fixture), "--resolution", "128x256", "--out", str(out),
+    assert main(["eval", "--format", "pano_grf", "--data", str(pano_grf_fixture), "--resolution", "128x256", "--out",
+                 str(out),
                  "--protocols", "two_view,one_view", "--depth-prior", "gt", "--pictures", "0", "--lpips", "off"]) == 0
     means = json.loads((out / "results.json").read_text())["means"]
     two_view = next(v for k, v in means.items() if "two_view" in k)["Forward warp"]
@@ -233,7 +235,8 @@ def test_eval_cli_on_the_real_triplet(pano_grf_fixture, tmp_path, capsys):
 
 
 def test_eval_cli_detects_the_layout(pano_grf_fixture, tmp_path, capsys):
-    """Without --format, eval reads a png_render_* folder as PanoGRF data (the data commands' rule), not as synthetic."""
+    """Without --format, eval reads a png_render_* folder as PanoGRF data (the data commands' rule), not as
+    synthetic."""
     out = tmp_path / "eval"
     assert main(["eval", "--data", str(pano_grf_fixture), "--resolution", "64x128", "--out", str(out), "--no-model",
                  "--depth-prior", "gt", "--pictures", "0", "--lpips", "off"]) == 0

@@ -96,7 +96,8 @@ def test_fill_methods_name_and_describe_their_background():
     base = Method("warp", lambda sample: render)
     methods = fill_methods(base, ["mean", "inpaint"])
     assert [m.name for m in methods] == ["warp", "warp + mean fill", "warp + inpaint fill"]
-    assert [m.background for m in methods] == ["black", "the inputs' mean colour", "a 2-D inpaint from the covered pixels"]
+    assert [m.background for m in methods] == ["black", "the inputs' mean colour",
+                                               "a 2-D inpaint from the covered pixels"]
 
     class FakeSample:
         context_images = torch.full((1, 3, 4, 8), 0.3)

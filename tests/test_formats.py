@@ -15,13 +15,16 @@ from cylindersplat.gaussians import Gaussians, formats, load_gaussians, save_gau
 from cylindersplat.gaussians.formats import SPLAT_TRANSFORM_ENV, find_splat_transform, splat_format
 
 needs_tool = pytest.mark.skipif(find_splat_transform() is None, reason="splat-transform is not installed: "
-                                "bash scripts/install_optional.sh formats puts it into the clone's .tools/ (Node.js >= 20)")
+                                "bash scripts/install_optional.sh formats puts it into the clone's .tools/ (Node.js >= "
+                                "20)")
 
 # Largest error each format may make (its quantisation): position (m), DC colour, opacity, log-scale, SH bands 1+
 # (None: SOG stores SH as a k-means palette, lossy without a per-value bound).
 TOLERANCES = {
-    ".spz": dict(position=5e-4, rgb=0.005, opacity=0.005, log_scale=1 / 32 + 1e-4, sh_rest=0.04),  # 12 fractional bits, 8-bit
-    ".compressed.ply": dict(position=4e-3, rgb=0.005, opacity=0.005, log_scale=0.01, sh_rest=0.02),  # 11/10-bit in chunk boxes
+    # 12 fractional bits, 8-bit
+    ".spz": dict(position=5e-4, rgb=0.005, opacity=0.005, log_scale=1 / 32 + 1e-4, sh_rest=0.04),
+    # 11/10-bit in chunk boxes
+    ".compressed.ply": dict(position=4e-3, rgb=0.005, opacity=0.005, log_scale=0.01, sh_rest=0.02),
     ".sog": dict(position=1e-3, rgb=0.01, opacity=0.005, log_scale=0.03, sh_rest=None),  # 16-bit positions, codebooks
 }
 
@@ -167,7 +170,8 @@ def test_export_writes_spz(tmp_path, capsys):
     poses = torch.stack([make_c2w(), make_c2w(translation=torch.tensor([0.5, 0.0, 0.2]))])
     folder = write_panorama_folder(tmp_path / "scene", torch.rand(2, 3, 16, 32), poses, torch.rand(2, 16, 32) * 3 + 0.5)
     save_model(from_config("tiny"), tmp_path / "tiny.safetensors")
-    common = ["export", "--input", str(folder), "--checkpoint", str(tmp_path / "tiny.safetensors"), "--resolution", "16x32",
+    common = ["export", "--input", str(folder), "--checkpoint", str(tmp_path / "tiny.safetensors"), "--resolution",
+              "16x32",
               "--min-opacity", "0", "--device", "cpu"]
     assert main([*common, "--out", str(tmp_path / "g.spz"), "--spz-version", "3"]) == 0
     assert "Niantic SPZ" in capsys.readouterr().out

@@ -32,7 +32,8 @@ def test_container_cat_select_and_moves():
     assert len(c[torch.tensor([0, 6])]) == 2
     assert c.to(torch.float64).dtype == torch.float64
     rgb = torch.rand(5, 3)
-    torch.testing.assert_close(Gaussians.from_rgb(torch.zeros(5, 3), torch.ones(5, 3), torch.randn(5, 4), torch.ones(5), rgb).rgb, rgb)
+    torch.testing.assert_close(Gaussians.from_rgb(torch.zeros(5, 3), torch.ones(5, 3), torch.randn(5, 4), torch.ones(5),
+                                                  rgb).rgb, rgb)
 
 
 def test_validate_names_the_problem():
@@ -94,7 +95,8 @@ def test_splat_export_byte_layout(tmp_path):
     gen = torch.Generator().manual_seed(3)
     n = 6
     g = Gaussians.from_rgb(torch.randn(n, 3, generator=gen), 0.01 + torch.rand(n, 3, generator=gen),
-                           torch.randn(n, 4, generator=gen), torch.rand(n, generator=gen), torch.rand(n, 3, generator=gen))
+                           torch.randn(n, 4, generator=gen), torch.rand(n, generator=gen),
+                           torch.rand(n, 3, generator=gen))
     path = save_splat(g, tmp_path / "scene.splat")
     raw = path.read_bytes()
     assert len(raw) == 32 * n

@@ -143,7 +143,8 @@ def test_render_and_export_cli(folder, checkpoint, tmp_path, capsys):
     path, *_ = folder
     out = tmp_path / "render"
     views = tmp_path / "novel.json"
-    views.write_text(json.dumps({"poses": [_yaw(0.1, (0.2, 0.0, 0.1)).tolist(), _yaw(0.2).tolist(), _yaw(0.0).tolist()]}))
+    views.write_text(json.dumps({"poses": [_yaw(0.1, (0.2, 0.0, 0.1)).tolist(), _yaw(0.2).tolist(),
+                                           _yaw(0.0).tolist()]}))
     assert main(["render", "--input", str(path), "--checkpoint", str(checkpoint), "--resolution", "16x32",
                  "--out", str(out), "--views", str(views), "--frames", "5", "--min-opacity", "0"]) == 0
     for i in range(3):
@@ -221,14 +222,16 @@ def test_a_transforms_json_folder_reconstructs_like_poses_json(folder, checkpoin
     """A nerfstudio folder (transforms.json, OpenGL c2w, EQUIRECTANGULAR) just works for export/render."""
     path, *_ = folder
     gl = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0]))
-    frames = [{"file_path": f["image"], "depth_file_path": f["depth"], "transform_matrix": (torch.tensor(f["c2w"]) @ gl).tolist()}
+    frames = [{"file_path": f["image"], "depth_file_path": f["depth"],
+               "transform_matrix": (torch.tensor(f["c2w"]) @ gl).tolist()}
               for f in _frames(path)["frames"]]
     ns = tmp_path / "ns"
     ns.mkdir()
     for f in path.iterdir():
         if f.name != "poses.json":
             (ns / f.name).write_bytes(f.read_bytes())
-    (ns / "transforms.json").write_text(json.dumps({"camera_model": "EQUIRECTANGULAR", "w": 32, "h": 16, "frames": frames}))
+    (ns / "transforms.json").write_text(json.dumps({"camera_model": "EQUIRECTANGULAR", "w": 32, "h": 16,
+                                                    "frames": frames}))
     for source, out in ((path, tmp_path / "a.ply"), (ns, tmp_path / "b.ply")):
         assert main(["export", "--input", str(source), "--checkpoint", str(checkpoint), "--resolution", "16x32",
                      "--out", str(out), "--min-opacity", "0"]) == 0
@@ -277,7 +280,8 @@ def test_render_any_ply_pinhole_panorama_metric_depth_and_poses(tmp_path):
     (tmp_path / "path.json").write_text(json.dumps({"convention": "opengl_c2w", "poses": (path @ torch.diag(
         torch.tensor([1.0, -1.0, -1.0, 1.0]))).tolist()}))
     out = tmp_path / "pin"
-    assert main(["render", "--ply", str(ply), "--views", str(tmp_path / "views.json"), "--camera", "pinhole", "--fov", "75",
+    assert main(["render", "--ply", str(ply), "--views", str(tmp_path / "views.json"), "--camera", "pinhole", "--fov",
+                 "75",
                  "--output-resolution", "12x20", "--metric-depth", "--camera-path", str(tmp_path / "path.json"),
                  "--out", str(out)]) == 0
     k = pinhole_intrinsics(12, 20, 75.0)
@@ -289,7 +293,8 @@ def test_render_any_ply_pinhole_panorama_metric_depth_and_poses(tmp_path):
         torch.testing.assert_close(c2w, poses[i])  # poses.json round-trips
         rgb = np.asarray(Image.open(out / "views" / image))
         assert rgb.shape == (12, 20, 3)
-        assert np.abs(rgb.astype(int) - (reference.rgb[i].clamp(0, 1) * 255 + 0.5).floor().permute(1, 2, 0).numpy()).max() <= 1
+        expected = (reference.rgb[i].clamp(0, 1) * 255 + 0.5).floor().permute(1, 2, 0).numpy()
+        assert np.abs(rgb.astype(int) - expected).max() <= 1
         metric = normalized_depth(reference.depth[i], reference.alpha[i])
         npy = np.load(out / "views" / depth_file)
         assert npy.dtype == np.float32 and npy.shape == (12, 20) and (npy > 0).any()

@@ -33,7 +33,8 @@ def test_an_image_outside_the_folder_is_refused_with_its_name(panorama_folder):
     with pytest.raises(OutsideFolderError) as info:
         load_panorama_folder(folder, (16, 32))
     assert str(info.value) == (f'{folder / "poses.json"} frame 1 "image": ../outside/pano_01.png is outside the input '
-                               f"folder {folder}; move the file into it (or pass --allow-outside-paths to read it anyway)")
+                               f"folder {folder}; move the file into it (or pass --allow-outside-paths to read it "
+                               "anyway)")
     assert len(load_panorama_folder(folder, (16, 32), allow_outside_paths=True).names) == 2  # the explicit way
 
 
@@ -41,7 +42,8 @@ def test_an_absolute_depth_path_is_refused(panorama_folder):
     folder = panorama_folder[0]
     depth = _move_out(folder, "pano_00_depth.png")
     _retarget(folder, 0, "depth", depth)
-    with pytest.raises(OutsideFolderError, match=r'frame 0 "depth": .*pano_00_depth.png is an absolute path; name files '
+    with pytest.raises(OutsideFolderError,
+                       match=r'frame 0 "depth": .*pano_00_depth.png is an absolute path; name files '
                                                  r"relative to .*--allow-outside-paths"):
         load_panorama_folder(folder, (16, 32))
 

@@ -33,7 +33,8 @@ def _reflect(c2w):
 
 
 @pytest.mark.parametrize("change,message", [
-    (lambda i, d, c: i.mul_(255), "images must be RGB in [0, 1], got values in [0.0203213, 254.959]; divide 8-bit images by 255"),
+    (lambda i, d, c: i.mul_(255), "images must be RGB in [0, 1], got values in [0.0203213, 254.959]; divide 8-bit "
+                                  "images by 255"),
     (lambda i, d, c: _nan_pixel(i), "images hold NaN or Inf values (view 0); give finite RGB in [0, 1]"),
     (lambda i, d, c: i.sub_(0.5), "images must be RGB in [0, 1], got values in [-0.49"),
     (lambda i, d, c: _nan_pixel(d), "depths hold NaN or Inf values (view 0); use 0 for unknown depth"),
@@ -66,7 +67,8 @@ def test_reconstruct_refuses_depth_of_another_size(tiny_model):
 
 @pytest.mark.parametrize("scale,message", [
     (1000.0, "depths[0]: median depth 2.41e+03 m is above 1000 m (millimetres read as metres? check depth_scale or "
-             "the .npy units); depth is radial metres (--skip-plausibility-checks, or check_plausibility=False in Python, to use it anyway)"),
+             "the .npy units); depth is radial metres (--skip-plausibility-checks, or check_plausibility=False in "
+             "Python, to use it anyway)"),
     (1e-30, "depths[0]: median depth 2.41e-30 m is below 0.01 m (check depth_scale or the .npy units); depth is radial "
             "metres (--skip-plausibility-checks, or check_plausibility=False in Python, to use it anyway)"),
 ])
@@ -218,7 +220,8 @@ def test_npy_depth_of_the_wrong_kind_is_refused(panorama_folder, array, message)
 
     folder = panorama_folder[0]
     np.save(folder / "pano_01_depth.npy", array)
-    (folder / "poses.json").write_text((folder / "poses.json").read_text().replace("pano_01_depth.png", "pano_01_depth.npy"))
+    (folder / "poses.json").write_text((folder / "poses.json").read_text().replace("pano_01_depth.png",
+                                                                                   "pano_01_depth.npy"))
     with pytest.raises(ValueError) as info:
         load_panorama_folder(folder, (16, 32))
     assert str(info.value) == f"{folder / 'pano_01_depth.npy'}: {message}"
@@ -242,6 +245,6 @@ def test_panorama_sized_gaussians_are_refused_for_memory_before_allocating(monke
     big = Gaussians.from_rgb(means, torch.full((n, 3), 5.0), torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4),
                              torch.full((n,), 0.9), torch.rand(n, 3))
     with pytest.raises(rasterize.RenderMemoryError, match=r"^this render of 1 view\(s\) at once needs about [\d.]+ GiB "
-                                                          r"for [\d,]+ row spans but 0.0 GiB are free on cpu; render at "
-                                                          r"a lower resolution"):
+                                                          r"for [\d,]+ row spans but 0.0 GiB are free on cpu; render "
+                                                          r"at a lower resolution"):
         render_equirect(big, torch.eye(4), 32, 64, backend="torch")

@@ -131,7 +131,8 @@ def split_weights(weights_file, tmp_path, monkeypatch):
     trunk = {k: v for k, v in state.items() if k.startswith("features.")}
     trunk["classifier.0.weight"] = torch.zeros(4, 3)  # the rest of torchvision's vgg16 file is ignored
     g = torch.Generator().manual_seed(5)
-    heads = {f"lin{k}.model.1.weight": torch.rand(1, c, 1, 1, generator=g) + k for k, c in enumerate((64, 128, 256, 512, 512))}
+    heads = {f"lin{k}.model.1.weight": torch.rand(1, c, 1, 1, generator=g) + k
+             for k, c in enumerate((64, 128, 256, 512, 512))}
     package = tmp_path / "site" / "lpips"
     (package / "weights" / "v0.1").mkdir(parents=True)
     (package / "__init__.py").write_text("raise ImportError('the lpips package must be located, not imported')\n")
@@ -190,7 +191,8 @@ def test_lpips_file_without_heads_and_no_package(weights_file, tmp_path, monkeyp
     with pytest.raises(FileNotFoundError, match=r"has no linear heads.*pip install lpips"):
         load_lpips(trunk_only)
     bad = tmp_path / "bad_heads.pth"  # heads of the wrong size are refused, not reshaped
-    torch.save({**load_file(str(trunk_only)), **{f"lin{k}.model.1.weight": torch.ones(1, 3, 1, 1) for k in range(5)}}, bad)
+    torch.save({**load_file(str(trunk_only)), **{f"lin{k}.model.1.weight": torch.ones(1, 3, 1, 1) for k in range(5)}},
+               bad)
     with pytest.raises(ValueError, match="lin0 has shape"):
         load_lpips(bad)
 

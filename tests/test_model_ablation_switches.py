@@ -63,7 +63,8 @@ DEFAULT_CHECKSUMS = {
 def test_default_configuration_is_unchanged():
     cfg = get_config("tiny")
     vol = cfg.volume
-    assert (vol.color, vol.placement, vol.scale_transform, vol.image_query) == ("retrieval", "per_camera", "paper", "coarse")
+    assert (vol.color, vol.placement, vol.scale_transform, vol.image_query) == ("retrieval", "per_camera", "paper",
+                                                                                "coarse")
     torch.manual_seed(0)
     model = from_config("tiny")
     # no new parameters in the default model (checkpoints stay loadable)
@@ -105,7 +106,8 @@ def test_switch_forward_backward(name):
 
 
 def test_switches_validate_with_clear_errors():
-    for field, bad in [("color", "rgb"), ("placement", "everywhere"), ("scale_transform", "log"), ("image_query", "half")]:
+    for field, bad in [("color", "rgb"), ("placement", "everywhere"), ("scale_transform", "log"),
+                       ("image_query", "half")]:
         with pytest.raises(ValueError, match=f"volume.{field}"):
             get_config("tiny", **{f"volume.{field}": bad})
     with pytest.raises(ValueError, match="central.*shared"):
@@ -118,7 +120,8 @@ def test_switches_are_experiment_overrides():
                  "model.volume.scale_transform=cartesian", "model.volume.image_query=full"]
     cfg = training.load_config(None, overrides)
     vol = cfg.model.validate().volume
-    assert (vol.color, vol.placement, vol.scale_transform, vol.image_query) == ("decoded", "central", "cartesian", "full")
+    assert (vol.color, vol.placement, vol.scale_transform, vol.image_query) == ("decoded", "central", "cartesian",
+                                                                                "full")
 
 
 # -- w/o RGB retrieval ---------------------------------------------------------------------------------
@@ -336,7 +339,8 @@ def test_full_queries_match_explicit_loop():
     planes = [torch.randn(1, grid[a], grid[b], 8, dtype=torch.float64) for a, b in PLANE_AXES]
     features = torch.randn(1, 4, 8, 16, dtype=torch.float64)
     got = module(planes, features)
-    expected = _reference_image_attention(module, planes, features[:, None], torch.eye(4, dtype=torch.float64).expand(1, 1, 4, 4))
+    expected = _reference_image_attention(module, planes, features[:, None],
+                                          torch.eye(4, dtype=torch.float64).expand(1, 1, 4, 4))
     for g, e in zip(got, expected):
         torch.testing.assert_close(g, e)
 

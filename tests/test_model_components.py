@@ -33,7 +33,8 @@ def test_triplane_feature_at_theta_zero_equals_two_pi():
     # also without relying on to_unit's wrap: unit theta 0 and 1 read the same value
     u0, u1 = coords.to_unit(q0).clone(), coords.to_unit(q0).clone()
     u1[..., 1] = 1.0
-    torch.testing.assert_close(sample_triplane(planes, u0, coords.periodic), sample_triplane(planes, u1, coords.periodic))
+    torch.testing.assert_close(sample_triplane(planes, u0, coords.periodic),
+                               sample_triplane(planes, u1, coords.periodic))
 
 
 def test_sampling_across_the_seam_matches_explicit_interpolation():
@@ -122,10 +123,12 @@ def test_quaternion_helpers():
     torch.testing.assert_close(matrix_to_quaternion(quaternion_to_matrix(q)), q, atol=1e-5, rtol=0)
     # 180 degree rotations (w = 0) are the hard case
     flips = torch.eye(4)[1:]
-    torch.testing.assert_close(quaternion_to_matrix(matrix_to_quaternion(quaternion_to_matrix(flips))), quaternion_to_matrix(flips))
+    torch.testing.assert_close(quaternion_to_matrix(matrix_to_quaternion(quaternion_to_matrix(flips))),
+                               quaternion_to_matrix(flips))
     a, b = q[:32], q[32:]
     torch.testing.assert_close(
-        quaternion_to_matrix(quaternion_multiply(a, b)), quaternion_to_matrix(a) @ quaternion_to_matrix(b), atol=1e-5, rtol=0
+        quaternion_to_matrix(quaternion_multiply(a, b)), quaternion_to_matrix(a) @ quaternion_to_matrix(b), atol=1e-5,
+        rtol=0
     )
 
 
@@ -178,7 +181,8 @@ def test_windowed_retrieval_matches_a_loop_over_views_and_pixels():
                 samples.append(c)
     expected_w = torch.softmax(torch.stack(logits), dim=0)  # (V*K, N)
     torch.testing.assert_close(weights[0].flatten(0, 1).double(), expected_w, atol=1e-5, rtol=1e-4)
-    torch.testing.assert_close(colors[0].double(), (expected_w[..., None] * torch.stack(samples)).sum(0), atol=1e-5, rtol=1e-4)
+    torch.testing.assert_close(colors[0].double(), (expected_w[..., None] * torch.stack(samples)).sum(0), atol=1e-5,
+                               rtol=1e-4)
 
 
 def test_windowed_retrieval_reads_the_hidden_surface_beside_the_occluder():
@@ -232,7 +236,8 @@ def test_shared_and_isolated_initialisation_match_explicit_loops():
     torch.manual_seed(7)
     grid, radius, height = (3, 8, 4), 2.0, 2.0
     coords = CylindricalCoords(radius=radius, height=height)
-    c2w = torch.stack((make_c2w(translation=torch.tensor([0.0, 0, 0])), make_c2w(translation=torch.tensor([1.0, 0, 0.5]))))
+    c2w = torch.stack((make_c2w(translation=torch.tensor([0.0, 0, 0])),
+                       make_c2w(translation=torch.tensor([1.0, 0, 0.5]))))
     # points around both cameras; some outside both volumes (|y| > 1 or far away)
     points = torch.randn(2, 40, 3) * torch.tensor([1.5, 0.8, 1.5]) + torch.tensor([0.5, 0.0, 0.25])
     feats = torch.randn(2, 40, 4)
@@ -336,10 +341,12 @@ def test_hidden_confidence_keeps_only_space_no_view_saw():
                             [1.0, 0.0, 3.5]]])   # beyond 3 m from both cameras: hidden from every view
     conf = hidden_confidence(points, c2w, depth, sigma=0.1)
     assert conf[0, 0] < 1e-3 and conf[0, 1] < 0.01 and conf[0, 2] == pytest.approx(1.0)
-    # The product of the per-view front attenuations, each from the formula exp(-e^2 / (2 sigma^2)), e = min(0, d/d_pred - 1)
+    # The product of the per-view front attenuations, each from the formula exp(-e^2 / (2 sigma^2)),
+    # e = min(0, d/d_pred - 1)
     d0 = torch.linalg.vector_norm(points[0, 1])
     d1 = torch.linalg.vector_norm(points[0, 1] - torch.tensor([2.0, 0, 0]))
-    expected = math.exp(-0.5 * (min(0.0, float(d0) / 3 - 1) / 0.1) ** 2) * math.exp(-0.5 * (min(0.0, float(d1) / 3 - 1) / 0.1) ** 2)
+    expected = (math.exp(-0.5 * (min(0.0, float(d0) / 3 - 1) / 0.1) ** 2)
+                * math.exp(-0.5 * (min(0.0, float(d1) / 3 - 1) / 0.1) ** 2))
     assert float(conf[0, 1]) == pytest.approx(expected, rel=1e-4)
 
 

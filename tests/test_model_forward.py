@@ -56,7 +56,8 @@ def test_pixel_gaussians_lie_on_refined_depth(tiny_model):
     for v in range(2):
         offset = means[v] - c2w[0, v, :3, 3]
         torch.testing.assert_close(offset.norm(dim=-1), out.refined_depth[0, v].reshape(-1), rtol=1e-4, atol=1e-5)
-        torch.testing.assert_close(offset / offset.norm(dim=-1, keepdim=True), rays_cam @ c2w[0, v, :3, :3].T, atol=1e-5, rtol=0)
+        torch.testing.assert_close(offset / offset.norm(dim=-1, keepdim=True), rays_cam @ c2w[0, v, :3, :3].T,
+                                   atol=1e-5, rtol=0)
     # refinement is a bounded multiplicative residual on the prior
     ratio = out.refined_depth / depth
     bound = math.exp(tiny_model.config.pixel.max_log_depth_offset)

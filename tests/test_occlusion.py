@@ -36,7 +36,8 @@ def _pose(centre):
 
 def test_mask_matches_segment_sphere_visibility():
     h, w = 48, 96
-    target, context = torch.tensor([0.0, 0.0, 0.0], dtype=torch.float64), torch.tensor([3.0, 0.0, 0.0], dtype=torch.float64)
+    target = torch.tensor([0.0, 0.0, 0.0], dtype=torch.float64)
+    context = torch.tensor([3.0, 0.0, 0.0], dtype=torch.float64)
     t_depth = _depth(target, h, w)
     # the plain depth test at every pixel (no context window, no edge band)
     mask = occluded_mask(t_depth, _pose(target), _depth(context, h, w)[None], _pose(context)[None], rel_tol=0.05,
@@ -65,7 +66,8 @@ def test_a_view_sees_itself_and_more_contexts_hide_less():
     assert not occluded_mask(t_depth, _pose(target), t_depth[None], _pose(target)[None]).any()
     plain = {"context_window": 0, "edge_band": 0, "decision_height": 0}
     one = occluded_mask(t_depth, _pose(target), _depth(a, h, w)[None], _pose(a)[None], **plain)
-    two = occluded_mask(t_depth, _pose(target), torch.stack((_depth(a, h, w), _depth(b, h, w))), torch.stack((_pose(a), _pose(b))),
+    two = occluded_mask(t_depth, _pose(target), torch.stack((_depth(a, h, w), _depth(b, h, w))),
+                        torch.stack((_pose(a), _pose(b))),
                         **plain)
     assert one.any() and (two <= one).all() and two.sum() < one.sum()
     assert 0 < occluded_fraction(two) < occluded_fraction(one) < 1
@@ -77,7 +79,8 @@ def test_invalid_depths_and_bad_shapes():
     t_depth = _depth(target, h, w)
     t_depth[0] = 0  # no depth: never counted as occluded
     ctx = torch.zeros_like(t_depth)  # a context without depth sees nothing
-    mask = occluded_mask(t_depth, _pose(target), ctx[None], _pose(torch.tensor([1.0, 0, 0]))[None], edge_band=0, decision_height=0)
+    mask = occluded_mask(t_depth, _pose(target), ctx[None], _pose(torch.tensor([1.0, 0, 0]))[None], edge_band=0,
+                         decision_height=0)
     assert not mask[0].any() and mask[1:].all()
     # with the default edge band, the row beside the pixels without depth gets no decision either
     banded = occluded_mask(t_depth, _pose(target), ctx[None], _pose(torch.tensor([1.0, 0, 0]))[None], decision_height=0)

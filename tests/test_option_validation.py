@@ -24,9 +24,11 @@ def _error_line(argv, capsys) -> str:
     ("train.amp=banana", "train.amp must be one of auto, bf16, off; got 'banana'"),
     ("loss.rgb_l1=-1", "loss.rgb_l1 must be >= 0, got -1"),
     ("model.attention.dim=-48", "invalid model config: attention.dim must be >= 1, got -48"),
-    ("train.epochs_per_stage=-1", "train.epochs_per_stage must be a number > 0 (or null to use steps_per_stage), got -1"),
+    ("train.epochs_per_stage=-1", "train.epochs_per_stage must be a number > 0 (or null to use steps_per_stage), got "
+                                  "-1"),
     ("train.lr=nan", "train.lr must be a finite number, got 'nan'"),
-    ("train.steps_per_stage=[abc]", "train.steps_per_stage must be a list of numbers like [1000, 1000, 1000], got ['abc']"),
+    ("train.steps_per_stage=[abc]", "train.steps_per_stage must be a list of numbers like [1000, 1000, 1000], got "
+                                    "['abc']"),
     ("data.resolution=[10,1]", "data.resolution must be [H, W] with W == 2H and H >= 8, e.g. [128, 256]; got [10, 1]"),
 ])
 def test_config_overrides_are_checked_when_parsed(tmp_path, capsys, override, message):
@@ -58,7 +60,8 @@ def test_config_overrides_are_checked_when_parsed(tmp_path, capsys, override, me
 ])
 def test_command_options_are_checked_when_parsed(capsys, argv, message):
     command = " ".join(a for a in argv[:2] if not a.startswith("-") and a not in ("x",))
-    assert _error_line(argv, capsys) == f"cylindersplat {command}: error: {message} (see cylindersplat {command} --help)"
+    expected = f"cylindersplat {command}: error: {message} (see cylindersplat {command} --help)"
+    assert _error_line(argv, capsys) == expected
 
 
 def test_triton_rendering_without_cuda_is_refused_before_training(tmp_path, monkeypatch, capsys):
@@ -71,6 +74,6 @@ def test_triton_rendering_without_cuda_is_refused_before_training(tmp_path, monk
             "train.render_backend=triton"]
     monkeypatch.setattr("cylindersplat.render.api.available_backends", lambda: ["torch", "triton"])
     monkeypatch.setattr("cylindersplat.training.trainer.available_backends", lambda: ["torch", "triton"])
-    assert _error_line(argv, capsys) == ("cylindersplat train: error: train.render_backend=triton needs a CUDA GPU, but "
-                                         "training runs on cpu; use train.render_backend=auto (or torch), or "
+    assert _error_line(argv, capsys) == ("cylindersplat train: error: train.render_backend=triton needs a CUDA GPU, "
+                                         "but training runs on cpu; use train.render_backend=auto (or torch), or "
                                          "train.device=cuda")

@@ -177,7 +177,8 @@ def test_image_modes_are_read_or_refused_explicitly(tmp_path):
     for name in ("g16.png", "f.tiff", "rgba.png"):
         rgb = read_rgb(tmp_path / name)
         assert rgb.shape == (3, 8, 16), name
-        np.testing.assert_allclose(rgb[1].numpy(), ramp, atol=1 / 255 + 1e-6, err_msg=name)  # not all white, not all black
+        # not all white, not all black
+        np.testing.assert_allclose(rgb[1].numpy(), ramp, atol=1 / 255 + 1e-6, err_msg=name)
     Image.fromarray((ramp * 3).astype(np.float32), mode="F").save(tmp_path / "hdr.tiff")
     with pytest.raises(ValueError, match="in \\[0, 1\\]"):
         read_rgb(tmp_path / "hdr.tiff")
@@ -187,7 +188,8 @@ def test_image_modes_are_read_or_refused_explicitly(tmp_path):
 
 
 def test_contact_sheet_eval_pictures_and_input_poses_are_atomic(tmp_path, monkeypatch, panorama_folder, synth_dataset):
-    """A failed write of a contact sheet, an evaluation picture or an input folder's poses.json keeps the earlier file."""
+    """A failed write of a contact sheet, an evaluation picture or an input folder's poses.json keeps the earlier
+    file."""
     from pathlib import Path
 
     from PIL import Image

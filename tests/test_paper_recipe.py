@@ -196,7 +196,8 @@ def test_finetune_360loc_preset_runs_on_priors_without_ground_truth(tmp_path, ca
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "loss.depth_reference=gt" in err[0] and "no ground-truth depth" in err[0]
     # Evaluation: PCC against the Depth Anywhere files although there is no ground truth.
-    assert main(["eval", "--config", "finetune_360loc", "--data", str(root), "--protocols", "all_between", "--resolution", "32x64",
+    assert main(["eval", "--config", "finetune_360loc", "--data", str(root), "--protocols", "all_between",
+                 "--resolution", "32x64",
                  "--out", str(tmp_path / "eval"), "--lpips", "off", "--pictures", "0", "--max-examples", "1"]) == 0
     means = next(iter(json.loads((tmp_path / "eval" / "results.json").read_text())["means"].values()))
     assert means["Forward warp"]["pcc"] is not None and means["Forward warp"]["abs_rel"] is None

@@ -18,7 +18,8 @@ def _camera() -> torch.Tensor:
     """An OpenCV c2w: turned 30° about +y and 10° about +x, at (1, -0.5, 2)."""
     a, b = math.radians(30), math.radians(10)
     yaw = torch.tensor([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]], dtype=torch.float64)
-    pitch = torch.tensor([[1, 0, 0], [0, math.cos(b), -math.sin(b)], [0, math.sin(b), math.cos(b)]], dtype=torch.float64)
+    pitch = torch.tensor([[1, 0, 0], [0, math.cos(b), -math.sin(b)], [0, math.sin(b), math.cos(b)]],
+                         dtype=torch.float64)
     c2w = torch.eye(4, dtype=torch.float64)
     c2w[:3, :3], c2w[:3, 3] = yaw @ pitch, torch.tensor([1.0, -0.5, 2.0], dtype=torch.float64)
     return c2w
@@ -45,9 +46,11 @@ def test_every_convention_gives_back_the_opencv_camera():
 def test_reading_poses_files_needs_nothing_above_the_data_layer(tmp_path):
     flip = torch.diag(torch.tensor([1.0, -1.0, -1.0, 1.0], dtype=torch.float64))
     (tmp_path / "transforms.json").write_text(json.dumps({
-        "camera_model": "EQUIRECTANGULAR", "frames": [{"file_path": "a.png", "transform_matrix": (_camera() @ flip).tolist()}]}))
+        "camera_model": "EQUIRECTANGULAR",
+        "frames": [{"file_path": "a.png", "transform_matrix": (_camera() @ flip).tolist()}]}))
     code = ("import sys; from cylindersplat.data.folder import read_poses_file; "
             f"entries = read_poses_file({str(tmp_path / 'transforms.json')!r}); "
-            "print(sorted(m for m in sys.modules if m.startswith('cylindersplat.inference')), entries[0][1][0, 3].item())")
+            "print(sorted(m for m in sys.modules if m.startswith('cylindersplat.inference')), "
+            "entries[0][1][0, 3].item())")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out[0] == "[]" and float(out[1]) == pytest.approx(1.0)  # read, and no upward import of the inference layer

@@ -159,7 +159,8 @@ def test_colmap_panorama_rig_gives_the_panorama_pose(tmp_path):
 
 def test_colmap_perspective_model_is_refused(tmp_path):
     write_colmap(tmp_path, _random_poses(2), 64, 32, "txt")
-    text = (tmp_path / "cameras.txt").read_text().replace("EQUIRECTANGULAR 64 32 64.0 32.0", "PINHOLE 64 32 50 50 32 16")
+    text = (tmp_path / "cameras.txt").read_text().replace("EQUIRECTANGULAR 64 32 64.0 32.0",
+                                                          "PINHOLE 64 32 50 50 32 16")
     (tmp_path / "cameras.txt").write_text(text)
     with pytest.raises(ValueError, match="perspective camera and is not named <virtual camera>/<panorama>"):
         read_colmap(tmp_path)
@@ -206,7 +207,8 @@ def test_metashape_frame_sensor_is_refused(tmp_path):
     text = (DATA / "metashape_spherical.xml").read_text().replace('sensor_id="0" component_id="0" label="R0010002"',
                                                                    'sensor_id="1" component_id="0" label="R0010002"')
     (tmp_path / "cameras.xml").write_text(text)
-    with pytest.raises(ValueError, match=r"R0010002.*sensor '1' is of type 'frame'; cylindersplat needs 360° panoramas"):
+    with pytest.raises(ValueError, match=r"R0010002.*sensor '1' is of type 'frame'; cylindersplat needs 360° "
+                                         r"panoramas"):
         read_metashape_xml(tmp_path / "cameras.xml")
 
 
@@ -278,6 +280,7 @@ def test_import_poses_from_metashape_finds_labels_without_suffix(tmp_path):
     for name in ("R0010001.jpg", "R0010002.jpg"):
         (tmp_path / name).write_bytes(b"")
     out = tmp_path / "poses.json"
-    assert main(["data", "import-poses", str(DATA / "metashape_spherical.xml"), "--from", "metashape", "--out", str(out),
+    assert main(["data", "import-poses", str(DATA / "metashape_spherical.xml"), "--from", "metashape", "--out",
+                 str(out),
                  "--images", str(tmp_path)]) == 0
     assert [e[0] for e in read_poses_file(out)] == ["R0010001.jpg", "R0010002.jpg"]

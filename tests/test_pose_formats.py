@@ -93,9 +93,12 @@ def _write_all_formats(folder, cams):
     """The same cameras as every supported file: {name: (path, reader)}."""
     folder.mkdir(parents=True, exist_ok=True)
     names = [f"pano_{k}.png" for k in range(len(cams))]
-    (folder / "opencv_c2w.json").write_text(json.dumps({"frames": [{"image": n, "c2w": c.tolist()} for n, c in zip(names, cams)]}))
-    (folder / "opengl_c2w.json").write_text(json.dumps({"convention": "opengl_c2w", "poses": [(c @ GL).tolist() for c in cams]}))
-    (folder / "opencv_w2c.json").write_text(json.dumps({"convention": "opencv_w2c", "poses": [torch.linalg.inv(c).tolist() for c in cams]}))
+    (folder / "opencv_c2w.json").write_text(json.dumps({"frames": [{"image": n, "c2w": c.tolist()}
+                                                                   for n, c in zip(names, cams)]}))
+    (folder / "opengl_c2w.json").write_text(json.dumps({"convention": "opengl_c2w",
+                                                        "poses": [(c @ GL).tolist() for c in cams]}))
+    (folder / "opencv_w2c.json").write_text(json.dumps({"convention": "opencv_w2c",
+                                                        "poses": [torch.linalg.inv(c).tolist() for c in cams]}))
     (folder / "opengl_w2c.json").write_text(json.dumps({"convention": "opengl_w2c",
                                                         "poses": [torch.linalg.inv(c @ GL).tolist() for c in cams]}))
     (folder / "transforms.json").write_text(json.dumps({
@@ -104,11 +107,14 @@ def _write_all_formats(folder, cams):
     shots = {}
     for n, c in zip(names, cams):
         r_cw = c[:3, :3].T
-        shots[n] = {"camera": "v2 spherical", "rotation": _matrix_to_axis_angle(r_cw), "translation": (-r_cw @ c[:3, 3]).tolist()}
+        shots[n] = {"camera": "v2 spherical", "rotation": _matrix_to_axis_angle(r_cw),
+                    "translation": (-r_cw @ c[:3, 3]).tolist()}
     (folder / "reconstruction.json").write_text(json.dumps([{
-        "cameras": {"v2 spherical": {"projection_type": "spherical", "width": W, "height": H}}, "shots": shots, "points": {}}]))
+        "cameras": {"v2 spherical": {"projection_type": "spherical", "width": W, "height": H}}, "shots": shots,
+        "points": {}}]))
     (folder / "tum.txt").write_text("# timestamp tx ty tz qx qy qz qw\n" + "".join(
-        f"{k / 10} {' '.join(map(repr, c[:3, 3].tolist()))} {' '.join(map(repr, _matrix_to_quaternion_xyzw(c[:3, :3])))}\n"
+        f"{k / 10} {' '.join(map(repr, c[:3, 3].tolist()))} "
+        f"{' '.join(map(repr, _matrix_to_quaternion_xyzw(c[:3, :3])))}\n"
         for k, c in enumerate(cams)))
     (folder / "kitti.txt").write_text("".join(" ".join(map(repr, c[:3].flatten().tolist())) + "\n" for c in cams))
     return names, shots
@@ -124,7 +130,8 @@ def test_each_tool_sees_the_same_rays_through_the_same_pixels(tmp_path):
         ours = _our_world_rays(c)
         torch.testing.assert_close(_nerfstudio_world_rays(c @ GL), _our_world_rays(records[k].c2w), atol=1e-9, rtol=0)
         torch.testing.assert_close(_nerfstudio_world_rays(c @ GL), ours, atol=1e-9, rtol=0)
-        torch.testing.assert_close(_opensfm_world_rays(shots[f"pano_{k}.png"]["rotation"]), _our_world_rays(opensfm[k].c2w),
+        torch.testing.assert_close(_opensfm_world_rays(shots[f"pano_{k}.png"]["rotation"]),
+                                   _our_world_rays(opensfm[k].c2w),
                                    atol=1e-9, rtol=0)
         torch.testing.assert_close(_stella_world_rays(tum[k].c2w), ours, atol=1e-7, rtol=0)
         torch.testing.assert_close(_stella_world_rays(kitti[k].c2w), ours, atol=1e-7, rtol=0)
@@ -159,7 +166,8 @@ def test_non_panorama_files_are_refused_in_one_line(tmp_path):
             read_poses_file(tmp_path / "transforms.json")
         assert "\n" not in str(info.value)
     (tmp_path / "r.json").write_text(json.dumps([{"cameras": {"c": {"projection_type": "perspective"}},
-                                                  "shots": {"a.jpg": {"camera": "c", "rotation": [0, 0, 0], "translation": [0, 0, 0]}}}]))
+                                                  "shots": {"a.jpg": {"camera": "c", "rotation": [0, 0, 0],
+                                                                      "translation": [0, 0, 0]}}}]))
     with pytest.raises(ValueError, match="projection_type 'perspective'"):
         read_opensfm(tmp_path / "r.json")
 

@@ -21,21 +21,26 @@ def wide_sample(tmp_path_factory):
     return SyntheticDataset(root, views="two_view")[0]
 
 
+
+def _inputs(sample):
+    """The sample's context images, true depths and poses as a batch of one."""
+    return sample.context_images[None], sample.context_gt_depths[None], sample.context_poses[None]
+
 def test_recovers_known_scale_errors_of_the_true_depth(wide_sample):
     """The true depth shrunk by 0.8 in one view and stretched by 1.25 in the other: the search undoes both."""
-    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    images, depth, c2w = _inputs(wide_sample)
     errors = torch.tensor([0.8, 1.25])
     found = photometric_prior_scales(images, depth * errors[:, None, None], c2w)[0]
     torch.testing.assert_close(found * errors, torch.ones(2), atol=0.03, rtol=0)
 
 
 def test_true_depth_is_left_at_scale_one(wide_sample):
-    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    images, depth, c2w = _inputs(wide_sample)
     torch.testing.assert_close(photometric_prior_scales(images, depth, c2w)[0], torch.ones(2), atol=0.03, rtol=0)
 
 
 def test_cost_is_lowest_at_the_true_scale(wide_sample):
-    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    images, depth, c2w = _inputs(wide_sample)
     candidates = torch.tensor([[0.6, 0.8, 1.0, 1.25, 1.6]])
     for view in (0, 1):
         costs = scale_costs(images, depth, c2w, view, candidates)[0][0]
@@ -52,7 +57,7 @@ def test_no_parallax_keeps_the_prior(wide_sample):
 
 
 def test_single_view_and_missing_prior_are_left_alone(wide_sample):
-    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    images, depth, c2w = _inputs(wide_sample)
     assert torch.equal(photometric_prior_scales(images[:, :1], depth[:, :1], c2w[:, :1]), torch.ones(1, 1))
     missing = depth.clone()
     missing[:, 1] = 0
@@ -61,7 +66,7 @@ def test_single_view_and_missing_prior_are_left_alone(wide_sample):
 
 def test_search_at_pooled_resolution_matches(wide_sample):
     """Searching on images pooled to 32 rows finds the same scale as at the full 64 rows (to the fine step)."""
-    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    images, depth, c2w = _inputs(wide_sample)
     scaled = depth * torch.tensor([0.8, 1.25])[:, None, None]
     full = photometric_prior_scales(images, scaled, c2w)
     pooled = photometric_prior_scales(images, scaled, c2w, ScaleSearch(max_rows=32))
@@ -100,7 +105,8 @@ def test_export_cli_rescales_a_half_scale_depth(wide_sample, tiny_checkpoint, tm
     folder = write_panorama_folder(tmp_path / "scene", wide_sample.context_images, wide_sample.context_poses,
                                    wide_sample.context_gt_depths * 0.5)
     assert main(["export", "--input", str(folder), "--checkpoint", str(tiny_checkpoint), "--resolution", "64x128",
-                 "--out", str(tmp_path / "scene.ply"), "--prior-scale", "photometric", "--skip-plausibility-checks"]) == 0
+                 "--out", str(tmp_path / "scene.ply"), "--prior-scale", "photometric",
+                 "--skip-plausibility-checks"]) == 0
     line = next(out for out in capsys.readouterr().out.splitlines() if out.startswith("depth rescaled"))
     factors = [float(part.split(" x")[1]) for part in line.split(": ", 1)[1].split(", ")]
     assert len(factors) == 2 and all(abs(f - 2.0) < 0.06 for f in factors), line
@@ -209,10 +215,11 @@ def test_reading_listed_neighbours_equals_reading_every_other_view():
 
 
 def test_the_same_frames_listed_ten_times_are_searched_once(wide_sample, monkeypatch):
-    images, depth, c2w = wide_sample.context_images[None], wide_sample.context_gt_depths[None], wide_sample.context_poses[None]
+    images, depth, c2w = _inputs(wide_sample)
     depth = depth * torch.tensor([0.8, 1.25])[:, None, None]
     calls = _count_projections(monkeypatch)
     once = photometric_prior_scales(images, depth, c2w)
     single = len(calls)
-    repeated = photometric_prior_scales(images.repeat(1, 10, 1, 1, 1), depth.repeat(1, 10, 1, 1), c2w.repeat(1, 10, 1, 1))
+    repeated = photometric_prior_scales(images.repeat(1, 10, 1, 1, 1), depth.repeat(1, 10, 1, 1),
+                                        c2w.repeat(1, 10, 1, 1))
     assert len(calls) == 2 * single and torch.equal(repeated, once.repeat(1, 10))

@@ -26,7 +26,8 @@ def test_forward_memory_estimate_is_conservative_but_not_absurd():
     assert 309 * 2**20 <= forward_memory(tiny, 1, 512, 1024) <= 3 * 309 * 2**20
     assert 964 * 2**20 <= forward_memory(paper, 1, 512, 1024) <= 3 * 964 * 2**20
     # Grows with views and pixels; the pixel branch alone needs less than both branches.
-    assert forward_memory(paper, 2, 512, 1024) > forward_memory(paper, 1, 512, 1024) > forward_memory(paper, 1, 256, 512)
+    assert (forward_memory(paper, 2, 512, 1024) > forward_memory(paper, 1, 512, 1024)
+            > forward_memory(paper, 1, 256, 512))
     assert forward_memory(paper, 1, 512, 1024, mode="pixel") < forward_memory(paper, 1, 512, 1024)
 
 
@@ -124,7 +125,8 @@ def test_atomic_outputs_get_ordinary_permissions(tmp_path):
 
 def _scene():
     one = lambda *v: torch.tensor([v])  # noqa: E731
-    return Gaussians.from_rgb(one(0.0, 0.0, 2.0), one(0.1, 0.1, 0.1), one(1.0, 0.0, 0.0, 0.0), torch.ones(1), one(1, 0, 0))
+    return Gaussians.from_rgb(one(0.0, 0.0, 2.0), one(0.1, 0.1, 0.1), one(1.0, 0.0, 0.0, 0.0), torch.ones(1),
+                              one(1, 0, 0))
 
 
 @pytest.mark.parametrize("kwargs,error,message", [

@@ -68,7 +68,7 @@ def test_export_says_which_folder_has_depth_in_the_wrong_units(panorama_folder, 
     assert main(args) == 0
     notes = [line for line in capsys.readouterr().err.splitlines() if "note:" in line]
     assert notes == [f"cylindersplat export: note: {folder}: median scene depth {median:.3g} m is beyond 100 m, deeper "
-                     f"than any indoor room; if the scene is indoors, the depth is in the wrong units (fix {FIXES[0]}); "
-                     f"{SILENCE}"]
+                     "than any indoor room; if the scene is indoors, the depth is in the wrong units (fix "
+                     f"{FIXES[0]}); {SILENCE}"]
     assert main(args + ["--skip-plausibility-checks"]) == 0
     assert "note:" not in capsys.readouterr().err

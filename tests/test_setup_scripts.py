@@ -70,7 +70,8 @@ def _externally_managed_python() -> str | None:
             continue
         stdlib = subprocess.run([candidate, "-c", "import sysconfig; print(sysconfig.get_path('stdlib'))"],
                                 capture_output=True, text=True).stdout.strip()
-        can_make_venvs = subprocess.run([candidate, "-c", "import ensurepip, venv"], capture_output=True).returncode == 0
+        can_make_venvs = subprocess.run([candidate, "-c", "import ensurepip, venv"],
+                                        capture_output=True).returncode == 0
         if stdlib and (Path(stdlib) / "EXTERNALLY-MANAGED").is_file() and can_make_venvs:
             return candidate
     return None
@@ -101,7 +102,8 @@ STUBS = {  # what each stand-in does besides logging its call
     "apt-get": ('[ "$1" = install ] && printf \'#!/bin/sh\\necho chromium 1\\n\' > "$STUB_BIN/chromium" '
                 '&& chmod +x "$STUB_BIN/chromium"; exit 0'),
     "npm": ('prefix=$(echo "$*" | sed -n "s/.*--prefix \\\\([^ ]*\\\\).*/\\\\1/p"); mkdir -p "$prefix/bin" && '
-            'printf \'#!/bin/sh\\necho 3.7.0\\n\' > "$prefix/bin/splat-transform" && chmod +x "$prefix/bin/splat-transform"'),
+            'printf \'#!/bin/sh\\necho 3.7.0\\n\' > "$prefix/bin/splat-transform" && chmod +x '
+            '"$prefix/bin/splat-transform"'),
     "node": 'echo 22',
     "id": 'echo 0',  # root: apt-get would run
 }
@@ -130,7 +132,8 @@ def test_sh(tmp_path):
     def run(*args: str, **env: str):
         calls.write_text("")
         result = subprocess.run(["bash", str(repo / "scripts" / "test.sh"), *args], capture_output=True, text=True,
-                                env={"PATH": str(bin_dir), "HOME": str(home), "CALLS": str(calls), "STUB_BIN": str(bin_dir),
+                                env={"PATH": str(bin_dir), "HOME": str(home), "CALLS": str(calls),
+                                     "STUB_BIN": str(bin_dir),
                                      "PYTHON": str(bin_dir / "python"), **env})
         assert not any(home.iterdir()), list(home.iterdir())  # nothing written to the home folder
         return result, calls.read_text().splitlines(), repo
@@ -169,4 +172,5 @@ def test_test_sh_says_which_optional_part_it_skipped_and_why(test_sh, tmp_path):
         "test.sh: optional part 'formats' skipped: formats: Node.js and npm are needed (Debian: apt-get install "
         "nodejs npm; or https://nodejs.org); its tests will skip")
     quiet, _, _ = test_sh(CYLINDERSPLAT_SKIP_OPTIONAL="1")
-    assert quiet.stderr == "test.sh: no optional part installed (CYLINDERSPLAT_SKIP_OPTIONAL is set); their tests will skip\n"
+    assert quiet.stderr == ("test.sh: no optional part installed (CYLINDERSPLAT_SKIP_OPTIONAL is set); their tests "
+                            "will skip\n")

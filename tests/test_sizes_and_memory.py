@@ -82,7 +82,8 @@ def test_eval_uses_the_models_resolution_and_names_the_option(synth_dataset, tin
     common = ["eval", "--data", str(data), "--checkpoint", str(tiny_checkpoint), "--no-baseline", "--lpips", "off",
               "--max-examples", "1", "--pictures", "1"]
     assert main([*common, "--out", str(tmp_path / "e")]) == 0
-    assert "running the model at 64x128, its own resolution (--resolution HxW to choose another)" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "running the model at 64x128, its own resolution (--resolution HxW to choose another)" in said
     (picture,) = (tmp_path / "e" / "examples" / "two_view").glob("*.png")
     assert np.asarray(Image.open(picture)).shape[1] == 2 * 128 + 4  # RGB | depth columns of 128 pixels
     _memory_for(monkeypatch, 0)

@@ -66,7 +66,8 @@ def test_resume_after_kill_is_exact(synth_root, tmp_path):
 
 
 def test_config_overrides_and_errors(tmp_path):
-    cfg = load_config("tiny", ["train.lr=3e-4", "train.stages=[3]", "model.volume.init=isolated", "data.resolution=[32,64]"])
+    cfg = load_config("tiny", ["train.lr=3e-4", "train.stages=[3]", "model.volume.init=isolated",
+                               "data.resolution=[32,64]"])
     assert cfg.train.lr == 3e-4 and cfg.train.stages == (3,) and cfg.model.volume.init == "isolated"
     assert cfg.data.resolution == (32, 64)
     with pytest.raises(ValueError, match="unknown config key 'train.lrr'"):
@@ -261,7 +262,8 @@ def test_volume_weight_adds_the_volume_branchs_own_render_loss(synth_root, tmp_p
     from cylindersplat.render import render_equirect
     from cylindersplat.training.trainer import batch_to_device
 
-    cfg = _config(synth_root, tmp_path / "run", "train.stages=[3]", "train.steps_per_stage=[1]", "loss.volume_weight=0.5",
+    cfg = _config(synth_root, tmp_path / "run", "train.stages=[3]", "train.steps_per_stage=[1]",
+                  "loss.volume_weight=0.5",
                   f"loss.volume_loss={volume_loss}", "loss.use_lpips=off")
     trainer = Trainer(cfg)
     trainer._begin_stage()

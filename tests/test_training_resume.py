@@ -24,7 +24,8 @@ def _train(argv, capsys):
 @pytest.mark.slow  # 75 s at load 12 (2 shared cores)
 def test_resume_uses_the_runs_config_and_schedule(synth_dataset, tmp_path, capsys):
     run = tmp_path / "run"
-    code, out, err = _train(["--data", str(synth_dataset(2, seed=5)), "--out", str(run), "--stages", "1", "--steps", "3",
+    code, out, err = _train(["--data", str(synth_dataset(2, seed=5)), "--out", str(run), "--stages", "1", "--steps",
+                             "3",
                              "--max-steps", "1", *QUIET], capsys)
     assert code == 0 and f"resume with --resume {run}" in out
     # No --data, no --out, no --steps: all from the run (before: "data.root is not set", or the preset's schedule).

@@ -27,7 +27,8 @@ except ImportError:  # pragma: no cover - a Triton without the NVIDIA backend
 
 from cylindersplat.render import triton_binning_kernels, triton_kernels, triton_projection_kernels  # noqa: E402
 
-FLOAT_SCALARS = {"fx", "fy", "cx", "cy", "near", "pole_eps", "dilation", "sigma_extent", "alpha_min", "max_u2", "max_v2",
+FLOAT_SCALARS = {"fx", "fy", "cx", "cy", "near", "pole_eps", "dilation", "sigma_extent", "alpha_min", "max_u2",
+                 "max_v2",
                  "sigma2", "alpha_max", "t_min"}
 POINTER_TYPES = {"valid_ptr": "*i8", "depth_bits_ptr": "*i32", "pair_gaussian_ptr": "*i64", "rows_ptr": "*i64",
                  "cols_ptr": "*i64", "tile_start_ptr": "*i64"}

@@ -33,7 +33,8 @@ def _installed(module: str) -> bool:
 
 
 HAS_VISER = _installed("viser")
-needs_viser = pytest.mark.skipif(not HAS_VISER, reason="the view extra is not installed (pip install 'cylindersplat[view]')")
+needs_viser = pytest.mark.skipif(not HAS_VISER,
+                                 reason="the view extra is not installed (pip install 'cylindersplat[view]')")
 
 
 def _gaussians(n: int = 50, seed: int = 0) -> Gaussians:
@@ -91,7 +92,8 @@ def test_viser_scene_holds_the_splats_and_one_frustum_per_camera():
 
     g = _gaussians(40)
     poses = [_yaw(0.0, (0.0, 0.0, 0.0)), _yaw(0.7, (1.0, 0.1, 0.5)), _yaw(-2.0, (-0.5, 0.0, 2.0))]
-    cameras = [ViewCamera(p, f"pano {i}", np.full((8, 16, 3), 40 * i, np.uint8) if i else None) for i, p in enumerate(poses)]
+    cameras = [ViewCamera(p, f"pano {i}", np.full((8, 16, 3), 40 * i, np.uint8) if i else None)
+               for i, p in enumerate(poses)]
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     try:
         scene = build_scene(server, g, cameras)
@@ -138,7 +140,8 @@ def test_view_screenshot_renders_the_room_without_a_browser(tmp_path, capsys):
     image = np.asarray(Image.open(out), dtype=float)
     assert image.shape == (36, 48, 3) and image.std() > 10  # walls, floor and balls, not an empty white frame
     assert (np.abs(image - 255).max(axis=-1) > 30).mean() > 0.8
-    assert main(["view", str(ply), "--screenshot", str(tmp_path / "pano.png"), "--panorama", "--screenshot-size", "16x32",
+    assert main(["view", str(ply), "--screenshot", str(tmp_path / "pano.png"), "--panorama", "--screenshot-size",
+                 "16x32",
                  "--device", "cpu"]) == 0
     assert Image.open(tmp_path / "pano.png").size == (32, 16)
     assert main(["view", str(ply), "--screenshot", str(out), "--panorama", "--screenshot-size", "16x16"]) == 1
@@ -196,7 +199,8 @@ def test_view_reconstructs_like_export(tmp_path):
     from cylindersplat.model import from_config, save_model
 
     torch.manual_seed(0)
-    folder = write_panorama_folder(tmp_path / "scene", torch.rand(2, 3, 16, 32), torch.stack([_yaw(0.0, (0, 0, 0)), _yaw(0.3, (0.5, 0, 0.2))]),
+    folder = write_panorama_folder(tmp_path / "scene", torch.rand(2, 3, 16, 32),
+                                   torch.stack([_yaw(0.0, (0, 0, 0)), _yaw(0.3, (0.5, 0, 0.2))]),
                                    torch.rand(2, 16, 32) * 3 + 0.5)
     save_model(from_config("tiny"), tmp_path / "tiny.safetensors")
     common = ["--input", str(folder), "--checkpoint", str(tmp_path / "tiny.safetensors"), "--resolution", "16x32",
@@ -275,7 +279,8 @@ def test_min_opacity_leaves_faint_gaussians_out_of_the_screenshot(tmp_path):
     """A wall of faint Gaussians in front of the room: shown by default, gone with --min-opacity above theirs."""
     room = demo_room(density=3.0)
     u, v = torch.meshgrid(torch.linspace(-1, 1, 12), torch.linspace(-1, 1, 12), indexing="ij")
-    veil = Gaussians.from_rgb(torch.stack([u.flatten(), v.flatten(), torch.full((144,), 0.0)], dim=-1) + torch.tensor([0.0, 0.2, 0.0]),
+    veil_means = torch.stack([u.flatten(), v.flatten(), torch.full((144,), 0.0)], dim=-1) + torch.tensor([0, 0.2, 0])
+    veil = Gaussians.from_rgb(veil_means,
                               torch.full((144, 3), 0.15), torch.tensor([1.0, 0, 0, 0]).expand(144, 4),
                               torch.full((144,), 0.3), torch.tensor([1.0, 0.0, 0.0]).expand(144, 3))
     ply = save_ply(Gaussians.cat([room, veil]), tmp_path / "veiled.ply")
