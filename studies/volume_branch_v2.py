@@ -66,8 +66,8 @@ VARIANTS = pinned_to_earlier_tiny([
             ("model.pixel.edge_sigma=0",) + ALIGNED, kind="pixel"),
     # the colour oracle's widest window (17x17 taps: 19.45 dB hidden with the rescaled prior vs 19.08 for 9x9) and
     # stronger edge fading (the probe's +0.2 dB at test time), with the pixel-only row given the same edge fading
-    Variant("recipe_aligned_grid2x_w8_edge0.1", "recipe, priors rescaled, 8x32x16 grid, 17x17 colour taps, "
-            "pixel.edge_sigma 0.1", RECIPE + ALIGNED + GRID2X + ("model.volume.surface_window=8",
+    Variant("recipe_aligned_grid2x_w8_edge0.1", "recipe, priors rescaled, 8x32x16 grid, 17x17 colour "
+            "taps, pixel.edge_sigma 0.1", RECIPE + ALIGNED + GRID2X + ("model.volume.surface_window=8",
                                                                  "model.pixel.edge_sigma=0.1")),
     Variant("pixel_only_aligned_edge0.1", "pixel branch only, priors rescaled, pixel.edge_sigma 0.1",
             ALIGNED + ("model.pixel.edge_sigma=0.1",), kind="pixel"),
@@ -209,8 +209,8 @@ def main() -> None:
     parser.add_argument("--data", type=Path, help="the wide-holes data (default OUT/data; generated when absent)")
     parser.add_argument("--table", action="store_true", help="score every variant with finished runs of all seeds")
     parser.add_argument("--json", type=Path, help="copy the report here")
-    parser.add_argument("--probe", help="a variant: test-time clearing / edge-fading settings on its seed-0 run, "
-                                        "printed")
+    parser.add_argument("--probe", help="a variant: test-time clearing / edge-fading settings "
+                                        "on its seed-0 run, printed")
     parser.add_argument("--branches", action="store_true",
                         help="with --table: per variant and seed, each branch's alpha and WS-PSNR on hidden pixels")
     args = parser.parse_args()

@@ -114,8 +114,8 @@ def test_study_trains_scores_resumes_and_tabulates(tmp_path):
     table = (tmp_path / "study" / "ablation.md").read_text()
     assert "| full |" in table and "| pixel_only |" in table and "WS-PSNR" in table
     assert "| pixel_only + mean fill |" in table and "| forward_warp + inpaint fill |" in table
-    assert ("Background where a render covers no pixel: black, except the fill rows (+ mean fill: the inputs' mean "
-            "colour") in table
+    assert ("Background where a render covers no pixel: black, except the fill rows (+ mean "
+            "fill: the inputs' mean colour") in table
     # A second call scores the finished runs without training them again.
     again = run_study(data, tmp_path / "study", variants, seeds=(0, 1), schedule=Schedule(3, 2, 2), held_out=1,
                       resolution=(32, 64), log=lambda *_: None)

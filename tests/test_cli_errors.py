@@ -64,8 +64,8 @@ def _wrapped(exc):
     (PermissionError(errno.EACCES, "Permission denied", "/root/x"), "permission denied for /root/x"),
     (_wrapped(OSError(errno.ENOSPC, "No space left on device", "run/state.pt")),
      "disk full while writing run/state.pt"),
-    (RuntimeError('Error while serializing: I/O error: No space left on device (os error 28) at path '
-                  '"w/m.safetensors"'),
+    (RuntimeError('Error while serializing: I/O error: No space left on device (os error 28) '
+                  'at path "w/m.safetensors"'),
      "disk full while writing w/m.safetensors"),
     (torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 20 GiB"), "out of memory"),
     (RuntimeError("[enforce fail at alloc_cpu.cpp:127] DefaultCPUAllocator: can't allocate memory: you tried to "

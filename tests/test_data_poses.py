@@ -43,8 +43,8 @@ def test_perspective_photos_are_refused(tmp_path, capsys):
     _image(tmp_path / "a.jpg", 16, 32)
     _image(tmp_path / "b.jpg", 30, 40)
     _fails_with(capsys, ["data", "poses", str(tmp_path)], "b.jpg is 40x30, not an equirectangular 360° panorama "
-                "(width = 2 x height); data poses reconstructs 360° panoramas only: for perspective photos run COLMAP "
-                "itself")
+                "(width = 2 x height); data poses reconstructs 360° panoramas only: for perspective "
+                "photos run COLMAP itself")
     assert not (tmp_path / "poses.json").exists()
 
 

@@ -15,8 +15,8 @@ from cylindersplat.gaussians import Gaussians, formats, load_gaussians, save_gau
 from cylindersplat.gaussians.formats import SPLAT_TRANSFORM_ENV, find_splat_transform, splat_format
 
 needs_tool = pytest.mark.skipif(find_splat_transform() is None, reason="splat-transform is not installed: "
-                                "bash scripts/install_optional.sh formats puts it into the clone's .tools/ (Node.js >= "
-                                "20)")
+                                "bash scripts/install_optional.sh formats puts it into the "
+                                "clone's .tools/ (Node.js >= 20)")
 
 # Largest error each format may make (its quantisation): position (m), DC colour, opacity, log-scale, SH bands 1+
 # (None: SOG stores SH as a k-means palette, lossy without a per-value bound).

@@ -33,8 +33,8 @@ def test_an_image_outside_the_folder_is_refused_with_its_name(panorama_folder):
     with pytest.raises(OutsideFolderError) as info:
         load_panorama_folder(folder, (16, 32))
     assert str(info.value) == (f'{folder / "poses.json"} frame 1 "image": ../outside/pano_01.png is outside the input '
-                               f"folder {folder}; move the file into it (or pass --allow-outside-paths to read it "
-                               "anyway)")
+                               f"folder {folder}; move the file into it (or pass "
+                               "--allow-outside-paths to read it anyway)")
     assert len(load_panorama_folder(folder, (16, 32), allow_outside_paths=True).names) == 2  # the explicit way
 
 

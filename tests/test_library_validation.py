@@ -33,8 +33,8 @@ def _reflect(c2w):
 
 
 @pytest.mark.parametrize("change,message", [
-    (lambda i, d, c: i.mul_(255), "images must be RGB in [0, 1], got values in [0.0203213, 254.959]; divide 8-bit "
-                                  "images by 255"),
+    (lambda i, d, c: i.mul_(255), "images must be RGB in [0, 1], got values in [0.0203213, 254.959]; "
+                                  "divide 8-bit images by 255"),
     (lambda i, d, c: _nan_pixel(i), "images hold NaN or Inf values (view 0); give finite RGB in [0, 1]"),
     (lambda i, d, c: i.sub_(0.5), "images must be RGB in [0, 1], got values in [-0.49"),
     (lambda i, d, c: _nan_pixel(d), "depths hold NaN or Inf values (view 0); use 0 for unknown depth"),
@@ -245,6 +245,6 @@ def test_panorama_sized_gaussians_are_refused_for_memory_before_allocating(monke
     big = Gaussians.from_rgb(means, torch.full((n, 3), 5.0), torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4),
                              torch.full((n,), 0.9), torch.rand(n, 3))
     with pytest.raises(rasterize.RenderMemoryError, match=r"^this render of 1 view\(s\) at once needs about [\d.]+ GiB "
-                                                          r"for [\d,]+ row spans but 0.0 GiB are free on cpu; render "
-                                                          r"at a lower resolution"):
+                                                          r"for [\d,]+ row spans but 0.0 GiB are free on cpu; "
+                                                          r"render at a lower resolution"):
         render_equirect(big, torch.eye(4), 32, 64, backend="torch")

@@ -24,11 +24,11 @@ def _error_line(argv, capsys) -> str:
     ("train.amp=banana", "train.amp must be one of auto, bf16, off; got 'banana'"),
     ("loss.rgb_l1=-1", "loss.rgb_l1 must be >= 0, got -1"),
     ("model.attention.dim=-48", "invalid model config: attention.dim must be >= 1, got -48"),
-    ("train.epochs_per_stage=-1", "train.epochs_per_stage must be a number > 0 (or null to use steps_per_stage), got "
-                                  "-1"),
+    ("train.epochs_per_stage=-1", "train.epochs_per_stage must be a number > 0 (or null to use "
+                                  "steps_per_stage), got -1"),
     ("train.lr=nan", "train.lr must be a finite number, got 'nan'"),
-    ("train.steps_per_stage=[abc]", "train.steps_per_stage must be a list of numbers like [1000, 1000, 1000], got "
-                                    "['abc']"),
+    ("train.steps_per_stage=[abc]", "train.steps_per_stage must be a list of numbers "
+                                    "like [1000, 1000, 1000], got ['abc']"),
     ("data.resolution=[10,1]", "data.resolution must be [H, W] with W == 2H and H >= 8, e.g. [128, 256]; got [10, 1]"),
 ])
 def test_config_overrides_are_checked_when_parsed(tmp_path, capsys, override, message):

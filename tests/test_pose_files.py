@@ -207,8 +207,8 @@ def test_metashape_frame_sensor_is_refused(tmp_path):
     text = (DATA / "metashape_spherical.xml").read_text().replace('sensor_id="0" component_id="0" label="R0010002"',
                                                                    'sensor_id="1" component_id="0" label="R0010002"')
     (tmp_path / "cameras.xml").write_text(text)
-    with pytest.raises(ValueError, match=r"R0010002.*sensor '1' is of type 'frame'; cylindersplat needs 360° "
-                                         r"panoramas"):
+    with pytest.raises(ValueError, match=r"R0010002.*sensor '1' is of type 'frame'; "
+                                         r"cylindersplat needs 360° panoramas"):
         read_metashape_xml(tmp_path / "cameras.xml")
 
 

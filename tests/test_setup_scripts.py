@@ -172,5 +172,5 @@ def test_test_sh_says_which_optional_part_it_skipped_and_why(test_sh, tmp_path):
         "test.sh: optional part 'formats' skipped: formats: Node.js and npm are needed (Debian: apt-get install "
         "nodejs npm; or https://nodejs.org); its tests will skip")
     quiet, _, _ = test_sh(CYLINDERSPLAT_SKIP_OPTIONAL="1")
-    assert quiet.stderr == ("test.sh: no optional part installed (CYLINDERSPLAT_SKIP_OPTIONAL is set); their tests "
-                            "will skip\n")
+    assert quiet.stderr == ("test.sh: no optional part installed (CYLINDERSPLAT_SKIP_OPTIONAL is "
+                            "set); their tests will skip\n")

@@ -138,8 +138,8 @@ def expected_failure(exc: BaseException) -> str | None:
             s in text for s in ("can't allocate memory", "CUDA out of memory", "CUDA error: out of memory"))):
         return f"{OUT_OF_MEMORY} ({text.splitlines()[0][:200] if text else type(exc).__name__})"
     if isinstance(exc, RuntimeError) and "PytorchStreamWriter failed writing" in text:
-        return ("writing a PyTorch file failed (is the disk full or the folder not writable?): free space or choose "
-                "another --out")
+        return ("writing a PyTorch file failed (is the disk full or the folder not writable?): free "
+                "space or choose another --out")
     if isinstance(exc, (ValueError, FileNotFoundError)):
         return text
     if isinstance(exc, ModuleNotFoundError):
@@ -193,8 +193,8 @@ def _file_system_failure(exc: OSError) -> str | None:
     if exc.errno == errno.EROFS:
         return f"read-only file system{' at ' + path if path else ''}: choose another --out"
     if exc.errno in (errno.EACCES, errno.EPERM):
-        return (f"permission denied{' for ' + path if path else ''}: fix its permissions or choose a folder you can "
-                "write to (--out)")
+        return (f"permission denied{' for ' + path if path else ''}: fix its permissions or choose a folder "
+                "you can write to (--out)")
     if exc.errno == errno.ENOMEM:
         return OUT_OF_MEMORY
     if exc.errno in (errno.EEXIST, errno.ENOTDIR):

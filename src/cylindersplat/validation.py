@@ -196,8 +196,8 @@ def check_translation_plausible(c2w: Tensor, where: str) -> None:
     far = farthest_camera(c2w)
     if far > MAX_TRANSLATION_M:
         raise ImplausibleInputError(f"{where}: a camera lies {far:.3g} m from the origin, "
-                                    f"beyond {MAX_TRANSLATION_M:g} m; recentre the poses (subtract a common origin) "
-                                    "and give them in metres")
+                                    f"beyond {MAX_TRANSLATION_M:g} m; recentre the poses (subtract a common "
+                                    "origin) and give them in metres")
 
 
 def check_opacity_threshold(value, name: str = "min_opacity") -> float:

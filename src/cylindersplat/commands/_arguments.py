@@ -34,8 +34,8 @@ def check_output(path, folder: bool, option: str = "--out") -> None:
     path = Path(path)
     if path.exists():
         if folder and not path.is_dir():
-            raise ValueError(f"{option} {path} is a file, but this command writes a folder there: choose another "
-                             f"{option}")
+            raise ValueError(f"{option} {path} is a file, but this command writes a folder "
+                             f"there: choose another {option}")
         if not folder and path.is_dir():
             raise ValueError(f"{option} {path} is a folder, but this command writes a file: give a file name in it")
     parent = path if path.is_dir() else path.parent

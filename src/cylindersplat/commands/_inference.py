@@ -100,8 +100,8 @@ def reconstruct_from_args(args: argparse.Namespace):
     from ..model.pretrained import DEFAULT_PRETRAINED, from_pretrained
 
     if args.checkpoint is None:
-        print(f"using the shipped {DEFAULT_PRETRAINED} weights (trained on procedural scenes; --checkpoint for your "
-              "own)")
+        print(f"using the shipped {DEFAULT_PRETRAINED} weights (trained on procedural scenes; "
+              "--checkpoint for your own)")
     # refuses missing files, pickles, broken or diverged weights by name
     model = from_pretrained(args.checkpoint or DEFAULT_PRETRAINED, map_location=args.device)
     size = model_size(model.config, args.resolution)

@@ -32,8 +32,8 @@ def register(subparsers) -> None:
         "score them on the same held-out scenes (all pixels and pixels no input view sees) and write ablation.md / "
         "ablation.json. Resumable: finished runs are scored, not retrained. Results: benchmarks/RESULTS.md.",
     )
-    p.add_argument("--data", type=Path, help="synthetic dataset (default: generate OUT/data with the occlusion "
-                                             "profile)")
+    p.add_argument("--data", type=Path, help="synthetic dataset (default: generate OUT/data "
+                                             "with the occlusion profile)")
     p.add_argument("--out", type=Path, default=Path("outputs/ablation"),
                    help="output folder (default outputs/ablation)")
     p.add_argument("--variants", nargs="+", default=None, metavar="NAME",
@@ -41,8 +41,8 @@ def register(subparsers) -> None:
                    f"{', '.join(n for n in variant_names() if n not in extras)}; also available: {', '.join(extras)})")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1], help="training seeds (default 0 1)")
     p.add_argument("--steps", type=_steps, default=(300, 150, 150),
-                   help="optimizer steps of stages 1,2,3 of the full model; other variants get the same total (default "
-                        "300,150,150)")
+                   help="optimizer steps of stages 1,2,3 of the full model; other variants get the same "
+                        "total (default 300,150,150)")
     p.add_argument("--lr", type=float, default=2e-3, help="peak learning rate (default 2e-3)")
     p.add_argument("--scenes", type=positive_int, default=28,
                    help="scenes to generate when --data is not given (default 28)")
@@ -58,8 +58,8 @@ def register(subparsers) -> None:
                    "inpaint (a 2-D inpaint) behind the pixels a render leaves uncovered; none for no fill rows "
                    "(default mean,inpaint)")
     p.add_argument("--threads", type=positive_int, default=2, help="torch threads of every run (default 2): part of "
-                   "the recipe, as the thread count sets the order of float sums; the same count gives bit-identical "
-                   "reruns")
+                   "the recipe, as the thread count sets the order of float sums; the same count "
+                   "gives bit-identical reruns")
     p.add_argument("--json", type=Path, help="also copy ablation.json here (e.g. studies/results/ablation.json)")
     p.set_defaults(func=run)
 

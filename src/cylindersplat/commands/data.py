@@ -159,8 +159,8 @@ def register(subparsers) -> None:
                        help="HxW with W = 2H (default 256x512)")
     synth.add_argument("--frames", type=positive_int, default=3, help="frames per sequence, on a line (default 3)")
     synth.add_argument("--spacing", type=_spacing, default=None,
-                       help="metres between consecutive frames, or MIN:MAX drawn per scene (default 0.5; occlusion "
-                            "profile 0.5:1.0)")
+                       help="metres between consecutive frames, or MIN:MAX drawn per scene (default 0.5; "
+                            "occlusion profile 0.5:1.0)")
     synth.add_argument("--seed", type=int, default=0, help="dataset seed; scene i is fully determined by (seed, i)")
     synth.add_argument("--layouts", type=_layouts, default=None,
                        help="comma list of room,l_shape,two_rooms,outdoor (default all), optionally weighted: "
@@ -179,11 +179,11 @@ def register(subparsers) -> None:
                               help="move the middle frame (the two_view target) this far off the line, mostly sideways "
                               "(occlusion profile 0.4:1.0)")
     disocclusion.add_argument("--occluders", type=nonnegative_int, default=None, metavar="N",
-                              help="extra objects (pillars, cabinets, screens, ...) standing near the camera path "
-                                   "(occlusion profile 6)")
+                              help="extra objects (pillars, cabinets, screens, ...) standing near the camera "
+                                   "path (occlusion profile 6)")
     disocclusion.add_argument("--through-doorways", type=fraction, default=None, metavar="SHARE",
-                              help="share of doorway scenes whose camera line walks through the doorway (occlusion "
-                                   "profile 0.7)")
+                              help="share of doorway scenes whose camera line walks through the "
+                                   "doorway (occlusion profile 0.7)")
     synth.set_defaults(func=_synth)
 
     preview = sub.add_parser(
@@ -193,8 +193,8 @@ def register(subparsers) -> None:
         "poses-file order, depth tiles black where a frame has no depth file).",
     )
     preview.add_argument("--data", required=True,
-                         help="dataset folder (synthetic output, png_render_* folder, or a folder of posed panoramas "
-                              "or of such folders)")
+                         help="dataset folder (synthetic output, png_render_* folder, or a folder of posed "
+                              "panoramas or of such folders)")
     preview.add_argument("--out", required=True, help="output PNG path")
     preview.add_argument("--count", type=positive_int, default=4, help="number of examples (rows, default 4)")
     preview.add_argument("--height", type=int, default=128, help="tile height in pixels (width = 2x, default 128)")
@@ -253,8 +253,8 @@ def register(subparsers) -> None:
                         help="exported networks: HxW the network runs at (for networks exported with fixed shapes; "
                         "its output is resized back)")
     priors.add_argument("--layout", type=_dataset_layout, choices=["auto", *DATASET_SPECS], default="auto",
-                        help="dataset layout, as train and eval name it (default: detected; 'input' is folder's older "
-                             "name)")
+                        help="dataset layout, as train and eval name it (default: detected; "
+                             "'input' is folder's older name)")
     priors.add_argument("--split", default="all", help="360Loc: train, test or all locations (default all)")
     priors.add_argument("--batch-size", type=positive_int, default=4, help="panoramas per network call (default 4)")
     priors.add_argument("--device", type=device, default="auto",

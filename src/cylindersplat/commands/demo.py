@@ -31,8 +31,8 @@ DEFAULT_STEPS = "400,100,100"
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "demo",
-        help="the main job: synthetic data -> shipped (or --train: your own) tiny model -> reconstruct a held-out "
-             "scene, vs a baseline",
+        help="the main job: synthetic data -> shipped (or --train: your own) tiny model -> reconstruct a "
+             "held-out scene, vs a baseline",
         description="Generate procedural panoramas, take the shipped tiny-synth weights (or, with --train, train the "
         "tiny model for a few minutes on CPU; or --checkpoint), reconstruct a held-out scene from 2 panoramas and "
         "compare the novel view with ground truth and with forward-warping the nearest input panorama. Writes renders, "
@@ -63,8 +63,8 @@ def run(args: argparse.Namespace) -> int:
     if args.room:
         return render_room(args)
     if args.held_out < 1 or args.scenes - args.held_out < 1:
-        raise ValueError(f"need at least one training and one held-out scene (--scenes {args.scenes}, --held-out "
-                         f"{args.held_out})")
+        raise ValueError(f"need at least one training and one held-out scene (--scenes {args.scenes}, "
+                         f"--held-out {args.held_out})")
     args.steps = _parse_steps(args.steps)  # a bad --steps fails before any work, --train or not
     _check_resolution(args.resolution)
     start = time.perf_counter()

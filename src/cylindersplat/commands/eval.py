@@ -163,8 +163,8 @@ def run(args: argparse.Namespace) -> int:
         from ..model.pretrained import DEFAULT_PRETRAINED, from_pretrained
 
         if args.checkpoint is None:
-            print(f"using the shipped {DEFAULT_PRETRAINED} weights (--checkpoint for your own, --no-model for the "
-                  "baseline only)")
+            print(f"using the shipped {DEFAULT_PRETRAINED} weights (--checkpoint for your own, "
+                  "--no-model for the baseline only)")
         model = from_pretrained(args.checkpoint or DEFAULT_PRETRAINED, map_location=args.device)
         if model.mode == "pixel":  # a pixel-only model leaves holes: its fill rows beside it
             methods += fill_methods(model_method(model, "CylinderSplat (pixel only)", device=args.device), args.fills)
@@ -211,8 +211,8 @@ def run(args: argparse.Namespace) -> int:
             if spacing:
                 result.notes.append(spacing)
         if args.pcc_reference != "gt":
-            result.notes.append(f"PCC against {args.pcc_reference} (AbsRel, RMSE, δ1 against the ground truth, where "
-                                "there is one)")
+            result.notes.append(f"PCC against {args.pcc_reference} (AbsRel, RMSE, δ1 against the ground "
+                                "truth, where there is one)")
         for note in result.notes:
             print(f"{label}: {note}")
             notes.append(f"{label}: {note}")
@@ -286,8 +286,8 @@ def register(subparsers) -> None:
                         "targets, the other frames being the inputs (instead of --protocols)")
     parser.add_argument("--depth-prior", help="depth prior given to the methods: default (the dataset's; an error "
                         "where it has none), file:NAME (from `cylindersplat data priors`), gt, simulated, "
-                        "constant:METRES, exported:NET.pt2, unik3d:WEIGHTS, depth_anything_v2:MODEL, or none (zeros, "
-                        "on request only)")
+                        "constant:METRES, exported:NET.pt2, unik3d:WEIGHTS, depth_anything_v2:MODEL, or none "
+                        "(zeros, on request only)")
     parser.add_argument("--pcc-reference", help="reference depth of the PCC column: gt (default) or file:NAME, e.g. "
                         "file:depth_anywhere as in the paper (files from `cylindersplat data priors`)")
     parser.add_argument("--depth-range", nargs=2, action=NearFar, metavar=("NEAR", "FAR"),

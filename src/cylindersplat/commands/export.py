@@ -26,8 +26,8 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
-        "export", help="reconstruct posed panoramas into Gaussians and save them (3DGS PLY, .splat, .spz, "
-                       ".compressed.ply, .sog)",
+        "export", help="reconstruct posed panoramas into Gaussians and save them (3DGS PLY, .splat, "
+                       ".spz, .compressed.ply, .sog)",
         description="Run a trained model on a folder of posed equirect panoramas and write the Gaussians as a "
         "standard 3DGS PLY (world frame of the poses; opens in SuperSplat and other 3DGS viewers) or a compressed "
         "splat format (.spz, .compressed.ply, .sog: through PlayCanvas splat-transform). "

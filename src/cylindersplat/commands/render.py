@@ -53,8 +53,8 @@ def camera_record(camera, fov: float | None = None) -> dict:
     if isinstance(camera, Pinhole):
         k = camera.intrinsics
         return {"model": "pinhole", "height": camera.height, "width": camera.width, "K": k.tolist(),
-                "fov_x_deg": fov, "note": "OpenCV intrinsics, pixel centres at +0.5 (principal point W/2, H/2 when "
-                "centred)"}
+                "fov_x_deg": fov, "note": "OpenCV intrinsics, pixel centres at +0.5 "
+                "(principal point W/2, H/2 when centred)"}
     return {"model": "equirect", "height": camera.height, "width": camera.width}
 
 
@@ -136,8 +136,8 @@ def run(args: argparse.Namespace) -> int:
                              "them) and/or --camera-path POSES (a fly-through along exactly those poses)")
     else:
         if not args.input:
-            raise ValueError("give --input (with --checkpoint, or the shipped weights) or --ply to render an existing "
-                             "3DGS scene")
+            raise ValueError("give --input (with --checkpoint, or the shipped weights) or --ply to "
+                             "render an existing 3DGS scene")
     if args.output_resolution:
         _camera(args, *args.output_resolution)  # a bad size fails now, not after the reconstruction
     turn = _yaw(args.yaw)

@@ -329,8 +329,8 @@ class FolderDataset(PanoramaDataset):
             elif isinstance(target, str) and target in names + short + stems:
                 index = next(k for k in range(n) if target in (names[k], short[k], stems[k]))
             else:
-                raise ValueError(f"{where}: no frame {target!r} to hold out as a target; its frames: "
-                                 f"{', '.join(short)}")
+                raise ValueError(f"{where}: no frame {target!r} to hold out as a target; its "
+                                 f"frames: {', '.join(short)}")
             held.append(index)
         context = tuple(k for k in range(n) if k not in held)
         if not context:

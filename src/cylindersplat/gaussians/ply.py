@@ -100,12 +100,12 @@ def load_ply(path: str | Path, device=None, dtype=torch.float32) -> Gaussians:
     for name, values in fields.items():
         bad = ~np.isfinite(values).reshape(n, -1).all(axis=1)
         if bad.any():
-            raise ValueError(f"{path}: {int(bad.sum())} of {n} Gaussians have a non-finite {name}, e.g. vertex "
-                             f"{int(np.argmax(bad))}")
+            raise ValueError(f"{path}: {int(bad.sum())} of {n} Gaussians have a non-finite {name}, e.g. "
+                             f"vertex {int(np.argmax(bad))}")
     log_scales = fields["scale (scale_*)"].astype(np.float64)
     if (log_scales > 30).any():  # exp(30) m = 1e13 m: an overflowing or corrupt scale, not a scene
-        raise ValueError(f"{path}: scale_* (log standard deviation) up to {log_scales.max():.3g}; values above 30 are "
-                         "not plausible")
+        raise ValueError(f"{path}: scale_* (log standard deviation) up to {log_scales.max():.3g}; values "
+                         "above 30 are not plausible")
     if n and (np.linalg.norm(fields["rotation (rot_*)"], axis=1) == 0).any():
         raise ValueError(f"{path}: a Gaussian has the zero quaternion as rotation (rot_0..rot_3 all 0)")
     opacity = 1.0 / (1.0 + np.exp(-col("opacity").astype(np.float64)))

@@ -49,8 +49,8 @@ def load_splat(path: str | Path, device=None, dtype=torch.float32) -> Gaussians:
     path = Path(path)
     raw = path.read_bytes()
     if len(raw) % SPLAT_DTYPE.itemsize:
-        raise ValueError(f"{path}: {len(raw)} bytes is not a whole number of 32-byte .splat records; is it a .splat "
-                         "file?")
+        raise ValueError(f"{path}: {len(raw)} bytes is not a whole number of 32-byte .splat "
+                         "records; is it a .splat file?")
     data = np.frombuffer(raw, dtype=SPLAT_DTYPE)
     means = torch.from_numpy(data["position"].astype(np.float32))
     scales = torch.from_numpy(data["scale"].astype(np.float32))

@@ -95,8 +95,8 @@ def read_state(folder: Path, map_location: str | torch.device = "cpu") -> dict[s
     except OSError:
         raise
     except Exception as exc:  # noqa: BLE001 - truncated, foreign, random bytes: the unpickler fails in any way
-        raise ValueError(f"{path}: cannot read this training state ({' '.join(str(exc).split())[:200]}); "
-                         f"{advice}") from None
+        raise ValueError(f"{path}: cannot read this training state "
+                         f"({' '.join(str(exc).split())[:200]}); {advice}") from None
     missing = [key for key in STATE_KEYS if key not in state] if isinstance(state, dict) else list(STATE_KEYS)
     if missing:
         raise ValueError(f"{path} is not a training state written by cylindersplat (no {', '.join(missing)}); {advice}")

@@ -42,5 +42,5 @@ def read_json_file(path, what: str = "file") -> Any:
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
     except RecursionError:
-        raise ValueError(f"{path}: JSON nested too deeply to read (thousands of levels); is it the right "
-                         "file?") from None
+        raise ValueError(f"{path}: JSON nested too deeply to read "
+                         "(thousands of levels); is it the right file?") from None

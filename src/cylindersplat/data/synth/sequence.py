@@ -55,16 +55,16 @@ class SequenceConfig:
         if not 0 <= lo <= hi:
             raise ValueError(f"target_offset range must satisfy 0 <= min <= max, got {self.target_offset}")
         if hi > 0 and self.frames < 3:
-            raise ValueError("target_offset needs >= 3 frames (it moves the middle frame, a target between two "
-                             "contexts)")
+            raise ValueError("target_offset needs >= 3 frames (it moves the middle frame, a "
+                             "target between two contexts)")
         if not 0 <= self.through_doorways <= 1:
             raise ValueError(f"through_doorways must be in [0, 1], got {self.through_doorways}")
         if self.occluders < 0:
             raise ValueError(f"occluders must be >= 0, got {self.occluders}")
         if self.layout_weights:
             if len(self.layout_weights) != len(self.layouts):
-                raise ValueError(f"layout_weights needs one weight per layout {self.layouts}, got "
-                                 f"{self.layout_weights}")
+                raise ValueError(f"layout_weights needs one weight per layout {self.layouts}, "
+                                 f"got {self.layout_weights}")
             indoor = [w for name, w in zip(self.layouts, self.layout_weights) if name != "outdoor"]
             if min(self.layout_weights) < 0 or (indoor and sum(indoor) <= 0):
                 raise ValueError(f"layout_weights must be >= 0 with a positive indoor sum, got {self.layout_weights}")
@@ -227,8 +227,8 @@ def generate_sequence(seed: int, index: int, cfg: SequenceConfig = SequenceConfi
             if cfg.occluders:
                 scene = add_occluders(scene, rng, camera_path(poses), cfg.occluders, cfg.clearance)
             return SynthSequence(scene, poses, spacing, seed)
-    raise RuntimeError(f"could not place a {cfg.frames}-frame line with spacing {cfg.spacing} (seed {seed}, scene "
-                       f"{index})")
+    raise RuntimeError(f"could not place a {cfg.frames}-frame line with spacing {cfg.spacing} "
+                       f"(seed {seed}, scene {index})")
 
 
 def render_sequence(seq: SynthSequence, height: int, width: int) -> tuple[Tensor, Tensor]:
