@@ -20,13 +20,13 @@ import torch
 
 from cylindersplat.data.datasets import make_dataset
 from cylindersplat.evaluation.evaluate import evaluate
-from cylindersplat.evaluation.methods import Method, forward_warp_method, model_method, with_fill
+from cylindersplat.evaluation.methods import forward_warp_method, model_method, with_fill
 from cylindersplat.model.pretrained import from_pretrained
 
 SHARP = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5, "pixel.opacity": "opaque"}
 # the shipped weights' drawing: configs/recipes/tiny_sharp.yaml
 RECIPE = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5, "pixel.opacity": "opaque",
-          "pixel.refine_depth": "where_missing"}
+          "pixel.refine_depth": "where_missing", "fusion.surface_clearance": 0.2}
 VARIANTS = {
     "shipped": {},
     "dilation 0": {"render_dilation": 0.0},
@@ -44,6 +44,7 @@ VARIANTS = {
     "sharp + measured depth kept": {**SHARP, "pixel.refine_depth": "where_missing"},
     "tiny_sharp": RECIPE,
     "tiny (the paper's drawing)": "paper",
+    **{f"tiny_sharp + clearance {c:g}": {**RECIPE, "fusion.surface_clearance": c} for c in (0.0, 0.05, 0.1, 0.4)},
 }
 
 
@@ -62,7 +63,7 @@ def main() -> None:
     args = p.parse_args()
     base = from_pretrained(args.checkpoint)
     paper = {"render_dilation": 0.3, "pixel.footprint": "learned", "pixel.opacity": "learned",
-             "pixel.refine_depth": "everywhere"}
+             "pixel.refine_depth": "everywhere", "fusion.surface_clearance": 0.0}
     models = {name: base.with_config(**(paper if VARIANTS[name] == "paper" else VARIANTS[name]))
               for name in args.variants.split(",")}
     results = {}

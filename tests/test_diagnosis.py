@@ -129,3 +129,22 @@ def test_model_method_draws_with_the_models_dilation(sample):
     soft = render(gaussians, sample.target_poses, Equirect(h, w))
     assert torch.allclose(out.rgb, sharp.rgb, atol=1e-5)
     assert not torch.allclose(out.rgb, soft.rgb, atol=1e-3)
+
+
+def test_surface_clearance_fades_volume_gaussians_just_behind_a_seen_surface():
+    """``fusion.surface_clearance``: with a wall 2 m in front of the camera, volume points in front of it fade (seen
+    empty), points just behind it fade (inside the surface), points far behind it stay (hidden space); the factor
+    is the documented ``exp(-e^2/2s^2) * (1 - exp(-e^2/2c^2))`` of the relative depth error ``e``."""
+    from cylindersplat.model.fusion import hidden_confidence
+
+    depth = torch.full((1, 1, 16, 32), 2.0)
+    c2w = torch.eye(4)[None, None]
+    distances = torch.tensor([1.0, 1.9, 2.0, 2.1, 2.4, 4.0])
+    points = torch.stack([torch.zeros(6), torch.zeros(6), distances], dim=-1)[None]  # straight ahead
+    plain = hidden_confidence(points, c2w, depth, sigma=0.1)[0]
+    cleared = hidden_confidence(points, c2w, depth, sigma=0.1, clearance=0.2)[0]
+    e = (distances - 2.0) / 2.0
+    front = torch.exp(-0.5 * (e.clamp(max=0) / 0.1) ** 2)
+    assert torch.allclose(plain, front, atol=1e-5)
+    assert torch.allclose(cleared, front * (1 - torch.exp(-0.5 * (e.clamp(min=0) / 0.2) ** 2)), atol=1e-5)
+    assert cleared[2] < 1e-6 and cleared[3] < 0.05 and cleared[5] > 0.99 and cleared[0] < 1e-6

@@ -33,7 +33,7 @@ def test_shipped_weights_have_the_tiny_sharp_recipes_model():
     shipped = from_pretrained(DEFAULT_PRETRAINED).config
     assert shipped == load_config("recipes/tiny_sharp").model
     sharp = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5,
-             "pixel.opacity": "opaque", "pixel.refine_depth": "where_missing"}
+             "pixel.opacity": "opaque", "pixel.refine_depth": "where_missing", "fusion.surface_clearance": 0.2}
     assert load_config("tiny").model.replace(**sharp) == shipped
 
 
@@ -57,7 +57,7 @@ def test_shipped_weights_are_trained(tmp_path):
     torch.manual_seed(0)
     # both drawn as the paper draws them: with the shipped drawing an untrained pixel branch is already a sharp warp
     paper = {"render_dilation": 0.3, "pixel.footprint": "learned", "pixel.opacity": "learned",
-             "pixel.refine_depth": "everywhere"}
+             "pixel.refine_depth": "everywhere", "fusion.surface_clearance": 0.0}
     shipped = from_pretrained(DEFAULT_PRETRAINED).with_config(**paper)
     methods = [model_method(shipped, "shipped"), model_method(from_config(shipped.config).eval(), "untrained")]
     means = evaluate(dataset, methods, depth_range=DepthRange(0.05, 1000.0), progress=False).means

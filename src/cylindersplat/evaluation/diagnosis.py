@@ -32,12 +32,12 @@ from jaxtyping import Bool, Float
 from torch import Tensor
 
 from ..baselines.forward_warp import forward_warp, nearest_source
-from ..data.occlusion import depth_edges, occluded_mask, sample_mask
+from ..data.occlusion import depth_edges, occluded_mask
 from ..gaussians import Gaussians
 from ..geometry import camera_to_world, equirect_rays
 from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
-from ..model.gaussian_heads import surface_footprints
 from ..metrics import ssim, ws_psnr
+from ..model.gaussian_heads import surface_footprints
 from ..render import Equirect, render
 from ..render.api import RenderOutput
 from ..render.projection import RasterSettings
@@ -151,7 +151,7 @@ def source_shares(
         source[:n_pixel] = torch.where(view_of == nearest, 0, 1)
     onehot = torch.nn.functional.one_hot(source, 3).to(fused.means.dtype)
     tagged = replace(fused, sh=((onehot - 0.5) / 0.28209479177387814).unsqueeze(-2))[keep]
-    out = render(tagged, c2w_target, Equirect(height, width), backend="torch", settings=settings)
+    out = render(tagged, c2w_target, Equirect(height, width), settings=settings)
     return out.rgb
 
 
@@ -217,7 +217,7 @@ def diagnose_sample(model, sample, stored=(None, None), pixel_sigma: float = 0.5
         rows.append(DiagnosisRow("FW + inpaint", _scores(warp.rgb[t], target, masks, t),
                                  float(ssim(warp.rgb[t:t + 1].clamp(0, 1), target[None]))))
         for name, gaussians in ladder(output, images, given, c2w, int(nearest[t]), pixel_sigma).items():
-            out = render(gaussians, sample.target_poses[t:t + 1], Equirect(h, w), backend="torch", settings=settings)
+            out = render(gaussians, sample.target_poses[t:t + 1], Equirect(h, w), settings=settings)
             filled = fill_uncovered(RenderOutput(out.rgb, out.depth, out.alpha), images, "inpaint")
             rows.append(DiagnosisRow(name, _scores(filled.rgb[0], target, masks, t),
                                      float(ssim(filled.rgb[:1].clamp(0, 1), target[None]))))

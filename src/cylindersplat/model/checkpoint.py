@@ -9,8 +9,8 @@ import json
 from pathlib import Path
 
 import torch
-from safetensors.torch import load_file, save
 from safetensors import safe_open
+from safetensors.torch import load_file, save
 
 from .config import ModelConfig, config_from_dict, config_to_dict
 from .cylindersplat import CylinderSplat

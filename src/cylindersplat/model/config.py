@@ -188,6 +188,10 @@ class FusionConfig:
     # "seen_through": pixel Gaussians in front of another input view's refined surface (space that view saw
     # empty: flying pixels strung across depth edges) fade by the same rule, so the volume Gaussians behind show
     pixel_clearing: Literal["none", "seen_through"] = "none"
+    # > 0 (with side="hidden"; issue 34): volume Gaussians also fade just *behind* every view's refined surface, by
+    # 1 - exp(-e^2 / (2 clearance^2)) for a relative depth e behind it: inside a seen surface they can only leak
+    # through the pixel Gaussians' partial coverage; far behind it (hidden space) they stay. 0 = off (the paper)
+    surface_clearance: float = 0.0
 
 
 @dataclass
@@ -228,6 +232,8 @@ class ModelConfig:
             (vol.surface_temperature > 0 and vol.visibility_temperature > 0, "volume temperatures must be > 0"),
             (self.pixel.footprint_px > 0, f"pixel.footprint_px must be > 0 (pixels), got {self.pixel.footprint_px!r}"),
             (self.render_dilation >= 0, f"render_dilation must be >= 0 px^2, got {self.render_dilation!r}"),
+            (self.fusion.surface_clearance >= 0,
+             f"fusion.surface_clearance must be >= 0 (relative depth), got {self.fusion.surface_clearance!r}"),
         ]
         for ok, message in self._choice_checks() + checks + self._size_checks():
             if not ok:

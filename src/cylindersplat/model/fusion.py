@@ -44,17 +44,23 @@ def depth_confidence(
     refined_depth: Float[Tensor, "B V H W"],
     sigma: float,
     side: str = "both",
+    clearance: float = 0.0,
 ) -> Float[Tensor, "B V G"]:
-    """Agreement in ``(0, 1]`` of camera-frame points with their own view's predicted depth."""
+    """Agreement in ``(0, 1]`` of camera-frame points with their own view's predicted depth; with ``side="front"``
+    and ``clearance > 0`` also ``1 - exp(-e^2 / (2 clearance^2))`` for points a relative depth ``e`` behind it."""
     b, v, h, w = refined_depth.shape
     uv, distance = project_equirect(points_cam, h, w)
     predicted = sample_panorama(refined_depth.reshape(b * v, 1, h, w), uv.reshape(b * v, -1, 2)).view(b, v, -1)
     error = (distance - predicted) / predicted.clamp_min(1e-6)
+    behind = error.clamp_min(0.0)
     if side == "front":
         error = error.clamp_max(0.0)
     elif side != "both":
         raise ValueError(f"unknown pruning side {side!r}; expected 'both' or 'front'")
-    return torch.exp(-0.5 * (error / sigma) ** 2)
+    confidence = torch.exp(-0.5 * (error / sigma) ** 2)
+    if side == "front" and clearance > 0:
+        confidence = confidence * -torch.expm1(-0.5 * (behind / clearance) ** 2)
+    return confidence
 
 
 def hidden_confidence(
@@ -62,12 +68,13 @@ def hidden_confidence(
     c2w: Float[Tensor, "B V 4 4"],
     refined_depth: Float[Tensor, "B V H W"],
     sigma: float,
+    clearance: float = 0.0,
 ) -> Float[Tensor, "B N"]:
     """How hidden world points are from every input view: the product over views of the ``front``
     attenuation, so a point in front of *any* view's predicted surface (space that view saw empty)
     fades, and only space no input view observed keeps full opacity."""
     points = world_to_camera(means_world[:, None], c2w)  # (B, V, N, 3): every point in every view
-    return depth_confidence(points, refined_depth, sigma, "front").prod(dim=1)
+    return depth_confidence(points, refined_depth, sigma, "front", clearance).prod(dim=1)
 
 
 def fuse_gaussians(
@@ -87,7 +94,7 @@ def fuse_gaussians(
         if cfg.side == "hidden":
             if c2w is None:
                 raise ValueError("fusion.side=hidden needs the input poses")
-            confidence = hidden_confidence(volume.means, c2w, refined_depth, cfg.sigma)
+            confidence = hidden_confidence(volume.means, c2w, refined_depth, cfg.sigma, cfg.surface_clearance)
         else:
             confidence = depth_confidence(volume_points_cam, refined_depth, cfg.sigma, cfg.side).flatten(1)
         volume = replace(volume, opacities=volume.opacities * confidence)

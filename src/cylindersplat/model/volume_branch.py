@@ -45,10 +45,10 @@ from torch import Tensor, nn
 
 from ..gaussians import Gaussians
 from ..geometry import TriplaneCoordinates, camera_to_world, invert_rigid, make_coordinates, world_to_camera
+from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
 from .config import ModelConfig
 from .gaussian_heads import VolumeGaussianHead, cell_cartesian_extent, local_to_cartesian_scales
 from .rgb_retrieval import build_color_module
-from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
 from .triplane import grid_features, plane_shape, scatter_points_to_triplanes
 from .triplane_attention import TriplaneRefinementLayer
 
