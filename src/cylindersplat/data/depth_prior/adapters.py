@@ -78,7 +78,8 @@ def _clean_depth(depth: Tensor, size: tuple[int, int], where: str) -> Tensor:
     while depth.ndim > 2 and depth.shape[0] == 1:
         depth = depth[0]
     if depth.ndim != 2:
-        raise ValueError(f"{where}: expected a single depth map (1, 1, H, W), (1, H, W) or (H, W), got {tuple(depth.shape)}")
+        raise ValueError(f"{where}: expected a single depth map (1, 1, H, W), (1, H, W) or (H, W), "
+                         f"got {tuple(depth.shape)}")
     depth = torch.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).clamp_min(0)
     if tuple(depth.shape) != tuple(size):
         if depth.shape[1] != 2 * depth.shape[0]:
@@ -95,7 +96,8 @@ def _per_image(out: Tensor, count: int, where: str) -> list[Tensor]:
         return list(out)
     if count == 1:
         return [out]
-    raise ValueError(f"{where}: expected depth maps (B, 1, H, W) or (B, H, W) for a batch of {count}, got {tuple(out.shape)}")
+    raise ValueError(f"{where}: expected depth maps (B, 1, H, W) or (B, H, W) for a batch of {count}, "
+                     f"got {tuple(out.shape)}")
 
 
 class NetworkDepthPrior(DepthPrior):
@@ -142,10 +144,13 @@ class ExportedDepthPrior(NetworkDepthPrior):
         path = Path(weights)
         if not path.is_file():
             raise FileNotFoundError(
-                f"depth prior 'exported': no exported model at {path} (write one with torch.export.save or torch.jit.save)"
+                f"depth prior 'exported': no exported model at {path} "
+                "(write one with torch.export.save or torch.jit.save)"
             )
         if output not in ("depth", "inverse_depth", "log_depth"):
-            raise ValueError(f"depth prior 'exported': output must be depth, inverse_depth or log_depth, got {output!r}")
+            raise ValueError(
+                f"depth prior 'exported': output must be depth, inverse_depth or log_depth, got {output!r}"
+            )
         if not math.isfinite(scale) or scale <= 0:
             raise ValueError(f"depth prior 'exported': scale must be positive, got {scale}")
         kind = "torch.export (.pt2)" if path.suffix == ".pt2" else "TorchScript"
@@ -156,11 +161,13 @@ class ExportedDepthPrior(NetworkDepthPrior):
                 with _quiet_logger("torch.export"):  # it logs a traceback before raising; our one line says it all
                     self.module = torch.export.load(str(path)).module().to(device)
             else:
-                with warnings.catch_warnings():  # TorchScript still loads fine; its deprecation is not the user's problem
+                # TorchScript still loads fine; its deprecation is not the user's problem
+                with warnings.catch_warnings():
                     warnings.simplefilter("ignore", DeprecationWarning)
                     self.module = torch.jit.load(str(path), map_location=device).eval()
         except Exception as exc:  # noqa: BLE001 - torch raises many types for foreign files
-            raise ValueError(f"{path}: not a {kind} file ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from exc
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise ValueError(f"{path}: not a {kind} file ({first})") from exc
         self.path, self.device, self.input_size, self.output, self.scale = path, device, input_size, output, scale
         self.mean = torch.tensor(mean).view(1, 3, 1, 1) if mean is not None else None
         self.std = torch.tensor(std).view(1, 3, 1, 1) if std is not None else None
@@ -218,8 +225,8 @@ class ExportedDepthPrior(NetworkDepthPrior):
     def describe(self) -> dict:
         if self._sha256 is None:
             self._sha256 = file_sha256(self.path)
-        return {"network": self.name, "weights": str(self.path.resolve()), "sha256": self._sha256, "torch": torch.__version__,
-                "output": self.output, "scale": self.scale,
+        return {"network": self.name, "weights": str(self.path.resolve()), "sha256": self._sha256,
+                "torch": torch.__version__, "output": self.output, "scale": self.scale,
                 "input_size": list(self.input_size) if self.input_size is not None else None,
                 "mean": self.mean.flatten().tolist() if self.mean is not None else None,
                 "std": self.std.flatten().tolist() if self.std is not None else None}
@@ -269,7 +276,9 @@ class FoundationDepthAdapter(NetworkDepthPrior):
             except Exception as exc:  # noqa: BLE001 - the packages raise OSError, HTTP errors, ...
                 first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                 where = "a local folder" if self.weights is not None else "a hub id (needs network access or the cache)"
-                raise ValueError(f"depth prior {self.name!r}: could not load {self.source!r}, {where} ({first})") from exc
+                raise ValueError(
+                    f"depth prior {self.name!r}: could not load {self.source!r}, {where} ({first})"
+                ) from exc
         return self._model
 
     def predict(self, image: Tensor) -> Tensor:
@@ -327,7 +336,8 @@ class DepthAnythingV2Adapter(FoundationDepthAdapter):
     package = "transformers"
     install_hint = "pip install transformers"
     weights_hint = ("a Depth Anything V2 model folder in the transformers format (config.json, model.safetensors, "
-                    "preprocessor_config.json; e.g. a local copy of depth-anything/Depth-Anything-V2-Small-hf) or that hub id")
+                    "preprocessor_config.json; e.g. a local copy of depth-anything/Depth-Anything-V2-Small-hf) "
+                    "or that hub id")
 
     def __init__(self, weights: str | Path | None = None, device: str = "cpu", median_depth: float = 2.0) -> None:
         super().__init__(weights, device)
