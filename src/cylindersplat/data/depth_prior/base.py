@@ -9,8 +9,8 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
-__all__ = ["PriorQuery", "DepthPrior", "NoPrior", "MissingPrior", "GroundTruthPrior", "ConstantPrior", "StoredDepthPrior",
-           "MISSING_PRIOR_HELP"]
+__all__ = ["PriorQuery", "DepthPrior", "NoPrior", "MissingPrior", "GroundTruthPrior", "ConstantPrior",
+           "StoredDepthPrior", "MISSING_PRIOR_HELP"]
 
 
 @dataclass

@@ -52,6 +52,6 @@ def check_hub_id(repo_id: str, prior: str) -> None:
     if hub_cached(repo_id) or hub_reachable():
         return
     raise FileNotFoundError(
-        f"depth prior {prior!r}: {repo_id!r} is a hub id that is not in the local cache ({hub_cache_dir()}) and the hub "
-        f"cannot be reached from here; download it where there is network (e.g. `huggingface-cli download {repo_id} "
-        f"--local-dir DIR`) and give {prior}:DIR")
+        f"depth prior {prior!r}: {repo_id!r} is a hub id that is not in the local cache ({hub_cache_dir()}) "
+        "and the hub cannot be reached from here; download it where there is network "
+        f"(e.g. `huggingface-cli download {repo_id} --local-dir DIR`) and give {prior}:DIR")

@@ -151,7 +151,8 @@ def write_priors(
         depths = network.predict_batch(torch.stack([image for image, _, _ in batch]))
         for (image, rgb, path), depth in zip(batch, depths):
             if tuple(depth.shape) != tuple(image.shape[-2:]):
-                raise ValueError(f"network {net} returned {tuple(depth.shape)} for {rgb}, expected {tuple(image.shape[-2:])}")
+                raise ValueError(f"network {net} returned {tuple(depth.shape)} for {rgb}, "
+                                 f"expected {tuple(image.shape[-2:])}")
             if not bool((depth > 0).any()):
                 raise ValueError(f"network {net} gave no positive depth for {rgb} (all zeros/negative): check its "
                                  "output convention (depth, inverse_depth, log_depth) and scale")
@@ -174,8 +175,8 @@ def write_priors(
     flush()
     bar.close()
     if clipped:
-        warnings.warn(f"{clipped} pixels lie beyond {_PNG_MAX_METRES:.3f} m, the 16-bit PNG range, and were stored as 0 "
-                      "(unknown); use --format npy to keep them", stacklevel=2)
+        warnings.warn(f"{clipped} pixels lie beyond {_PNG_MAX_METRES:.3f} m, the 16-bit PNG range, and were stored "
+                      "as 0 (unknown); use --format npy to keep them", stacklevel=2)
     record.update(complete=True, finished=datetime.now(timezone.utc).isoformat(timespec="seconds"))
     atomic_write_text(tree / SIDECAR, json.dumps(record, indent=1))
     return PriorRun(tree, len(frames), len(pending), len(targets) - len(pending), time.perf_counter() - start)

@@ -32,13 +32,13 @@ def make_depth_prior(name: str, /, **kwargs) -> DepthPrior:
     return DEPTH_PRIORS[name](**kwargs)
 
 
-_EXPORT_HINT = ("; Depth Anywhere and UniFuse have no package API to call: export the network once with torch.export.save "
-                "where its code lives and give exported:NET.pt2 (docs/data.md)")
+_EXPORT_HINT = ("; Depth Anywhere and UniFuse have no package API to call: export the network once with "
+                "torch.export.save where its code lives and give exported:NET.pt2 (docs/data.md)")
 
 
 # The one positional argument a "name:value" spec fills in, per prior.
-_SPEC_ARGUMENT = {"constant": ("depth", float), "file": ("name", str), "simulated": ("seed", int), "degraded": ("kind", str),
-                 "mixed": ("parts", str),
+_SPEC_ARGUMENT = {"constant": ("depth", float), "file": ("name", str), "simulated": ("seed", int),
+                  "degraded": ("kind", str), "mixed": ("parts", str),
                   "exported": ("weights", str), "unik3d": ("weights", str), "depth_anything_v2": ("weights", str)}
 
 # Priors that run a depth network (what `cylindersplat data priors --net` accepts).
@@ -48,7 +48,8 @@ NETWORK_PRIORS = ("exported", "unik3d", "depth_anything_v2")
 def parse_depth_prior(spec: str, **kwargs) -> DepthPrior:
     """A prior from a command-line spec: ``name`` or ``name:value`` (``constant:2.5``, ``exported:net.pt2``,
     ``unik3d:/models/unik3d-vitl``, ``depth_anything_v2:depth-anything/Depth-Anything-V2-Small-hf``,
-    ``file:unik3d``, ``file:/priors/unik3d``, ``simulated:3`` (seed), ``simulated:blur_sigma=0.5,seed=3`` or ``degraded:mono`` / ``degraded:scale,seed=1``). ``kwargs`` go to the prior (e.g. ``device=`` of a network)."""
+    ``file:unik3d``, ``file:/priors/unik3d``, ``simulated:3`` (seed), ``simulated:blur_sigma=0.5,seed=3`` or
+    ``degraded:mono`` / ``degraded:scale,seed=1``). ``kwargs`` go to the prior (e.g. ``device=`` of a network)."""
     name, sep, value = spec.partition(":")
     if name not in DEPTH_PRIORS:
         make_depth_prior(name)  # the unknown-name error
@@ -66,7 +67,8 @@ def parse_depth_prior(spec: str, **kwargs) -> DepthPrior:
             else:
                 kwargs[key] = kind(value)
         except ValueError as error:
-            detail = str(error) if str(error).startswith(("simulated prior:", "degraded prior:", "mixed prior:")) else f"{value!r} is not a valid {key}"
+            own_message = str(error).startswith(("simulated prior:", "degraded prior:", "mixed prior:"))
+            detail = str(error) if own_message else f"{value!r} is not a valid {key}"
             raise ValueError(f"depth prior spec {spec!r}: {detail}") from None
     elif name in NETWORK_PRIORS:
         raise FileNotFoundError(f"depth prior {name!r} needs its weights: write {name}:PATH (see docs/data.md)")
@@ -78,7 +80,8 @@ def parse_depth_prior(spec: str, **kwargs) -> DepthPrior:
 
 
 def parse_network_prior(spec: str, **kwargs) -> NetworkDepthPrior:
-    """:func:`parse_depth_prior` for specs that name a depth network (``exported:``, ``unik3d:``, ``depth_anything_v2:``)."""
+    """:func:`parse_depth_prior` for specs that name a depth network (``exported:``, ``unik3d:``,
+    ``depth_anything_v2:``)."""
     name = spec.partition(":")[0]
     if name not in DEPTH_PRIORS:
         make_depth_prior(name)  # the unknown-name error (with the export route for Depth Anywhere / UniFuse)
@@ -88,8 +91,8 @@ def parse_network_prior(spec: str, **kwargs) -> NetworkDepthPrior:
     return parse_depth_prior(spec, **kwargs)
 
 
-for _cls in (NoPrior, GroundTruthPrior, ConstantPrior, SimulatedPrior, DegradedPrior, MixedPrior, FilePrior, ExportedDepthPrior, UniK3DAdapter,
-             DepthAnythingV2Adapter):
+for _cls in (NoPrior, GroundTruthPrior, ConstantPrior, SimulatedPrior, DegradedPrior, MixedPrior, FilePrior,
+             ExportedDepthPrior, UniK3DAdapter, DepthAnythingV2Adapter):
     register_depth_prior(_cls.name, _cls)
 
 

@@ -85,7 +85,8 @@ class SimulatedPrior(DepthPrior):
     @staticmethod
     def spec_arguments(text: str) -> dict:
         """Keyword arguments from a spec's value: ``SEED`` or ``key=value[,key=value...]`` with keys ``seed``
-        and the :class:`SimulatedPriorConfig` fields (``simulated:blur_sigma=0.5``, ``simulated:seed=2,noise_sigma=0``)."""
+        and the :class:`SimulatedPriorConfig` fields (``simulated:blur_sigma=0.5``,
+        ``simulated:seed=2,noise_sigma=0``)."""
         if "=" not in text:
             return {"seed": int(text)}
         fields = {f.name for f in dataclasses.fields(SimulatedPriorConfig)}
@@ -94,7 +95,8 @@ class SimulatedPrior(DepthPrior):
             key, _, value = item.partition("=")
             key = key.strip()
             if key not in fields | {"seed"}:
-                raise ValueError(f"simulated prior: unknown setting {key!r}; choose from seed, {', '.join(sorted(fields))}")
+                raise ValueError(f"simulated prior: unknown setting {key!r}; "
+                                 f"choose from seed, {', '.join(sorted(fields))}")
             try:
                 number = float(value)
             except ValueError:
