@@ -44,7 +44,9 @@ def _norm(channels: int, groups: int) -> nn.GroupNorm:
 
 class ConvNormAct(nn.Sequential):
     def __init__(self, cin: int, cout: int, kernel_size: int = 3, stride: int = 1, groups: int = 8):
-        super().__init__(PanoConv2d(cin, cout, kernel_size, stride, bias=False), _norm(cout, groups), nn.ReLU(inplace=True))
+        super().__init__(
+            PanoConv2d(cin, cout, kernel_size, stride, bias=False), _norm(cout, groups), nn.ReLU(inplace=True)
+        )
 
 
 class BasicBlock(nn.Module):

@@ -59,7 +59,9 @@ def read_model_config(path: str | Path) -> ModelConfig:
         with safe_open(str(path), framework="pt") as f:
             metadata = f.metadata() or {}
     except Exception as exc:  # noqa: BLE001 - SafetensorError and its kin: truncated, random bytes, ...
-        raise ValueError(f"{path} is not a readable .safetensors file ({exc}); is it complete? {WEIGHTS_HINT}") from None
+        raise ValueError(
+            f"{path} is not a readable .safetensors file ({exc}); is it complete? {WEIGHTS_HINT}"
+        ) from None
     if CONFIG_KEY not in metadata:
         raise ValueError(f"{path} has no {CONFIG_KEY!r} metadata; was it written by save_model? ({WEIGHTS_HINT})")
     try:
@@ -89,13 +91,14 @@ def _check_weights(state: dict, path: Path) -> None:
     """Finite floating-point weights of plausible size (NaN/inf: a diverged run; ints or 1e30: not trained weights)."""
     not_float = [name for name, tensor in state.items() if not tensor.is_floating_point()]
     if not_float:
-        raise ValueError(f"{path}: weight {not_float[0]} is {state[not_float[0]].dtype}, not floating point; the file was "
-                         f"not written by save_model: {WEIGHTS_HINT}")
+        raise ValueError(f"{path}: weight {not_float[0]} is {state[not_float[0]].dtype}, not floating point; "
+                         f"the file was not written by save_model: {WEIGHTS_HINT}")
     bad = [name for name, tensor in state.items() if not torch.isfinite(tensor).all()]
     if bad:  # what a diverged run leaves; it would render nothing without a word
         raise ValueError(f"{path}: {len(bad)} weight tensors contain NaN/inf (e.g. {bad[0]}); the training run "
                          "diverged: use an earlier checkpoint or retrain with a lower learning rate")
-    huge = [(name, float(t.abs().max())) for name, t in state.items() if t.numel() and float(t.abs().max()) > MAX_WEIGHT]
+    largest = {name: float(t.abs().max()) for name, t in state.items() if t.numel()}
+    huge = [(name, value) for name, value in largest.items() if value > MAX_WEIGHT]
     if huge:
         raise ValueError(f"{path}: weight {huge[0][0]} reaches {huge[0][1]:.3g} (more than {MAX_WEIGHT:g}); no trained "
                          f"model holds such values: the file is scaled or corrupted: {WEIGHTS_HINT}")

@@ -184,7 +184,8 @@ class FusionConfig:
     strategy: Literal["concat", "depth_prune"] = "concat"
     sigma: float = 0.1  # relative depth deviation giving opacity factor exp(-1/2)
     prune_threshold: float = 0.005  # opacities below this after attenuation are marked pruned
-    side: Literal["both", "front", "hidden"] = "both"  # "front": only Gaussians in front of their own view's surface; "hidden": in front of any view's
+    # "front": only Gaussians in front of their own view's surface; "hidden": in front of any view's
+    side: Literal["both", "front", "hidden"] = "both"
     # "seen_through": pixel Gaussians in front of another input view's refined surface (space that view saw
     # empty: flying pixels strung across depth edges) fade by the same rule, so the volume Gaussians behind show
     pixel_clearing: Literal["none", "seen_through"] = "none"
@@ -217,18 +218,22 @@ class ModelConfig:
         """Raise ``ValueError`` naming the first inconsistent field; return ``self``."""
         bb, att, vol = self.backbone, self.attention, self.volume
         checks = [
-            (len(bb.widths) == len(bb.blocks) and len(bb.widths) >= 1, "backbone.widths and backbone.blocks need equal, non-zero lengths"),
+            (len(bb.widths) == len(bb.blocks) and len(bb.widths) >= 1,
+             "backbone.widths and backbone.blocks need equal, non-zero lengths"),
             (len(self.pixel.decoder_widths) == len(bb.widths) + 1,
              f"pixel.decoder_widths needs {len(bb.widths) + 1} entries (one per 2x upsampling step)"),
             (att.dim % att.heads == 0, f"attention.dim {att.dim} must be divisible by attention.heads {att.heads}"),
-            (vol.channels % vol.heads == 0, f"volume.channels {vol.channels} must be divisible by volume.heads {vol.heads}"),
+            (vol.channels % vol.heads == 0,
+             f"volume.channels {vol.channels} must be divisible by volume.heads {vol.heads}"),
             (len(vol.grid) == 3 and min(vol.grid) >= 1, f"volume.grid must be 3 positive sizes, got {vol.grid}"),
-            (len(vol.image_grid) == 3 and min(vol.image_grid) >= 1, f"volume.image_grid must be 3 positive sizes, got {vol.image_grid}"),
+            (len(vol.image_grid) == 3 and min(vol.image_grid) >= 1,
+             f"volume.image_grid must be 3 positive sizes, got {vol.image_grid}"),
             (vol.placement != "central" or vol.init == "shared",
              ("volume.placement='central' needs volume.init='shared' (the single central triplane has no view "
               "of its own to be isolated to)")),
             (0 < vol.min_scale_cells < vol.max_scale_cells, "need 0 < volume.min_scale_cells < volume.max_scale_cells"),
-            (vol.surface_window <= 8, f"volume.surface_window must be an integer 1..8 (pixels), got {vol.surface_window!r}"),
+            (vol.surface_window <= 8,
+             f"volume.surface_window must be an integer 1..8 (pixels), got {vol.surface_window!r}"),
             (vol.surface_temperature > 0 and vol.visibility_temperature > 0, "volume temperatures must be > 0"),
             (self.pixel.footprint_px > 0, f"pixel.footprint_px must be > 0 (pixels), got {self.pixel.footprint_px!r}"),
             (self.render_dilation >= 0, f"render_dilation must be >= 0 px^2, got {self.render_dilation!r}"),
@@ -367,7 +372,8 @@ def _upgrade(data: dict[str, Any]) -> dict[str, Any]:
     volume = dict(volume)
     window = volume.pop("retrieval_window")
     if isinstance(window, int) and window > 0 and volume.get("color", "retrieval") == "retrieval":
-        volume.update(color="surface", surface_window=window, surface_temperature=volume.get("visibility_temperature", 1.0))
+        temperature = volume.get("visibility_temperature", 1.0)
+        volume.update(color="surface", surface_window=window, surface_temperature=temperature)
     return dict(data, volume=volume)
 
 

@@ -126,6 +126,7 @@ def fuse(
         if cfg.side != "hidden" and volume.depth_view is not None:
             check_depth = refined_depth[:, volume.depth_view : volume.depth_view + 1]
         if pixel is not None and cfg.pixel_clearing == "seen_through":
-            pixel = replace(pixel, opacities=pixel.opacities * hidden_confidence(pixel.means, c2w, refined_depth, cfg.sigma))
+            confidence = hidden_confidence(pixel.means, c2w, refined_depth, cfg.sigma)
+            pixel = replace(pixel, opacities=pixel.opacities * confidence)
     return fuse_gaussians(pixel, volume_gaussians, cfg, points, check_depth, c2w)
 

@@ -34,7 +34,8 @@ from .backbone import ConvNormAct, PanoConv2d, ResNetBackbone, pano_pad
 from .config import ModelConfig
 from .gaussian_heads import PixelGaussianHead
 
-__all__ = ["PixelBranchOutput", "depth_edge_confidence", "fill_depth_prior", "encode_inputs", "RayEmbedding", "PanoDecoder", "PixelBranch"]
+__all__ = ["PixelBranchOutput", "depth_edge_confidence", "fill_depth_prior", "encode_inputs", "RayEmbedding",
+           "PanoDecoder", "PixelBranch"]
 
 
 def depth_edge_confidence(depth: Float[Tensor, "N H W"], sigma: float) -> Float[Tensor, "N H W"]:
@@ -148,7 +149,8 @@ class PixelBranch(nn.Module):
         # skips coarse-to-fine: backbone features below the token map, then a full-res input conv
         skip_channels = list(reversed(self.backbone.out_channels[:-1])) + [cfg.pixel.decoder_widths[-1]]
         self.full_res = ConvNormAct(bb.in_channels, cfg.pixel.decoder_widths[-1], 3, groups=bb.groups)
-        self.decoder = PanoDecoder(att.dim * self.attention.num_outputs(), skip_channels, cfg.pixel.decoder_widths, bb.groups)
+        token_channels = att.dim * self.attention.num_outputs()
+        self.decoder = PanoDecoder(token_channels, skip_channels, cfg.pixel.decoder_widths, bb.groups)
         self.out = PanoConv2d(cfg.pixel.decoder_widths[-1], 1 + cfg.pixel.feature_dim, 3)
         self.gaussian_head = PixelGaussianHead(cfg.pixel.feature_dim, cfg.pixel.head_hidden, cfg.pixel.scale_range,
                                                cfg.pixel.footprint, cfg.pixel.footprint_px, cfg.pixel.opacity)

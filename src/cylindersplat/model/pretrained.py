@@ -23,7 +23,8 @@ from .checkpoint import check_weights_file, load_model, read_model_config
 from .config import ModelConfig
 from .cylindersplat import CylinderSplat
 
-__all__ = ["PRETRAINED", "DEFAULT_PRETRAINED", "pretrained_path", "resolve_weights", "weights_config", "from_pretrained"]
+__all__ = ["PRETRAINED", "DEFAULT_PRETRAINED", "pretrained_path", "resolve_weights", "weights_config",
+           "from_pretrained"]
 
 # name -> (file inside cylindersplat/weights, what it is)
 PRETRAINED: dict[str, tuple[str, str]] = {
@@ -54,8 +55,8 @@ def resolve_weights(name_or_path: str | Path = DEFAULT_PRETRAINED) -> Path:
     if not isinstance(name_or_path, (str, Path)) or not str(name_or_path):
         from ..errors import InputError
 
-        raise InputError(f"weights must be a shipped model name ({', '.join(PRETRAINED)}), a .safetensors file or a run "
-                         f"folder, got {name_or_path!r}")
+        raise InputError(f"weights must be a shipped model name ({', '.join(PRETRAINED)}), a .safetensors file "
+                         f"or a run folder, got {name_or_path!r}")
     path = Path(name_or_path)
     if path.is_dir() and (path / "model.safetensors").is_file():
         path = path / "model.safetensors"
@@ -83,6 +84,8 @@ def weights_config(name_or_path: str | Path = DEFAULT_PRETRAINED) -> ModelConfig
     return read_model_config(resolve_weights(name_or_path))
 
 
-def from_pretrained(name_or_path: str | Path = DEFAULT_PRETRAINED, map_location: str | torch.device = "cpu") -> CylinderSplat:
+def from_pretrained(
+    name_or_path: str | Path = DEFAULT_PRETRAINED, map_location: str | torch.device = "cpu"
+) -> CylinderSplat:
     """The model of :func:`resolve_weights`' file."""
     return load_model(resolve_weights(name_or_path), map_location=map_location)

@@ -99,7 +99,9 @@ def pixel_errors(
     return error / others.shape[1]
 
 
-def matchable_pixels(errors: Float[Tensor, "B K HW"], valid: Float[Tensor, "B HW"], keep: float) -> Float[Tensor, "B HW"]:
+def matchable_pixels(
+    errors: Float[Tensor, "B K HW"], valid: Float[Tensor, "B HW"], keep: float
+) -> Float[Tensor, "B HW"]:
     """The valid pixels whose best error over the candidates is among the lowest ``keep`` share: those that match
     the other views at *some* scale. Every candidate is scored on this one set; trimming each candidate's errors
     separately instead scores each on different pixels, which pulls the choice towards small scales."""
@@ -132,7 +134,7 @@ def scale_costs(
 
 
 def _search_view(images: Tensor, depth: Tensor, c2w: Tensor, view: int, coarse: Float[Tensor, "B K"],
-                 offsets: Float[Tensor, "K2"], search: ScaleSearch, others: Tensor | None) -> Float[Tensor, "B"]:
+                 offsets: Float[Tensor, " K2"], search: ScaleSearch, others: Tensor | None) -> Float[Tensor, " B"]:
     """The coarse then fine search of one view's factor (1 where the best does not beat ``s = 1`` clearly)."""
     costs, pixels = scale_costs(images, depth, c2w, view, coarse, keep=search.keep, others=others)
     best = coarse.gather(1, costs.argmin(1, keepdim=True))  # (B, 1)
@@ -156,7 +158,7 @@ def nearest_views(c2w: Float[Tensor, "B V 4 4"], count: int) -> Int[Tensor, "B V
     return distance.topk(count, dim=-1, largest=False).indices.sort(dim=-1).values
 
 
-def distinct_views(*tensors: Tensor) -> tuple[list[int], Int[Tensor, "V"]]:
+def distinct_views(*tensors: Tensor) -> tuple[list[int], Int[Tensor, " V"]]:
     """``(first, copy_of)``: the first occurrence of each distinct view (dim 1 of every ``(B, V, ...)`` tensor,
     all batch items alike) and, per view, its index in ``first``."""
     first: list[int] = []

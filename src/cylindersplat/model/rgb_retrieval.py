@@ -191,8 +191,8 @@ class ReleasedColorMLP(nn.Module):
     def forward(self, points_world, features, images, depth_prior, c2w) -> Float[Tensor, "B N 3"]:
         views = images.shape[1]
         if views > self.max_views:
-            raise ValueError(f"volume.color=released_mlp takes at most volume.color_views={self.max_views} input views, "
-                             f"got {views}; raise volume.color_views (and retrain)")
+            raise ValueError(f"volume.color=released_mlp takes at most volume.color_views={self.max_views} "
+                             f"input views, got {views}; raise volume.color_views (and retrain)")
         taps = tap_features(points_world, images, depth_prior, c2w, self.window).flatten(2)  # (B, N, V*K*4)
         padded = torch.nn.functional.pad(taps, (0, (self.max_views - views) * taps.shape[-1] // views))
         return self.mlp(padded)

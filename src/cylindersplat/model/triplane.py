@@ -150,7 +150,9 @@ def sample_triplane(
     return out
 
 
-def resample_plane(plane: Float[Tensor, "N A B C"], shape: tuple[int, int], periodic_a: bool, periodic_b: bool) -> Tensor:
+def resample_plane(
+    plane: Float[Tensor, "N A B C"], shape: tuple[int, int], periodic_a: bool, periodic_b: bool
+) -> Tensor:
     """One plane resampled to ``shape`` (bilinear at the new cell centres; seam-aware)."""
     if tuple(plane.shape[1:3]) == tuple(shape):
         return plane
@@ -165,7 +167,9 @@ def resample_planes(
     planes: list[Tensor], grid: tuple[int, int, int], periodic: tuple[bool, bool, bool]
 ) -> list[Tensor]:
     """All three planes resampled to another ``grid``."""
-    return [resample_plane(planes[k], (grid[a], grid[b]), periodic[a], periodic[b]) for k, (a, b) in enumerate(PLANE_AXES)]
+    return [
+        resample_plane(planes[k], (grid[a], grid[b]), periodic[a], periodic[b]) for k, (a, b) in enumerate(PLANE_AXES)
+    ]
 
 
 def grid_features(planes: list[Tensor]) -> Float[Tensor, "N n0 n1 n2 C"]:

@@ -118,7 +118,9 @@ class TriplaneImageAttention(nn.Module):
         unit[..., a], unit[..., b], unit[..., c] = grids
         return unit
 
-    def sample_locations(self, k: int, height: int, width: int, device=None, dtype=torch.float32) -> tuple[Tensor, Tensor]:
+    def sample_locations(
+        self, k: int, height: int, width: int, device=None, dtype=torch.float32
+    ) -> tuple[Tensor, Tensor]:
         """Unit coordinates ``(A, B, M, 3)`` of plane ``k``'s samples and their panorama pixels ``(A, B, M, 2)``
         in the triplane's own camera (identity pose)."""
         unit = self.sample_units(k, device, dtype)
@@ -207,5 +209,7 @@ class TriplaneRefinementLayer(nn.Module):
         self.to_image = TriplaneImageAttention(channels, image_feature_dim, heads, coords, image_grid, query_grid)
         self.mlp = PlaneMlp(channels, mlp_ratio)
 
-    def forward(self, planes: list[Tensor], image_features: Tensor, view_from_plane: Tensor | None = None) -> list[Tensor]:
+    def forward(
+        self, planes: list[Tensor], image_features: Tensor, view_from_plane: Tensor | None = None
+    ) -> list[Tensor]:
         return self.mlp(self.to_image(self.cross_plane(planes), image_features, view_from_plane))

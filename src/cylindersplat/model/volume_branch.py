@@ -167,7 +167,8 @@ class VolumeBranch(nn.Module):
         if self.cfg.scale_transform == "cartesian":  # metric bounds: the cell's Cartesian extent
             scale_unit = cell_cartesian_extent(self.coords, centers, cell)[..., None, :]
         # (BT, cells, per_cell, .) -> (BT, G, .): a cell's Gaussians side by side
-        params = {k: p.flatten(1, 2) for k, p in self.head(grid_features(planes).flatten(1, 3), cell, scale_unit).items()}
+        cell_params = self.head(grid_features(planes).flatten(1, 3), cell, scale_unit)
+        params = {k: p.flatten(1, 2) for k, p in cell_params.items()}
         centers = centers.repeat_interleave(self.cfg.gaussians_per_cell, dim=1)
         q = centers + params["offsets"]
         points_plane = self.coords.to_cartesian(q).view(b, t, -1, 3)
