@@ -66,11 +66,12 @@ def main() -> None:
     p.add_argument("--depth-prior", default="gt")
     p.add_argument("--checkpoint", default="tiny-synth")
     p.add_argument("--drawing", choices=("paper", "model"), default="paper",
-                   help="paper: the weights drawn as the paper draws them (learned footprints and opacities, refinement "
-                        "everywhere, no surface clearance); model: as the checkpoint's config says (the shipped "
-                        "tiny-synth: recipes/tiny_sharp)")
+                   help="paper: the weights drawn as the paper draws them (learned footprints and opacities, "
+                        "refinement everywhere, no surface clearance); model: as the checkpoint's config says "
+                        "(the shipped tiny-synth: recipes/tiny_sharp)")
     p.add_argument("--dilation", type=float, default=None,
-                   help="the rasterizer's dilation for every rung (default: 0.3 with --drawing paper, else the model's)")
+                   help="the rasterizer's dilation for every rung "
+                        "(default: 0.3 with --drawing paper, else the model's)")
     p.add_argument("--max-examples", type=int, default=None)
     p.add_argument("--out", required=True)
     args = p.parse_args()
@@ -95,7 +96,8 @@ def main() -> None:
                 shares += result["shares"]
                 pixel.append(result["pixel"])
                 pixels += result["pixels"]
-            key = f"{protocol} {h}x{2 * h}, prior {args.depth_prior}, {args.drawing} drawing, dilation {args.dilation:g}"
+            key = (f"{protocol} {h}x{2 * h}, prior {args.depth_prior}, {args.drawing} drawing, "
+                   f"dilation {args.dilation:g}")
             summary[key] = {
                 "rungs": {rung: {**{r: _mean([row.ws_psnr[r] for row in rows if row.rung == rung]) for r in REGIONS},
                                  "ssim": _mean([row.ssim for row in rows if row.rung == rung])} for rung in RUNGS},

@@ -35,8 +35,8 @@ VARIANTS = {
     "+ no refinement": {"render_dilation": 0.0, "pixel.footprint": "pixel", "pixel.opacity": "opaque",
                         "pixel.max_log_depth_offset": 0.0},
     "surface + opaque": {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.opacity": "opaque"},
-    "surface + opaque + no refinement": {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.opacity": "opaque",
-                                       "pixel.max_log_depth_offset": 0.0},
+    "surface + opaque + no refinement": {"render_dilation": 0.0, "pixel.footprint": "surface",
+                                         "pixel.opacity": "opaque", "pixel.max_log_depth_offset": 0.0},
     "surface 0.5 + opaque + no refinement": {"render_dilation": 0.0, "pixel.footprint": "surface",
                                            "pixel.footprint_px": 0.5, "pixel.opacity": "opaque",
                                            "pixel.max_log_depth_offset": 0.0},
@@ -84,7 +84,8 @@ def main() -> None:
                 methods += [model_method(m, name) for name, m in models.items()]
                 for name in filter(None, args.pixel_rows.split(",")):
                     pixel_only = model_method(models[name].with_config().set_mode("pixel"), name)
-                    methods += [with_fill(pixel_only, fill, f"{name}: pixel branch + {fill}") for fill in ("inpaint", "mean")]
+                    methods += [with_fill(pixel_only, fill, f"{name}: pixel branch + {fill}")
+                                for fill in ("inpaint", "mean")]
                 res = evaluate(dataset, methods, progress=False)
                 results[key] = {m: {k: res.means[m].get(k) for k in ("ws_psnr", "ws_psnr_occluded", "ssim", "abs_rel")}
                                 for m in res.means}

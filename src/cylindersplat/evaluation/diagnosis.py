@@ -87,7 +87,8 @@ def target_regions(
 
 
 def _pixel_means(depth: Float[Tensor, "V H W"], c2w: Float[Tensor, "V 4 4"]) -> Float[Tensor, "V*H*W 3"]:
-    """World points of every input pixel at ``depth`` along its ray (view-major, row-major: the pixel branch's order)."""
+    """World points of every input pixel at ``depth`` along its ray
+    (view-major, row-major: the pixel branch's order)."""
     v, h, w = depth.shape
     rays = equirect_rays(h, w, device=depth.device, dtype=depth.dtype).reshape(1, h * w, 3)
     return camera_to_world(rays * depth.reshape(v, h * w, 1), c2w).reshape(v * h * w, 3)
