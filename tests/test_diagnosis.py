@@ -73,13 +73,28 @@ def test_surface_footprints_lie_flat_on_the_surface():
     floor = (slice(22, 30), slice(None))  # rows that see the floor (y = +1.5, camera y down)
     normal = axes[floor][..., :, 2]
     assert torch.allclose(normal.abs(), torch.tensor([0.0, 1.0, 0.0]).expand_as(normal), atol=1e-4)
-    # in-plane std-devs are footprint_px times the surface step to the neighbouring pixel (finite differences)
+    # in-plane std-devs are footprint_px times the shorter surface step to a neighbouring pixel along the row
     points = equirect_rays(32, 64) * depth[..., None]
-    step = (points.roll(-1, dims=1) - points.roll(1, dims=1)).norm(dim=-1) / 2
+    forward = (points.roll(-1, dims=1) - points).norm(dim=-1)
+    step = torch.minimum(forward, (points - points.roll(1, dims=1)).norm(dim=-1))
     frontal = depth * math.pi / 32
     expected = 0.5 * torch.minimum(step, 4 * frontal)
     assert torch.allclose(scales[0].reshape(32, 64, 3)[floor][..., 0], expected[floor], rtol=1e-4)
     assert torch.allclose(scales[0].reshape(32, 64, 3)[..., 2], 0.05 * frontal, rtol=1e-5)
+
+
+def test_surface_footprints_make_no_needles_at_depth_edges():
+    """A pixel beside a depth step takes its patch from the neighbour on its own surface: no Gaussian is stretched
+    across the step (every in-plane std-dev stays about the frontal one: a sphere of 4 m around the camera with a
+    patch at 1 m in front of it)."""
+    h, w = 32, 64
+    depth = torch.full((h, w), 4.0)
+    depth[10:20, 20:30] = 1.0
+    scales, _ = surface_footprints(depth[None], 0.5)
+    frontal = depth * math.pi / h * 0.5
+    ratio = scales[0].reshape(h, w, 3)[..., :2] / frontal[..., None]
+    rows = slice(12, 18)  # near the equator, where a pixel's patch is about square
+    assert float(ratio[rows].max()) < 1.5
 
 
 def test_pixel_switches_do_what_they_say(sample):

@@ -258,3 +258,23 @@ def test_memory_refusal_names_the_pairs(monkeypatch):
     monkeypatch.setattr(rasterize, "available_memory", lambda device: 1000)
     with pytest.raises(rasterize.RenderMemoryError, match="GiB for [\\d,]+ tile pairs"):
         render_equirect(shell_scene(10, seed=2, dtype=F32), torch.eye(4), 8, 16, backend="numba")
+
+
+@pytest.mark.parametrize("backend", ["torch", "numba"])
+def test_zero_area_footprints_draw_nothing_without_dilation(backend):
+    """Zero scales with ``dilation=0`` (a pixel Gaussian at a hole of the depth prior, issue 34) are culled: the
+    render equals the render without them (before, numba's projection divided by zero inside its parallel loop and
+    marked them visible, spoiling whole tiles; the reference painted a tile with conic 0)."""
+    from cylindersplat.gaussians import Gaussians
+    from cylindersplat.render import Equirect, RasterSettings, render
+
+    torch.manual_seed(0)
+    n = 200
+    means = torch.randn(n, 3) * 0.3 + torch.tensor([0.0, 0.0, 2.0])
+    scales = torch.full((n, 3), 0.02)
+    scales[:4] = 0.0
+    g = Gaussians.from_rgb(means, scales, torch.tensor([[1.0, 0, 0, 0]]).expand(n, 4), torch.ones(n), torch.rand(n, 3))
+    settings = RasterSettings(dilation=0.0)
+    out = render(g, torch.eye(4), Equirect(32, 64), settings=settings, backend=backend)
+    reference = render(g[4:], torch.eye(4), Equirect(32, 64), settings=settings, backend="torch")
+    assert torch.allclose(out.rgb, reference.rgb, atol=1e-5) and torch.allclose(out.alpha, reference.alpha, atol=1e-5)

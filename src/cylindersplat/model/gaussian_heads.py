@@ -64,19 +64,23 @@ def surface_footprints(
     """Camera-frame scales and rotations of flat Gaussians lying on the surface each pixel sees: the pixel's own
     patch of that surface (``footprint="surface"``).
 
-    The patch is spanned by the surface steps to the next pixel along the row and the column (central differences
-    of the unprojected depth; columns wrap around the seam, rows are one-sided at the poles). Its std-devs are
-    ``footprint_px`` times their lengths (the second made orthogonal to the first), each at most
-    :data:`SURFACE_STRETCH_MAX` frontal footprints (``depth x pi / H x footprint_px``), so a depth edge gives no
-    needle; the thickness along the normal is :data:`SURFACE_THICKNESS` of a frontal footprint. Seen from another
-    viewpoint the patch stays closed where an isotropic ball per pixel leaves cracks (slanted floors and walls)."""
+    The patch is spanned by the surface steps to the next pixel along the row and the column: of the steps to the
+    two neighbours on each axis, the shorter one (at a depth edge, the neighbour on the pixel's own surface; columns
+    wrap around the seam, rows are one-sided at the poles). Its std-devs are ``footprint_px`` times their lengths
+    (the second made orthogonal to the first), each at most :data:`SURFACE_STRETCH_MAX` frontal footprints
+    (``depth x pi / H x footprint_px``), so a pixel between two edges gives no needle; the thickness along the
+    normal is :data:`SURFACE_THICKNESS` of a frontal footprint. Seen from another viewpoint the patch stays closed
+    where an isotropic ball per pixel leaves cracks (slanted floors and walls)."""
     n, h, w = depth.shape
     points = equirect_rays(h, w, device=depth.device, dtype=depth.dtype) * depth[..., None]  # (N, H, W, 3)
-    along_row = 0.5 * (points.roll(-1, dims=2) - points.roll(1, dims=2))
-    padded = torch.cat((points[:, :1], points, points[:, -1:]), dim=1)
-    along_col = 0.5 * (padded[:, 2:] - padded[:, :-2])
-    along_col[:, 0] *= 2
-    along_col[:, -1] *= 2
+
+    def shorter(forward: Tensor, backward: Tensor) -> Tensor:
+        keep = forward.norm(dim=-1, keepdim=True) <= backward.norm(dim=-1, keepdim=True)
+        return torch.where(keep, forward, backward)
+
+    along_row = shorter(points.roll(-1, dims=2) - points, points - points.roll(1, dims=2))
+    step = points[:, 1:] - points[:, :-1]  # from row i to row i + 1; the first and last rows have one neighbour
+    along_col = shorter(torch.cat((step, step[:, -1:]), dim=1), torch.cat((step[:, :1], step), dim=1))
     frontal = (depth * (math.pi / h))[..., None]
     e1 = F.normalize(along_row, dim=-1, eps=1e-12)
     second = along_col - (along_col * e1).sum(-1, keepdim=True) * e1

@@ -180,6 +180,17 @@ def _footprint(t, consts):
 
 
 @njit(cache=True)
+def _footprint_det(t, dilation):
+    """``det`` of the dilated 2-D covariance (before the extent cap, which only shrinks huge footprints)."""
+    a0 = t[0] * t[0] + t[1] * t[1] + t[2] * t[2]
+    c0 = t[3] * t[3] + t[4] * t[4] + t[5] * t[5]
+    w0 = t[1] * t[5] - t[2] * t[4]
+    w1 = t[2] * t[3] - t[0] * t[5]
+    w2 = t[0] * t[4] - t[1] * t[3]
+    return w0 * w0 + w1 * w1 + w2 * w2 + dilation * (a0 + c0) + dilation * dilation
+
+
+@njit(cache=True)
 def _footprint_vjp(t, consts, g_ca, g_cb, g_cc, g_eu, g_ev, g_t):
     """Gradients of ``T`` (into ``g_t``) from those of the conic and the extents."""
     dilation, max_u2, max_v2 = consts[8], consts[11], consts[12]
@@ -251,11 +262,15 @@ def project_forward(means, scales, quats, opacities, cams, num_views, model, con
             px, py, pz = _camera_frame(means, scales, cams, b, n, b * num_views + view, rot, wm)
             u, v, depth, ok = _pixel_map(px, py, pz, consts, model, jac)
             _times_wm(jac, wm, t)
+            out = geo[b, view, n]
+            if _footprint_det(t, consts[8]) <= 1e-12:  # projection.MIN_FOOTPRINT_DET: zero area draws nothing
+                out[:] = 0.0
+                valid[b, view, n] = False
+                continue
             ca, cb, cc, eu, ev = _footprint(t, consts)
             ok = ok and opacities[b, n] >= alpha_min and v - ev < height and v + ev > 0.0
             if model != 0:  # images that do not wrap around
                 ok = ok and u - eu < width and u + eu > 0.0
-            out = geo[b, view, n]
             out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7] = u, v, ca, cb, cc, eu, ev, depth
             valid[b, view, n] = ok
     return geo, valid

@@ -51,6 +51,9 @@ class UnsupportedSettings(ValueError):
     """A render backend cannot honour these settings (e.g. a tile size); ``backend="auto"`` uses the reference."""
 
 
+MIN_FOOTPRINT_DET = 1e-12  # px^4: a 2-D covariance of smaller determinant (std-devs multiplying to < 1e-6 px^2)
+
+
 @dataclass(frozen=True)
 class RasterSettings:
     """Constants shared by every backend (3DGS conventions unless stated)."""
@@ -186,11 +189,14 @@ def ewa_footprint(
     fu = torch.clamp(max_std[0] ** 2 / a, max=1.0)
     fv = torch.clamp(max_std[1] ** 2 / c, max=1.0)
     a, b, c = a * fu, b * torch.sqrt(fu * fv), c * fv
-    det = (a * c - b * b).clamp_min(1e-30)
+    det = a * c - b * b
+    # a footprint of (near) zero area (zero scales with no dilation) draws nothing: culled, not a full tile of conic 0
+    degenerate = det <= MIN_FOOTPRINT_DET
+    det = det.clamp_min(1e-30)
     extent_u = settings.sigma_extent * torch.sqrt(a)
     extent_v = settings.sigma_extent * torch.sqrt(c)
     u, v = pixels.u, pixels.v
-    valid = pixels.valid & (opacities[:, None] >= settings.alpha_min)
+    valid = pixels.valid & (opacities[:, None] >= settings.alpha_min) & ~degenerate
     valid = valid & (v - extent_v < height) & (v + extent_v > 0)
     if not wrap_u:
         valid = valid & (u - extent_u < width) & (u + extent_u > 0)
