@@ -153,8 +153,8 @@ class VolumeGaussianHead(nn.Module):
     the colour decoder) conditions on.
     """
 
-    def __init__(self, channels: int, hidden: int, color_feature_dim: int, max_scale_cells: float, min_scale_cells: float,
-                 per_cell: int = 1):
+    def __init__(self, channels: int, hidden: int, color_feature_dim: int, max_scale_cells: float,
+                 min_scale_cells: float, per_cell: int = 1):
         super().__init__()
         self.max_scale_cells, self.min_scale_cells = max_scale_cells, min_scale_cells
         self.color_feature_dim, self.per_cell = color_feature_dim, per_cell
