@@ -108,3 +108,27 @@ def test_mixed_prior_picks_each_part_per_view_reproducibly():
                           ("mixed:gt+noise,bins=2", "only seed=N")]:
         with pytest.raises(ValueError, match=message):
             parse_depth_prior(spec)
+
+
+def test_eval_reads_a_degraded_prior_and_refuses_a_bad_kind(synth_dataset, tmp_path, capsys):
+    """`eval --depth-prior degraded:KIND` gives the warp the degraded depth (its scores drop from the true depth's);
+    an unknown kind is one line naming the kinds, and nothing is written."""
+    import json
+
+    from cylindersplat.cli import main
+
+    root = synth_dataset(2, 0)
+    scores = {}
+    for prior in ("gt", "degraded:scale"):
+        out = tmp_path / prior.replace(":", "_")
+        assert main(["eval", "--data", str(root), "--no-model", "--depth-prior", prior, "--fills", "none",
+                     "--out", str(out), "--pictures", "0"]) == 0
+        means = json.loads((out / "results.json").read_text())["means"]
+        scores[prior] = next(iter(next(iter(means.values())).values()))["ws_psnr"]
+    assert scores["degraded:scale"] < scores["gt"] - 1.0  # a 30 % scale error misplaces the warped pixels
+    capsys.readouterr()
+    assert main(["eval", "--data", str(root), "--no-model", "--depth-prior", "degraded:fog",
+                 "--out", str(tmp_path / "bad")]) in (1, 2)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "unknown depth degradation 'fog'" in err[0] and "mono" in err[0]
+    assert not (tmp_path / "bad").exists()
