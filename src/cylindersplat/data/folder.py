@@ -38,12 +38,14 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from pathlib import Path
 from typing import Sequence
 
 from torch import Tensor
 
 from ..utils.jsonfile import read_json_file
+from ..utils.notices import Notice
 from ..validation import check_translation_plausible
 from .base import ExampleRef, FrameRef, PanoramaDataset
 from .confine import confined_path
@@ -51,6 +53,7 @@ from .depth_prior.base import DepthPrior, MissingPrior, StoredDepthPrior
 from .depth_prior.files import PRIORS_DIR
 from .io import DEPTH_PNG_SCALE
 from .poses import POSE_CONVENTIONS, is_transforms_json, parse_pose_matrix, read_transforms_json, to_opencv_c2w
+from .repeated_frames import repeated_frames
 from .views import ViewSplit, select_views
 
 __all__ = ["FolderDataset", "FOLDER_VIEWS", "IMAGE_SUFFIXES", "POSES_FILE", "TRANSFORMS_FILE", "POSE_CONVENTIONS",
@@ -244,6 +247,8 @@ class FolderDataset(PanoramaDataset):
     ``views`` says which frames are inputs (contexts) and which are targets, per example:
 
     * ``"all_inputs"`` (default): every frame is an input, no target (what ``render`` / ``export`` reconstruct);
+      a frame that repeats an earlier one (same image, pose and depth: :mod:`.repeated_frames`) is used once, with
+      a :class:`~cylindersplat.utils.notices.Notice` saying how many were dropped;
     * ``"held_out"``: the frames named in ``targets`` (image names as the poses file lists them, their stems,
       or indices) are the targets, all others the inputs; ``targets``, when given, means this whatever ``views`` says;
     * ``"two_view"``, ``"one_view"``, ``"n_view"``: the protocols of :func:`~cylindersplat.data.views.select_views`
@@ -311,8 +316,12 @@ class FolderDataset(PanoramaDataset):
 
     def _split(self, frames: list[FrameRef], where: Path) -> ViewSplit:
         n = len(frames)
-        if self.views == "all_inputs":
-            return ViewSplit(tuple(range(n)), ())
+        if self.views == "all_inputs":  # a frame listed again (same image, pose and depth) is read once
+            repeats = set(repeated_frames(frames))
+            if repeats:
+                said = f"{len(repeats)} frames of {where} repeat" if len(repeats) > 1 else f"1 frame of {where} repeats"
+                warnings.warn(f"{said} another (same image, pose and depth): used once", Notice, stacklevel=2)
+            return ViewSplit(tuple(i for i in range(n) if i not in repeats), ())
         if self.views != "held_out":
             try:
                 return select_views(n, self.views)
