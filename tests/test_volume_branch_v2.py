@@ -153,7 +153,8 @@ def test_every_string_choice_is_defined_once():
 
     for key, allowed in CHOICES.items():
         section, _, name = key.rpartition(".")
-        cls = {"": module.ModelConfig, "volume": module.VolumeBranchConfig, "fusion": module.FusionConfig}[section]
+        cls = {"": module.ModelConfig, "volume": module.VolumeBranchConfig, "fusion": module.FusionConfig,
+               "pixel": module.PixelBranchConfig}[section]
         hints = typing.get_type_hints(cls)
         assert typing.get_args(hints[name]) == allowed, key
         with pytest.raises(ValueError, match=f"{key} must be one of"):

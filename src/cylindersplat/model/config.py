@@ -118,13 +118,13 @@ class PixelBranchConfig:
     # Issue 34 (docs/model.md, "Sharp pixel Gaussians"): "learned" scales/rotations from the head (the paper);
     # "pixel": isotropic, std-dev = refined depth x pi / H x footprint_px (the input pixel's own size, as a warp);
     # "surface": flat on the pixel's own patch of the surface it sees, footprint_px times its extent
-    footprint: str = "learned"
+    footprint: Literal["learned", "pixel", "surface"] = "learned"
     footprint_px: float = 0.35
     # "learned" opacity from the head (the paper), or "opaque": 1 on every seen surface (edge fading still applies)
-    opacity: str = "learned"
+    opacity: Literal["learned", "opaque"] = "learned"
     # "everywhere": the refined depth is prior x exp(offset) at every pixel (the paper); "where_missing": the prior is
     # kept where it is valid and the offset only moves the filled-in depth of its holes (a depth the user trusts)
-    refine_depth: str = "everywhere"
+    refine_depth: Literal["everywhere", "where_missing"] = "everywhere"
 
 
 @dataclass
