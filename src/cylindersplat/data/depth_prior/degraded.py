@@ -72,6 +72,19 @@ def degrade(depth: Tensor, kind: str, generator: torch.Generator) -> Tensor:
     return torch.where(valid, out.clamp_min(1e-3), torch.zeros_like(out))
 
 
+def seed_setting(text: str, prior: str) -> int:
+    """The seed of a spec's optional ``seed=N`` tail (``""``: 0); anything else is a one-line ``ValueError``."""
+    if not text:
+        return 0
+    key, _, value = text.partition("=")
+    if key.strip() != "seed":
+        raise ValueError(f"{prior}: unknown setting {key.strip()!r}; only seed=N")
+    try:
+        return int(value)
+    except ValueError:
+        raise ValueError(f"{prior}: seed={value!r} is not an integer") from None
+
+
 class DegradedPrior(DepthPrior):
     """Ground truth degraded by a named kind (:data:`DEGRADATIONS`), seeded per view; needs ``gt_depth``."""
 
@@ -87,16 +100,7 @@ class DegradedPrior(DepthPrior):
     def spec_arguments(text: str) -> dict:
         """``KIND`` or ``KIND,seed=N`` -> keyword arguments."""
         kind, _, rest = text.partition(",")
-        arguments = {"kind": kind.strip()}
-        if rest:
-            key, _, value = rest.partition("=")
-            if key.strip() != "seed":
-                raise ValueError(f"degraded prior: unknown setting {key.strip()!r}; only seed=N")
-            try:
-                arguments["seed"] = int(value)
-            except ValueError:
-                raise ValueError(f"degraded prior: seed={value!r} is not an integer") from None
-        return arguments
+        return {"kind": kind.strip(), "seed": seed_setting(rest, "degraded prior")}
 
     def __call__(self, query: PriorQuery) -> Tensor:
         if query.gt_depth is None:

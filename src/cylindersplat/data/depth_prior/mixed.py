@@ -29,18 +29,11 @@ class MixedPrior(DepthPrior):
     @staticmethod
     def spec_arguments(text: str) -> dict:
         """``A+B[+C...]`` or ``A+B,seed=N`` -> ``{"parts": (prior, ...), "seed": N}``."""
+        from .degraded import seed_setting
         from .registry import parse_depth_prior
 
         names, _, rest = text.partition(",")
-        arguments: dict = {"seed": 0}
-        if rest:
-            key, _, value = rest.partition("=")
-            if key.strip() != "seed":
-                raise ValueError(f"mixed prior: unknown setting {key.strip()!r}; only seed=N")
-            try:
-                arguments["seed"] = int(value)
-            except ValueError:
-                raise ValueError(f"mixed prior: seed={value!r} is not an integer") from None
+        arguments: dict = {"seed": seed_setting(rest, "mixed prior")}
         parts = [name for name in names.split("+") if name]
         if len(parts) < 2:
             raise ValueError("mixed prior: give at least two priors joined by '+', e.g. mixed:gt+simulated")
