@@ -46,6 +46,7 @@ VARIANTS = {
     "tiny (the paper's drawing)": "paper",
     **{f"tiny_sharp + clearance {c:g}": {**RECIPE, "fusion.surface_clearance": c} for c in (0.0, 0.05, 0.1, 0.4)},
     **{f"tiny_sharp + fusion sigma {v:g}": {**RECIPE, "fusion.sigma": v} for v in (0.02, 0.05)},
+    **{f"tiny_sharp + footprint {f:g}": {**RECIPE, "pixel.footprint_px": f} for f in (0.4, 0.6, 0.7)},
     **{f"tiny_sharp + refinement within {m:g}": {**RECIPE, "pixel.refine_depth": "everywhere",
                                                    "pixel.max_log_depth_offset": m} for m in (0.02, 0.05, 0.1)},
 }
