@@ -17,11 +17,10 @@ export OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
 COMMON=(train.warmup_steps=20 train.checkpoint_every=200 train.image_every=0 train.tensorboard=false train.log_every=50)
 cylindersplat data synth --out "$OUT/data" --scenes 96 --resolution 64x128 --profile occlusion --seed 1
 # every stage has its own optimizer and cosine schedule, so stages 1-2 alone are those of a 1-2-3 run
-cylindersplat train --config tiny --data "$OUT/data" --out "$OUT/stages12" --overwrite \
-  train.stages=[1,2] train.steps_per_stage=[1200,400] train.lr=2e-3 "${COMMON[@]}"
-cylindersplat train --config tiny --data "$OUT/data" --out "$OUT/stage3" --overwrite \
-  --init "$OUT/stages12/model.safetensors" train.stages=[3] train.steps_per_stage=[400] train.lr=5e-4 \
-  loss.volume_weight=0 "${COMMON[@]}"
+cylindersplat train --config recipes/tiny_synth_stages12 --data "$OUT/data" --out "$OUT/stages12" --overwrite \
+  "${COMMON[@]}"
+cylindersplat train --config recipes/tiny_synth_stage3 --data "$OUT/data" --out "$OUT/stage3" --overwrite \
+  --init "$OUT/stages12/model.safetensors" "${COMMON[@]}"
 # Issue 34: the same weights, drawn as configs/recipes/tiny_sharp.yaml says (four switches that change no parameter:
 # no dilation, pixel Gaussians flat on their pixel's surface patch, opaque, a valid prior's depth kept)
 "$PYTHON" - "$OUT/stage3/model.safetensors" src/cylindersplat/weights/tiny_synth.safetensors <<'PY'

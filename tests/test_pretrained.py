@@ -4,6 +4,7 @@ the commands when no --checkpoint is given."""
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import pytest
 import torch
@@ -35,6 +36,21 @@ def test_shipped_weights_have_the_tiny_sharp_recipes_model():
     sharp = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5,
              "pixel.opacity": "opaque", "pixel.refine_depth": "where_missing", "fusion.surface_clearance": 0.2}
     assert load_config("tiny").model.replace(**sharp) == shipped
+
+
+def test_the_shipped_weights_recipes_are_the_runs_settings():
+    """scripts/train_pretrained.sh trains with two recipes (presets): the tiny preset's stages 1-2 at lr 2e-3, then
+    its stage 3 at lr 5e-4 without the volume loss; they give exactly the settings the former shell arguments gave."""
+    from cylindersplat.training import load_config
+    from cylindersplat.training.config import config_as_dict
+
+    runs = {"recipes/tiny_synth_stages12": ["train.stages=[1,2]", "train.steps_per_stage=[1200,400]", "train.lr=2e-3"],
+            "recipes/tiny_synth_stage3": ["train.stages=[3]", "train.steps_per_stage=[400]", "train.lr=5e-4",
+                                          "loss.volume_weight=0"]}
+    for recipe, overrides in runs.items():
+        assert config_as_dict(load_config(recipe)) == config_as_dict(load_config("tiny", overrides)), recipe
+    script = (Path(__file__).resolve().parents[1] / "scripts" / "train_pretrained.sh").read_text()
+    assert all(f"--config {recipe}" in script for recipe in runs)
 
 
 def test_from_pretrained_takes_a_file_or_a_run_folder(tmp_path):
