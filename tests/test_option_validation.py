@@ -77,3 +77,17 @@ def test_triton_rendering_without_cuda_is_refused_before_training(tmp_path, monk
     assert _error_line(argv, capsys) == ("cylindersplat train: error: train.render_backend=triton needs a CUDA GPU, "
                                          "but training runs on cpu; use train.render_backend=auto (or torch), or "
                                          "train.device=cuda")
+
+
+def test_train_options_are_typed_changes_not_yaml(tmp_path, capsys):
+    """`train --data yes`: the folder "yes", not YAML's true (issue 36: options travel as typed changes); an option
+    wins over a KEY=VALUE of the same setting, as before."""
+    import yaml
+
+    from cylindersplat.cli import main
+
+    assert main(["train", "--data", "yes", "--out", str(tmp_path / "run"), "--stages", "1,2", "--steps", "5,6",
+                 "--print-config", "train.steps_per_stage=[9,9]", "data.root=other"]) == 0
+    printed = yaml.safe_load(capsys.readouterr().out)
+    assert printed["data"]["root"] == "yes" and printed["output_dir"] == str(tmp_path / "run")
+    assert printed["train"]["stages"] == [1, 2] and printed["train"]["steps_per_stage"] == [5, 6]

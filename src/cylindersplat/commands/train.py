@@ -11,28 +11,32 @@ from ._arguments import check_output, count_list, positive_int, stage_list
 def run(args: argparse.Namespace) -> int:
     from ..training import load_config
 
+    # The options are typed changes applied after the KEY=VALUE overrides (an option wins over a KEY=VALUE of the
+    # same setting); values are never re-read as YAML (`--data yes` is the folder "yes", not true).
     overrides, resume = list(args.overrides), None
+    changes: dict = {}
     if args.data:
-        overrides.append(f"data.root={args.data}")
+        changes["data.root"] = str(args.data)
     if args.stages:
-        overrides.append(f"train.stages=[{args.stages}]")
+        changes["train.stages"] = [int(s) for s in args.stages.split(",")]
     if args.steps:
-        overrides.append(f"train.steps_per_stage=[{args.steps}]")
+        changes["train.steps_per_stage"] = [int(s) for s in args.steps.split(",")]
     if args.init:
-        overrides.append(f"train.init={args.init}")
+        changes["train.init"] = str(args.init)
     if args.device:
-        overrides.append(f"train.device={args.device}")
+        changes["train.device"] = args.device
     if args.resume is None:
         if args.out:
-            overrides.append(f"output_dir={args.out}")
-        config = load_config(args.config or "tiny", overrides)
+            changes["output_dir"] = str(args.out)
+        config = load_config(args.config or "tiny", overrides, changes)
     else:
         resume = _resume_point(args)
-        if args.stages and not args.steps:  # the run's own steps of the stages asked for
-            overrides.insert(0, _steps_of(resume, args.stages))
+        given = any(o.partition("=")[0].strip() == "train.steps_per_stage" for o in overrides)
+        if args.stages and not args.steps and not given:  # the run's own steps of the stages asked for
+            changes["train.steps_per_stage"] = _steps_of(resume, args.stages)
         # The run keeps writing into its own folder (wherever it lies now) unless --out forks it elsewhere.
-        overrides.append(f"output_dir={args.out or resume.run_folder}")
-        config = resume.config(overrides)
+        changes["output_dir"] = str(args.out or resume.run_folder)
+        config = resume.config(overrides, changes)
     if args.print_config:
         import yaml
 
@@ -83,13 +87,13 @@ def _resume_point(args: argparse.Namespace):
     return resume
 
 
-def _steps_of(resume, stages: str) -> str:
-    """``train.steps_per_stage=[...]`` for ``stages`` from the run's own schedule (one entry per stage there)."""
+def _steps_of(resume, stages: str) -> list[int]:
+    """``train.steps_per_stage`` for ``stages`` from the run's own schedule (one entry per stage there)."""
     steps = list(resume.saved.get("train", {}).get("steps_per_stage", []))
     if len(steps) == len(resume.saved_stages) > 1:
         by_stage = dict(zip(resume.saved_stages, steps))
         steps = [by_stage.get(int(s), steps[-1]) for s in stages.split(",")]
-    return f"train.steps_per_stage=[{','.join(str(s) for s in steps)}]"
+    return [int(s) for s in steps]
 
 
 def _say_resume(resume, config) -> None:

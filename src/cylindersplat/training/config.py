@@ -361,9 +361,11 @@ def load_config(preset: str | Path | None = None, overrides: list[str] | tuple[s
     return _from_dict(_merge(data, nest_changes(changes or {})))
 
 
-def config_from_dict(data: dict[str, Any], overrides: list[str] | tuple[str, ...] = ()) -> ExperimentConfig:
-    """A config saved with :func:`config_as_dict` (a run's ``config.yaml``), then ``key=value`` ``overrides``."""
-    return _from_dict(_merge(data, parse_overrides(overrides)))
+def config_from_dict(data: dict[str, Any], overrides: list[str] | tuple[str, ...] = (),
+                     changes: dict[str, Any] | None = None) -> ExperimentConfig:
+    """A config saved with :func:`config_as_dict` (a run's ``config.yaml``), then ``key=value`` ``overrides``, then
+    ``changes`` from code (Python values, as :func:`load_config` takes them)."""
+    return _from_dict(_merge(_merge(data, parse_overrides(overrides)), nest_changes(changes or {})))
 
 
 def config_as_dict(cfg: ExperimentConfig) -> dict[str, Any]:

@@ -102,9 +102,9 @@ class ResumePoint:
             return False
         return stage_step >= config.steps_for(stages[-1])
 
-    def config(self, overrides: list[str] | tuple[str, ...] = ()) -> ExperimentConfig:
-        """The saved config with the command line's ``key=value`` ``overrides`` applied."""
-        return config_from_dict(self.saved, overrides)
+    def config(self, overrides: list[str] | tuple[str, ...] = (), changes: dict | None = None) -> ExperimentConfig:
+        """The saved config with the command line's ``key=value`` ``overrides``, then its options' typed ``changes``."""
+        return config_from_dict(self.saved, overrides, changes)
 
 
 def find_resume_point(path: str | Path) -> ResumePoint:
