@@ -24,10 +24,11 @@ def main(path: str, require_fall: bool = False) -> int:
         head = statistics.mean(r["train/total"] for r in s[:3])
         tail = statistics.mean(r["train/total"] for r in s[-3:])
         step = statistics.median(r["train/step_time"] for r in s)
-        print(f"training run: stage {stage}, steps {s[0]['step']}-{s[-1]['step']} ({len(s)} logged), loss {first:.4f} -> "
-              f"{last:.4f} (mean of first/last 3 logs {head:.4f} -> {tail:.4f}), median step {step:.3f} s")
+        print(f"training run: stage {stage}, steps {s[0]['step']}-{s[-1]['step']} ({len(s)} logged), loss {first:.4f} "
+              f"-> {last:.4f} (mean of first/last 3 logs {head:.4f} -> {tail:.4f}), median step {step:.3f} s")
         verdicts.append((stage, None if len(s) < 6 else tail < head))
-    fell = [f"stage {st}: " + ("too short to tell" if v is None else "fell" if v else "did NOT fall") for st, v in verdicts]
+    fell = [f"stage {st}: " + ("too short to tell" if v is None else "fell" if v else "did NOT fall")
+            for st, v in verdicts]
     if all(v is None for _, v in verdicts):
         verdict, ok = "too short to tell", False
     else:

@@ -36,7 +36,8 @@ import numpy as np
 # Flags that keep headless Chromium off the network (no lookups to hang on) and off a GPU; WebGL then runs on
 # SwiftShader, Chromium's software renderer (the two swiftshader flags allow it explicitly; playwright adds them too).
 CHROMIUM_FLAGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+    "--disable-background-networking",
     "--disable-component-update", "--disable-sync", "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
 ]
 VIEWPORT = {"width": 800, "height": 600}
@@ -78,7 +79,8 @@ def picture_stats(png: Path) -> dict:
     from PIL import Image
 
     image = np.asarray(Image.open(png).convert("RGB"), dtype=np.int16)
-    corners = np.concatenate([image[:8, -8:].reshape(-1, 3), image[-8:, :8].reshape(-1, 3), image[-8:, -8:].reshape(-1, 3)])
+    corners = np.concatenate([image[:8, -8:].reshape(-1, 3), image[-8:, :8].reshape(-1, 3),
+                              image[-8:, -8:].reshape(-1, 3)])
     colours, counts = np.unique(corners, axis=0, return_counts=True)
     page = colours[counts.argmax()]
     white = np.array([255, 255, 255])
@@ -172,9 +174,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--mode", choices=("server", "html", "both"), default="both")
     parser.add_argument("--out", type=Path, default=Path("outputs/viewer_check"), help="folder for the scene and PNGs")
-    parser.add_argument("--chromium", help="browser executable (default: $CHROMIUM, /usr/bin/chromium, chromium on PATH)")
-    parser.add_argument("--timeout", type=float, default=90.0, help="seconds to wait for the splats to draw (default 90)")
-    parser.add_argument("--min-share", type=float, default=0.5, help="least share of non-background pixels (default 0.5)")
+    parser.add_argument("--chromium",
+                        help="browser executable (default: $CHROMIUM, /usr/bin/chromium, chromium on PATH)")
+    parser.add_argument("--timeout", type=float, default=90.0,
+                        help="seconds to wait for the splats to draw (default 90)")
+    parser.add_argument("--min-share", type=float, default=0.5,
+                        help="least share of non-background pixels (default 0.5)")
     parser.add_argument("--min-std", type=float, default=20.0, help="least pixel standard deviation (default 20)")
     args = parser.parse_args(argv)
 

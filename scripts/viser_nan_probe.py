@@ -6,7 +6,8 @@ console messages that mention NaN. The first has the message, the second not: it
 whose "position" attribute is a 2-component quad (viser/client/src/Splatting/GaussianSplatsHelpers.ts,
 createGaussianMeshProps) that three.js's bounding sphere reads as 3-component, whatever the data.
 
-    python scripts/viser_nan_probe.py   # needs viser, playwright and chromium (scripts/install_optional.sh view/browser)
+    python scripts/viser_nan_probe.py   # needs viser, playwright and chromium
+                                        # (scripts/install_optional.sh view/browser)
 """
 
 import sys
@@ -26,7 +27,8 @@ def page(with_splat: bool) -> str:
         if with_splat:
             server.scene.add_gaussian_splats("/splat", centers=np.zeros((1, 3), np.float32),
                                              covariances=np.eye(3, dtype=np.float32)[None] * 0.01,
-                                             rgbs=np.full((1, 3), 0.5, np.float32), opacities=np.ones((1, 1), np.float32))
+                                             rgbs=np.full((1, 3), 0.5, np.float32),
+                                             opacities=np.ones((1, 1), np.float32))
         else:
             server.scene.add_frame("/frame")
         return server.scene.as_html()

@@ -6,12 +6,10 @@ import pytest
 import torch
 
 from cylindersplat.gaussians import Gaussians
-from cylindersplat.render import render_cubemap, render_equirect, render_pinhole
+from cylindersplat.render import Equirect, render_cubemap, render_equirect, render_pinhole
 from cylindersplat.render.brute_force import composite_brute_force
-from cylindersplat.render import Equirect
 from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, rasterize
-
 from render_scenes import degenerate_scenes, shell_scene, yaw_pose
 
 F64 = torch.float64
@@ -93,7 +91,8 @@ def test_seam_is_continuous_and_rotation_equivariant():
 
 def test_single_opaque_gaussian_depth_is_its_distance():
     g = Gaussians.from_rgb(
-        torch.tensor([[0.0, 0.0, 3.0]]), torch.full((1, 3), 0.5), torch.tensor([[1.0, 0, 0, 0]]), torch.ones(1), torch.ones(1, 3)
+        torch.tensor([[0.0, 0.0, 3.0]]), torch.full((1, 3), 0.5), torch.tensor([[1.0, 0, 0, 0]]), torch.ones(1),
+        torch.ones(1, 3)
     )
     out = render_equirect(g, torch.eye(4), 16, 32)
     centre = (slice(7, 9), slice(15, 17))
@@ -105,7 +104,8 @@ def test_single_opaque_gaussian_depth_is_its_distance():
 def test_batched_rendering_matches_per_item_rendering():
     a, b = shell_scene(20, seed=4, dtype=torch.float32), shell_scene(20, seed=5, dtype=torch.float32)
     batched = Gaussians(**{k: torch.stack((getattr(a, k), getattr(b, k))) for k in a.tensors()})
-    poses = torch.stack([torch.stack((yaw_pose(0.1 * i, dtype=torch.float32), yaw_pose(-0.4, (0.2, 0, 0), dtype=torch.float32))) for i in range(2)])
+    poses = torch.stack([torch.stack((yaw_pose(0.1 * i, dtype=torch.float32),
+                                      yaw_pose(-0.4, (0.2, 0, 0), dtype=torch.float32))) for i in range(2)])
     out = render_equirect(batched, poses, 8, 16)
     assert out.rgb.shape == (2, 2, 3, 8, 16) and out.depth.shape == (2, 2, 8, 16)
     for i, g in enumerate((a, b)):
@@ -146,7 +146,8 @@ def test_bad_inputs_raise_clear_errors():
 
 def test_tile_binning_wraps_around_the_seam():
     g = Gaussians.from_rgb(
-        torch.tensor([[0.0, 0.0, -2.0]]), torch.full((1, 3), 0.2), torch.tensor([[1.0, 0, 0, 0]]), torch.ones(1), torch.ones(1, 3)
+        torch.tensor([[0.0, 0.0, -2.0]]), torch.full((1, 3), 0.2), torch.tensor([[1.0, 0, 0, 0]]), torch.ones(1),
+        torch.ones(1, 3)
     )
     proj = Equirect(32, 64).project(g, torch.eye(4), RasterSettings())
     bins = bin_to_tiles(proj, tile_size=8)
@@ -159,7 +160,8 @@ def test_tile_binning_wraps_around_the_seam():
 
 def test_pinhole_renderer_centres_a_gaussian_on_its_axis():
     g = Gaussians.from_rgb(
-        torch.tensor([[0.0, 0.0, 2.0]]), torch.full((1, 3), 0.05), torch.tensor([[1.0, 0, 0, 0]]), torch.ones(1), torch.ones(1, 3)
+        torch.tensor([[0.0, 0.0, 2.0]]), torch.full((1, 3), 0.05), torch.tensor([[1.0, 0, 0, 0]]), torch.ones(1),
+        torch.ones(1, 3)
     )
     k = torch.tensor([[16.0, 0, 16.0], [0, 16.0, 16.0], [0, 0, 1.0]])
     out = render_pinhole(g, torch.eye(4), k, 32, 32)

@@ -16,7 +16,6 @@ from cylindersplat.geometry.cubemap import cubemap_face_c2w  # noqa: E402
 from cylindersplat.render import Equirect, Pinhole, RasterSettings, cubemap_face  # noqa: E402
 from cylindersplat.render.rasterize import bin_to_tiles  # noqa: E402
 from cylindersplat.render.triton_binning import bin_to_tiles_by_key  # noqa: E402
-
 from render_scenes import shell_scene, yaw_pose  # noqa: E402
 
 F32 = torch.float32
@@ -106,7 +105,8 @@ def test_equal_depths_keep_the_gaussian_order():
 def test_batched_cameras_and_empty_input():
     a, b = shell_scene(25, seed=34, dtype=F32), shell_scene(25, seed=35, dtype=F32)
     batched = Gaussians(**{k: torch.stack((getattr(a, k), getattr(b, k))) for k in a.tensors()})
-    poses = torch.stack([torch.stack((yaw_pose(0.3 * i, dtype=F32), yaw_pose(2.0, (0.1, 0, 0), dtype=F32))) for i in range(2)])
+    poses = torch.stack([torch.stack((yaw_pose(0.3 * i, dtype=F32), yaw_pose(2.0, (0.1, 0, 0), dtype=F32)))
+                         for i in range(2)])
     _assert_same(_project(Equirect(8, 16), batched, poses), 4)
     empty = _project(Equirect(8, 16), Gaussians.empty(), torch.eye(4))
     bins = bin_to_tiles_by_key(empty, 4)

@@ -16,6 +16,7 @@ from cylindersplat.render import (
     Equirect,
     Pinhole,
     RasterSettings,
+    api,
     available_backends,
     cubemap_face,
     register_backend,
@@ -24,9 +25,7 @@ from cylindersplat.render import (
     render_equirect,
     render_pinhole,
 )
-from cylindersplat.render import api
 from cylindersplat.render.brute_force import composite_brute_force
-
 from render_scenes import shell_scene, yaw_pose
 
 F32 = torch.float32
@@ -216,7 +215,8 @@ def test_a_new_camera_model_is_one_pixel_map():
     row = proj.camera == 0
     from cylindersplat.render.covariance import covariance_3d
 
-    cov = covariance_3d(g.scales, g.rotations)[proj.gaussian[row], :2, :2] * camera.scale**2 + 0.3 * torch.eye(2, dtype=F64)
+    cov = covariance_3d(g.scales, g.rotations)[proj.gaussian[row], :2, :2] * camera.scale**2
+    cov = cov + 0.3 * torch.eye(2, dtype=F64)
     inv = torch.linalg.inv(cov)
     torch.testing.assert_close(proj.conic[row], torch.stack((inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 1]), -1))
     for backend in BACKENDS:

@@ -12,7 +12,6 @@ from cylindersplat.gaussians import Gaussians  # noqa: E402
 from cylindersplat.render import Pinhole, render, render_equirect  # noqa: E402
 from cylindersplat.render.cameras import Equirect  # noqa: E402
 from cylindersplat.render.projection import RasterSettings  # noqa: E402
-
 from render_scenes import degenerate_scenes, shell_scene, yaw_pose  # noqa: E402
 
 F32, F64 = torch.float32, torch.float64

@@ -19,7 +19,6 @@ import torch
 from cylindersplat.gaussians import Gaussians
 from cylindersplat.geometry.cubemap import cubemap_face_c2w
 from cylindersplat.render import Equirect, Pinhole, RasterSettings, cubemap_face
-
 from render_scenes import yaw_pose
 
 F64 = torch.float64
@@ -37,7 +36,8 @@ def rotation_from_quaternion(q):
     cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
     cross = cross - cross.transpose(1, 2)
     eye = torch.eye(3, dtype=q.dtype).expand(len(q), 3, 3)
-    return (w * w - (v * v).sum(-1))[:, None, None] * eye + 2 * v[:, :, None] * v[:, None, :] + 2 * w[:, None, None] * cross
+    return ((w * w - (v * v).sum(-1))[:, None, None] * eye + 2 * v[:, :, None] * v[:, None, :]
+            + 2 * w[:, None, None] * cross)
 
 
 def equirect_pixel(h, w):
@@ -75,7 +75,8 @@ def expected_projection(g: Gaussians, c2w, pixel, dilation=SETTINGS.dilation):
 def random_gaussians(means, seed=0, scale=(0.02, 0.2)):
     gen = torch.Generator().manual_seed(seed)
     n = len(means)
-    return Gaussians.from_rgb(means.to(F64), scale[0] + (scale[1] - scale[0]) * torch.rand(n, 3, generator=gen, dtype=F64),
+    return Gaussians.from_rgb(means.to(F64),
+                              scale[0] + (scale[1] - scale[0]) * torch.rand(n, 3, generator=gen, dtype=F64),
                               torch.randn(n, 4, generator=gen, dtype=F64), torch.full((n,), 0.8, dtype=F64),
                               torch.rand(n, 3, generator=gen, dtype=F64))
 
@@ -111,7 +112,8 @@ def assert_projection_matches(proj, order, expected, visible, atol=1e-9, rtol=1e
 def test_equirect_matches_the_float64_construction_with_the_corrected_jacobian():
     gen = torch.Generator().manual_seed(1)
     n = 60
-    dirs = directions(-60 + 120 * torch.rand(n, generator=gen, dtype=F64), -179 + 358 * torch.rand(n, generator=gen, dtype=F64))
+    dirs = directions(-60 + 120 * torch.rand(n, generator=gen, dtype=F64),
+                      -179 + 358 * torch.rand(n, generator=gen, dtype=F64))
     g = random_gaussians(dirs * (0.8 + 3 * torch.rand(n, 1, generator=gen, dtype=F64)), seed=1)
     c2w = yaw_pose(0.4, (0.1, -0.05, 0.2))
     h, w = 32, 64
@@ -228,7 +230,8 @@ def test_pinhole_guard_band_culls_means_far_outside_the_view():
     k = torch.tensor([[10.0, 0.0, 10.0], [0.0, 10.0, 10.0], [0.0, 0.0, 1.0]], dtype=F64)
     # half field of view: tan = 1; the guard band is 1.3x that.
     means = torch.tensor([[1.25, 0.0, 1.0], [1.35, 0.0, 1.0], [0.0, -1.2, 1.0], [0.0, 1.4, 1.0]], dtype=F64)
-    proj = Pinhole(k, 20, 20).project(random_gaussians(means, seed=7, scale=(0.5, 0.6)), torch.eye(4, dtype=F64), SETTINGS)
+    proj = Pinhole(k, 20, 20).project(random_gaussians(means, seed=7, scale=(0.5, 0.6)), torch.eye(4, dtype=F64),
+                                      SETTINGS)
     assert sorted(proj.gaussian.tolist()) == [0, 2]
 
 
@@ -260,7 +263,8 @@ def test_projection_gradients_match_finite_differences(camera_name):
     means = torch.stack((torch.randn(n, generator=gen, dtype=F64) * 0.3, torch.randn(n, generator=gen, dtype=F64) * 0.3,
                          1.5 + torch.rand(n, generator=gen, dtype=F64)), -1)
     base = random_gaussians(means, seed=9, scale=(0.1, 0.3))
-    camera = Equirect(16, 32) if camera_name == "equirect" else Pinhole(torch.tensor([[12.0, 0, 8], [0, 12.0, 8], [0, 0, 1]], dtype=F64), 16, 16)
+    k = torch.tensor([[12.0, 0, 8], [0, 12.0, 8], [0, 0, 1]], dtype=F64)
+    camera = Equirect(16, 32) if camera_name == "equirect" else Pinhole(k, 16, 16)
     c2w = yaw_pose(0.2, (0.05, 0.0, 0.1))
 
     def fn(m, s, q):
@@ -276,7 +280,8 @@ def test_projection_gradients_match_autograd_of_the_construction():
     """The reference's gradients against autograd through the independent construction (equirect)."""
     gen = torch.Generator().manual_seed(10)
     n = 8
-    dirs = directions(-50 + 100 * torch.rand(n, generator=gen, dtype=F64), -170 + 340 * torch.rand(n, generator=gen, dtype=F64))
+    dirs = directions(-50 + 100 * torch.rand(n, generator=gen, dtype=F64),
+                      -170 + 340 * torch.rand(n, generator=gen, dtype=F64))
     base = random_gaussians(dirs * 2.0, seed=10)
     h, w = 16, 32
     weights = [torch.randn(n, 2, generator=gen, dtype=F64), torch.randn(n, 3, generator=gen, dtype=F64),

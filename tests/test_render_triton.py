@@ -13,7 +13,6 @@ pytest.importorskip("triton")  # the test extra installs it; conftest.py selects
 from cylindersplat.gaussians import Gaussians  # noqa: E402
 from cylindersplat.render import render_equirect  # noqa: E402
 from cylindersplat.render.projection import RasterSettings  # noqa: E402
-
 from render_scenes import degenerate_scenes, shell_scene, yaw_pose  # noqa: E402
 
 DEVICE = "cuda" if torch.cuda.is_available() else "cpu"
@@ -69,10 +68,12 @@ def test_seam_and_pole_scenes_match_reference():
     seam = torch.stack((0.3 * torch.randn(n, generator=gen), 0.5 * torch.randn(n, generator=gen),
                         -1.5 - torch.rand(n, generator=gen)), -1)
     # Near the poles (+-y): wide, strongly distorted footprints.
-    pole = torch.stack((0.2 * torch.randn(n, generator=gen), torch.sign(torch.randn(n, generator=gen)) * (1.5 + torch.rand(n, generator=gen)),
+    pole = torch.stack((0.2 * torch.randn(n, generator=gen),
+                        torch.sign(torch.randn(n, generator=gen)) * (1.5 + torch.rand(n, generator=gen)),
                         0.2 * torch.randn(n, generator=gen)), -1)
     means = torch.cat((seam, pole))
-    g = Gaussians.from_rgb(means, 0.05 + 0.2 * torch.rand(2 * n, 3, generator=gen), torch.randn(2 * n, 4, generator=gen),
+    g = Gaussians.from_rgb(means, 0.05 + 0.2 * torch.rand(2 * n, 3, generator=gen),
+                           torch.randn(2 * n, 4, generator=gen),
                            0.3 + 0.6 * torch.rand(2 * n, generator=gen), torch.rand(2 * n, 3, generator=gen))
     _assert_match(*_both(g, yaw_pose(0.0, dtype=F32)[None], 32, 64))
 
@@ -90,7 +91,8 @@ def test_degenerate_inputs_stay_finite(name, g):
     params = [t.clone().to(DEVICE).requires_grad_() for t in g.tensors().values()]
     out = render_equirect(Gaussians(*params), torch.eye(4, device=DEVICE), 16, 32, background=(0.5, 0.5, 0.5),
                           backend="triton")
-    ref = render_equirect(g.to(DEVICE), torch.eye(4, device=DEVICE), 16, 32, background=(0.5, 0.5, 0.5), backend="torch")
+    ref = render_equirect(g.to(DEVICE), torch.eye(4, device=DEVICE), 16, 32, background=(0.5, 0.5, 0.5),
+                          backend="torch")
     torch.testing.assert_close(out.rgb, ref.rgb, atol=2e-4, rtol=1e-4)
     loss = out.rgb.sum() + out.depth.sum() + out.alpha.sum()
     if loss.requires_grad:
@@ -102,8 +104,8 @@ def test_degenerate_inputs_stay_finite(name, g):
 
 
 def test_triton_compositing_matches_brute_force():
-    from cylindersplat.render.brute_force import composite_brute_force
     from cylindersplat.render import Equirect
+    from cylindersplat.render.brute_force import composite_brute_force
     from cylindersplat.render.rasterize import bin_to_tiles
     from cylindersplat.render.triton_backend import composite_triton
 
@@ -170,7 +172,8 @@ def test_deep_stacks_keep_gradients_accurate(opacity, count):
     contributions) against the reference's float64 suffix sums."""
     gen = torch.Generator().manual_seed(7)
     depth = torch.linspace(1.0, 4.0, count)
-    dirs = torch.nn.functional.normalize(torch.tensor([0.05, 0.02, 1.0]) + 0.01 * torch.randn(count, 3, generator=gen), dim=-1)
+    dirs = torch.nn.functional.normalize(torch.tensor([0.05, 0.02, 1.0]) + 0.01 * torch.randn(count, 3, generator=gen),
+                                         dim=-1)
     g = Gaussians.from_rgb(dirs * depth[:, None], torch.tensor([0.6, 0.3, 0.45]) * depth[:, None],
                            torch.randn(count, 4, generator=gen), torch.full((count,), opacity),
                            torch.rand(count, 3, generator=gen))

@@ -16,7 +16,6 @@ pytest.importorskip("triton")
 import cylindersplat  # noqa: E402
 from cylindersplat.gaussians import Gaussians  # noqa: E402
 from cylindersplat.render import render_equirect  # noqa: E402
-
 from render_scenes import shell_scene  # noqa: E402
 
 DEVICE = "cuda" if torch.cuda.is_available() else "cpu"

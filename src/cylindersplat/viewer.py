@@ -107,14 +107,16 @@ def _thumbnail(image: np.ndarray, height: int = 128) -> np.ndarray:
     return np.asarray(pil.resize((round(image.shape[1] * height / image.shape[0]), height), Image.BILINEAR))
 
 
-def build_scene(server, gaussians: Gaussians, cameras: list[ViewCamera] = (), frustum_scale: float = 0.2) -> ViewerScene:
+def build_scene(server, gaussians: Gaussians, cameras: list[ViewCamera] = (),
+                frustum_scale: float = 0.2) -> ViewerScene:
     """Add the splats (``/gaussians``) and one frustum per camera (``/cameras/NNN``) to a viser server,
     and point its initial camera at them (:func:`default_view`)."""
     cameras = list(cameras)
     arrays = splat_arrays(gaussians)
     server.scene.set_up_direction("-y")
     splats = server.scene.add_gaussian_splats(
-        "/gaussians", centers=arrays.centers, covariances=arrays.covariances, rgbs=arrays.rgbs, opacities=arrays.opacities)
+        "/gaussians", centers=arrays.centers, covariances=arrays.covariances, rgbs=arrays.rgbs,
+        opacities=arrays.opacities)
     frustums = []
     for i, cam in enumerate(cameras):
         c2w = cam.c2w.detach().to("cpu", torch.float64)
@@ -135,7 +137,8 @@ def _quiet_server(viser, host: str, port: int):
         return viser.ViserServer(host=host, port=port, verbose=False)
 
 
-def write_html(path: str | Path, gaussians: Gaussians, cameras: list[ViewCamera] = (), frustum_scale: float = 0.2) -> Path:
+def write_html(path: str | Path, gaussians: Gaussians, cameras: list[ViewCamera] = (),
+               frustum_scale: float = 0.2) -> Path:
     """One self-contained HTML file showing the scene (viser's client with the scene embedded); atomic."""
     from .utils.atomic import atomic_path
 

@@ -86,7 +86,8 @@ def bench(num: int, height: int, device: torch.device, backend: str, repeats: in
         if device.type == "cuda":
             torch.cuda.reset_peak_memory_stats()
         try:
-            row[f"{prefix}forward_ms"], row[f"{prefix}fwd_bwd_ms"] = _forward_and_backward_ms(render, params, device, repeats)
+            row[f"{prefix}forward_ms"], row[f"{prefix}fwd_bwd_ms"] = _forward_and_backward_ms(render, params, device,
+                                                                                              repeats)
             row[f"{prefix}peak_mb"] = _peak_mb(device)
         except (torch.OutOfMemoryError, MemoryError):
             row[f"{prefix}error"] = "out of memory"
@@ -115,7 +116,8 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
     """Median time of each stage of one forward + backward (the reference's, or the Triton backend's)."""
     settings = RasterSettings()
     fast = backend == "triton"
-    names = ("project", "bin", "composite", "backward") if fast else ("project", "bin", "fragments", "composite", "backward")
+    names = (("project", "bin", "composite", "backward") if fast
+             else ("project", "bin", "fragments", "composite", "backward"))
     acc: dict[str, list[float]] = {k: [] for k in names}
     for it in range(repeats + 1):
         marks = [time.perf_counter()]
@@ -129,7 +131,8 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
             from cylindersplat.render.triton_binning import bin_to_tiles_by_key
             from cylindersplat.render.triton_projection import project_dense_triton
 
-            proj = project_gaussians(*flatten_cameras(g, c2w)[:2], Equirect(height, width), settings, project_dense_triton)
+            proj = project_gaussians(*flatten_cameras(g, c2w)[:2], Equirect(height, width), settings,
+                                     project_dense_triton)
             mark()
             bins = bin_to_tiles_by_key(proj, settings.tile_size)
         else:
@@ -175,7 +178,8 @@ def profile(num: int, height: int, device: torch.device, backend: str, rows: int
 
     step()
     _sync(device)
-    activities = [torch.profiler.ProfilerActivity.CPU] + ([torch.profiler.ProfilerActivity.CUDA] if device.type == "cuda" else [])
+    activities = [torch.profiler.ProfilerActivity.CPU]
+    activities += [torch.profiler.ProfilerActivity.CUDA] if device.type == "cuda" else []
     with torch.profiler.profile(activities=activities) as prof:
         step()
         _sync(device)
@@ -224,12 +228,14 @@ def ratio_line(base: dict, row: dict, dev: str) -> str:
 
 def table(rows: list[dict]) -> list[str]:
     """Markdown table of timed rows; a backend out of memory shows that in its cells."""
-    lines = ["| device | backend | Gaussians | size | forward ms | fwd+bwd ms | peak MB |", "|---|---|---|---|---|---|---|"]
+    lines = ["| device | backend | Gaussians | size | forward ms | fwd+bwd ms | peak MB |",
+             "|---|---|---|---|---|---|---|"]
     for r in rows:
         if "ply_view" in r:
-            cells = (f"PLY load {r['load_s']} s + view {r['render_s']} s = {r['total_s']} s", "", "") if "total_s" in r \
-                else (r.get("error", "failed"),) * 2 + ("",)
-            lines.append(f"| {r['device']} | {r['backend']} | {r['ply_view']:,} (PLY) | {r['size']} | " + " | ".join(cells) + " |")
+            cells = ((f"PLY load {r['load_s']} s + view {r['render_s']} s = {r['total_s']} s", "", "")
+                     if "total_s" in r else (r.get("error", "failed"),) * 2 + ("",))
+            lines.append(f"| {r['device']} | {r['backend']} | {r['ply_view']:,} (PLY) | {r['size']} "
+                         "| " + " | ".join(cells) + " |")
             continue
         if "forward_ms" in r:
             cells = (f"{r['forward_ms']:.1f}", f"{r['fwd_bwd_ms']:.1f}", f"{r['peak_mb']:.0f}")
@@ -240,19 +246,23 @@ def table(rows: list[dict]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = OneLineErrorParser(prog="cylindersplat bench render", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = OneLineErrorParser(prog="cylindersplat bench render", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--num", type=positive_int, nargs="+", default=[100_000], help="numbers of Gaussians")
     parser.add_argument("--height", type=positive_int, default=256)
     parser.add_argument("--device", nargs="+", default=None, help="devices (default: cpu, and cuda when present)")
     parser.add_argument("--backend", nargs="+", default=["torch"],
-                        help="render backends, timed in one run; ratios are printed against the first (torch, triton, auto)")
+                        help="render backends, timed in one run; ratios are printed against the first "
+                             "(torch, triton, auto)")
     parser.add_argument("--repeats", type=positive_int, default=5)
     parser.add_argument("--cubemap", action="store_true", help="also time the cubemap route")
     parser.add_argument("--stages", action="store_true", help="print the per-stage breakdown")
     parser.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads")
     parser.add_argument("--default-malloc", action="store_true", help="skip the glibc allocator tuning")
-    parser.add_argument("--profile", action="store_true", help="print torch.profiler's top kernels of one forward+backward")
-    parser.add_argument("--compile", action="store_true", help="projection through torch.compile (render.projection.compile_projection)")
+    parser.add_argument("--profile", action="store_true",
+                        help="print torch.profiler's top kernels of one forward+backward")
+    parser.add_argument("--compile", action="store_true", help="projection through torch.compile "
+                                                               "(render.projection.compile_projection)")
     parser.add_argument("--ply-view", type=positive_int, nargs="+", default=[], metavar="N",
                         help="also time loading a PLY of N Gaussians and rendering one 512x1024 view, per backend")
     args = parser.parse_args(argv)
@@ -265,8 +275,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     devices = args.device or (["cpu", "cuda"] if torch.cuda.is_available() else ["cpu"])
-    print(f"# {platform.processor() or platform.machine()}, {torch.get_num_threads()} torch threads, torch {torch.__version__}"
-          f"{', compiled projection' if args.compile else ''}")
+    print(f"# {platform.processor() or platform.machine()}, {torch.get_num_threads()} torch threads, torch "
+          f"{torch.__version__}{', compiled projection' if args.compile else ''}")
     if torch.cuda.is_available():
         print(f"# GPU: {torch.cuda.get_device_name()}")
     timed = []
@@ -274,10 +284,12 @@ def main(argv: list[str] | None = None) -> None:
         for num in args.num:
             rows = []
             for backend in args.backend:
-                if backend == "triton" and torch.device(dev).type != "cuda" and os.environ.get("TRITON_INTERPRET") != "1":
+                interpreted = os.environ.get("TRITON_INTERPRET") == "1"
+                if backend == "triton" and torch.device(dev).type != "cuda" and not interpreted:
                     print(f"# skipping triton on {dev}: needs CUDA (or TRITON_INTERPRET=1, very slow)")
                     continue
-                rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, args.cubemap, args.stages))
+                rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, args.cubemap,
+                                  args.stages))
                 print(rows[-1])
                 if args.profile:
                     profile(num, args.height, torch.device(dev), backend)

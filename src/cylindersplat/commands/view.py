@@ -35,8 +35,8 @@ def check_sources(args: argparse.Namespace) -> None:
     if args.splats is not None and (args.input is not None or args.checkpoint is not None):
         raise ValueError("give either a splat file or --input/--checkpoint, not both")
     if args.splats is None and args.input is None:
-        raise ValueError("give a splat file (scene.ply, .spz, .compressed.ply, .sog) or --input (with --checkpoint, or the "
-                         "shipped weights)")
+        raise ValueError("give a splat file (scene.ply, .spz, .compressed.ply, .sog) or --input (with --checkpoint, or "
+                         "the shipped weights)")
 
 
 def load_scene(args: argparse.Namespace):
@@ -53,7 +53,8 @@ def load_scene(args: argparse.Namespace):
     from ..data.io import to_uint8
 
     inputs, gaussians, _ = reconstruct_from_args(args)
-    cameras = [ViewCamera(c2w.cpu(), name, to_uint8(image)) for c2w, name, image in zip(inputs.c2w, inputs.names, inputs.images)]
+    cameras = [ViewCamera(c2w.cpu(), name, to_uint8(image))
+               for c2w, name, image in zip(inputs.c2w, inputs.names, inputs.images)]
     return gaussians.to("cpu"), cameras
 
 
@@ -120,14 +121,17 @@ def register(subparsers) -> None:
                         "interface)")
     parser.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
     parser.add_argument("--duration", type=float, help="stop serving after this many seconds (default: until Ctrl+C)")
-    parser.add_argument("--frustum-scale", type=float, default=0.2, help="size of the camera frustums in metres (default 0.2)")
+    parser.add_argument("--frustum-scale", type=float, default=0.2,
+                        help="size of the camera frustums in metres (default 0.2)")
     parser.add_argument("--html", type=Path, help="write the scene as one self-contained HTML file and do not serve")
-    parser.add_argument("--screenshot", type=Path, help="render a PNG with cylindersplat's renderer (no browser) and do "
-                        "not serve: a pinhole view from where the browser view starts (the input cameras' middle), or "
-                        "--panorama; Gaussians at or below --min-opacity are left out, and a picture too large for "
+    parser.add_argument("--screenshot", type=Path, help="render a PNG with cylindersplat's renderer (no browser) and "
+                        "do not serve: a pinhole view from where the browser view starts (the input cameras' middle), "
+                        "or --panorama; Gaussians at or below --min-opacity are left out, and a picture too large for "
                         "memory is rendered in bands of rows")
-    parser.add_argument("--screenshot-size", type=image_resolution, default=(480, 640), help="HxW of --screenshot (default 480x640)")
-    parser.add_argument("--fov", type=float, default=90.0, help="horizontal field of view of --screenshot in degrees (default 90)")
-    parser.add_argument("--panorama", action="store_true", help="--screenshot renders an equirect panorama from the first "
-                        "input camera (or the origin) instead; needs --screenshot-size H x 2H")
+    parser.add_argument("--screenshot-size", type=image_resolution, default=(480, 640),
+                        help="HxW of --screenshot (default 480x640)")
+    parser.add_argument("--fov", type=float, default=90.0,
+                        help="horizontal field of view of --screenshot in degrees (default 90)")
+    parser.add_argument("--panorama", action="store_true", help="--screenshot renders an equirect panorama from the "
+                        "first input camera (or the origin) instead; needs --screenshot-size H x 2H")
     parser.set_defaults(func=run)

@@ -43,7 +43,8 @@ from .ply import load_ply, save_ply
 from .splat import load_splat, save_splat
 
 __all__ = [
-    "SPLAT_TRANSFORM_ENV", "SPLAT_TRANSFORM_INSTALL", "TIMEOUT_ENV", "SplatTransformError", "splat_transform_timeout", "WRITE_FORMATS", "READ_FORMATS",
+    "SPLAT_TRANSFORM_ENV", "SPLAT_TRANSFORM_INSTALL", "TIMEOUT_ENV", "SplatTransformError", "splat_transform_timeout",
+    "WRITE_FORMATS", "READ_FORMATS",
     "splat_format", "find_splat_transform", "require_splat_transform", "save_gaussians", "load_gaussians",
 ]
 
@@ -58,8 +59,8 @@ PROJECT_TOOLS = Path(__file__).resolve().parents[3] / ".tools"
 MIN_TIMEOUT_S = 120.0
 SECONDS_PER_GAUSSIAN = 2e-4  # writing: 200 s more per million Gaussians
 SECONDS_PER_BYTE = 1e-5  # reading: 10 s more per MB of file
-SPLAT_TRANSFORM_INSTALL = (f"install PlayCanvas splat-transform (Node.js >= 20): `bash scripts/install_optional.sh formats` "
-                           f"(into the clone's .tools/) or `npm install -g {SPLAT_TRANSFORM_PACKAGE}`, or set "
+SPLAT_TRANSFORM_INSTALL = ("install PlayCanvas splat-transform (Node.js >= 20): `bash scripts/install_optional.sh "
+                           f"formats` (into the clone's .tools/) or `npm install -g {SPLAT_TRANSFORM_PACKAGE}`, or set "
                            f"{SPLAT_TRANSFORM_ENV} to its executable")
 
 #: Output formats -> what they are. The last three need splat-transform.
@@ -143,7 +144,8 @@ def _run(tool: list[str], arguments: list[str], timeout: float, what: str) -> No
         raise
     if proc.returncode != 0:
         lines = [line.strip() for line in (stderr + stdout).splitlines() if line.strip()]
-        detail = next((line for line in reversed(lines) if "error" in line.lower()), lines[-1] if lines else "no output")
+        detail = next((line for line in reversed(lines) if "error" in line.lower()),
+                      lines[-1] if lines else "no output")
         raise SplatTransformError(f"splat-transform failed (exit {proc.returncode}): {detail[:300]}")
 
 

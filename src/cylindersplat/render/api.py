@@ -28,7 +28,14 @@ from ..validation import MAX_TRANSLATION_M, farthest_camera
 from .cameras import CameraModel, Equirect
 from .numba_backend import numba_available, numba_backend
 from .numba_projection import project_dense_numba
-from .projection import DenseProjection, ProjectedGaussians, RasterSettings, UnsupportedSettings, flatten_cameras, project_gaussians
+from .projection import (
+    DenseProjection,
+    ProjectedGaussians,
+    RasterSettings,
+    UnsupportedSettings,
+    flatten_cameras,
+    project_gaussians,
+)
 from .rasterize import rasterize
 from .triton_backend import triton_available, triton_backend
 from .triton_projection import project_dense_triton
@@ -112,7 +119,8 @@ def _pick_backend(name: str, device: torch.device) -> Backend:
     if name not in _BACKENDS:
         package = {"triton": "triton", "numba": "numba"}.get(name)
         needs = f" (needs the {package} package: pip install {package})" if package else ""
-        raise InputError(f"unknown render backend {name!r}{needs}; available: {', '.join(available_backends())} or auto")
+        raise InputError(f"unknown render backend {name!r}{needs}; "
+                         f"available: {', '.join(available_backends())} or auto")
     return _BACKENDS[name]
 
 
@@ -142,7 +150,8 @@ def _run_fast(fn: Backend, backend: str, fast: Callable, reference: Callable, un
         return reference()
 
 
-def _project(fn: Backend, backend: str, gaussians: Gaussians, c2w: Tensor, camera: CameraModel, settings: RasterSettings):
+def _project(fn: Backend, backend: str, gaussians: Gaussians, c2w: Tensor, camera: CameraModel,
+             settings: RasterSettings):
     """The backend's own projection where it has one and can take this input, else the reference's
     (a backend's projection that cannot take a camera model or input leaves it to the reference)."""
     dense = _PROJECTIONS.get(fn)
@@ -207,11 +216,14 @@ def render(
         try:
             background = torch.as_tensor(background, dtype=gaussians.dtype, device=gaussians.device)
         except (TypeError, ValueError, RuntimeError):
-            raise TypeError(f"background must be RGB numbers in [0, 1] (3 floats or a tensor), got {background!r:.80}") from None
+            raise TypeError("background must be RGB numbers in [0, 1] (3 floats or a tensor), got "
+                            f"{background!r:.80}") from None
         if background.shape[-1:] != (3,) or background.numel() not in (3, 3 * num_cameras):
-            raise ValueError(f"background must be RGB, (3,) or one per camera {(*out_shape, 3)}, got {tuple(background.shape)}")
+            raise ValueError(f"background must be RGB, (3,) or one per camera {(*out_shape, 3)}, got "
+                             f"{tuple(background.shape)}")
         if not torch.isfinite(background).all():
-            raise ValueError(f"background must be finite (RGB in [0, 1]), got {background.tolist() if background.numel() <= 12 else 'NaN/inf values'}")
+            raise ValueError("background must be finite (RGB in [0, 1]), got "
+                             f"{background.tolist() if background.numel() <= 12 else 'NaN/inf values'}")
     fn = _pick_backend(backend, gaussians.device)
     proj = _project(fn, backend, flat_gaussians, flat_c2w, camera, settings)
     if proj.camera.numel() == 0 and gaussians.means.shape[-2] > 0 and camera.sees_every_direction:
@@ -222,7 +234,8 @@ def render(
     rgb, depth, alpha = _rasterize(fn, backend, proj, settings, background)
     h, w = camera.height, camera.width
     return RenderOutput(
-        rgb=rgb.reshape(*out_shape, 3, h, w), depth=depth.reshape(*out_shape, h, w), alpha=alpha.reshape(*out_shape, h, w)
+        rgb=rgb.reshape(*out_shape, 3, h, w), depth=depth.reshape(*out_shape, h, w),
+        alpha=alpha.reshape(*out_shape, h, w)
     )
 
 

@@ -135,7 +135,8 @@ class Pinhole(CameraModel):
         z_safe = torch.where(valid, z, torch.ones_like(z))
         tx, ty = x / z_safe, y / z_safe
         lim_x, lim_y = 1.3 * (self.width / 2) / fx, 1.3 * (self.height / 2) / fy
-        valid = valid & ((tx - (cx - self.width / 2) / fx).abs() <= lim_x) & ((ty - (cy - self.height / 2) / fy).abs() <= lim_y)
+        valid = (valid & ((tx - (cx - self.width / 2) / fx).abs() <= lim_x)
+                 & ((ty - (cy - self.height / 2) / fy).abs() <= lim_y))
         zero = torch.zeros_like(z)
         jac = torch.stack(
             (

@@ -76,7 +76,8 @@ def render_cubemap(
         face_c2w = face_c2w.flatten(1, 2)  # (B, V*6, 4, 4)
     else:
         face_c2w = face_c2w.reshape(-1, 4, 4)
-    faces = render(gaussians, face_c2w, cubemap_face(face_size), _face_background(background, face_c2w), backend, settings)
+    faces = render(gaussians, face_c2w, cubemap_face(face_size), _face_background(background, face_c2w), backend,
+                   settings)
     packed = torch.cat((faces.rgb, faces.depth.unsqueeze(-3), faces.alpha.unsqueeze(-3)), dim=-3)
     packed = packed.reshape(*out_shape, 6, 5, face_size, face_size)
     pano = cubemap_to_equirect(packed, height, width)

@@ -32,7 +32,6 @@ import numpy as np
 from numba import njit, prange
 
 
-
 @njit(cache=True)
 def _clamp_to_int(x):
     """``int(x)`` for an already rounded float, saturated far outside any image (no overflow)."""

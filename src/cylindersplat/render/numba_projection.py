@@ -25,8 +25,8 @@ _MODELS = {Equirect: 0, Pinhole: 1}  # the kernels' model number per camera mode
 
 
 def _kernels():
-    from .numba_backend import _kernels as set_threads
     from . import numba_projection_kernels
+    from .numba_backend import _kernels as set_threads
 
     set_threads()
     return numba_projection_kernels

@@ -32,7 +32,6 @@ map, :func:`ewa_footprint` the caps), documented so the fast backend can match t
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -43,7 +42,8 @@ from ..gaussians import Gaussians
 from ..geometry.rotations import quaternion_to_matrix
 from .covariance import eval_sh
 
-__all__ = ["ProjectedGaussians", "RasterSettings", "UnsupportedSettings", "PixelMap", "flatten_cameras", "to_camera_frame",
+__all__ = ["ProjectedGaussians", "RasterSettings", "UnsupportedSettings", "PixelMap", "flatten_cameras",
+           "to_camera_frame",
            "ewa_footprint", "project_dense", "project_gaussians", "compile_projection"]
 
 
@@ -79,7 +79,8 @@ class RasterSettings:
         number("near", isinstance(self.near, (int, float)) and self.near > 0, "> 0 metres (e.g. 0.01)")
         number("dilation", isinstance(self.dilation, (int, float)) and self.dilation >= 0, ">= 0 px^2 (e.g. 0.3)")
         number("sigma_extent", isinstance(self.sigma_extent, (int, float)) and self.sigma_extent > 0, "> 0 (e.g. 3)")
-        number("alpha_max", isinstance(self.alpha_max, (int, float)) and 0 < self.alpha_max <= 1, "in (0, 1] (e.g. 0.99)")
+        number("alpha_max", isinstance(self.alpha_max, (int, float)) and 0 < self.alpha_max <= 1,
+               "in (0, 1] (e.g. 0.99)")
         number("alpha_min", isinstance(self.alpha_min, (int, float)) and 0 <= self.alpha_min < self.alpha_max,
                "in [0, alpha_max) (e.g. 1/255)")
         number("transmittance_min", isinstance(self.transmittance_min, (int, float))
@@ -150,7 +151,8 @@ def flatten_cameras(gaussians: Gaussians, c2w: Tensor) -> tuple[Gaussians, Tenso
     elif len(gaussians.batch_shape) == 1:
         b = gaussians.batch_shape[0]
         if c2w.ndim != 4 or c2w.shape[0] != b:
-            raise ValueError(f"Gaussians with batch shape ({b},) need c2w of shape ({b}, V, 4, 4), got {tuple(c2w.shape)}")
+            raise ValueError(f"Gaussians with batch shape ({b},) need c2w of shape ({b}, V, 4, 4), got "
+                             f"{tuple(c2w.shape)}")
         out_shape = tuple(c2w.shape[:2])
     else:
         raise ValueError(f"Gaussians may have at most one batch dimension, got {tuple(gaussians.batch_shape)}")

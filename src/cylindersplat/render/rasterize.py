@@ -32,7 +32,8 @@ from torch import Tensor
 from ..utils.memory import available_memory  # a name of this module too: tests patch rasterize.available_memory
 from .projection import ProjectedGaussians, RasterSettings
 
-__all__ = ["TileBins", "TileSpans", "tile_spans", "bin_to_tiles", "expand_fragments", "composite", "rasterize", "pack_projected", "unpack_composited"]
+__all__ = ["TileBins", "TileSpans", "tile_spans", "bin_to_tiles", "expand_fragments", "composite", "rasterize",
+           "pack_projected", "unpack_composited"]
 
 
 @dataclass
@@ -159,7 +160,8 @@ def bin_to_tiles(proj: ProjectedGaussians, tile_size: int = 16) -> TileBins:
     (:func:`.triton_binning.bin_to_tiles_by_key`) gives the same order."""
     pairs = _emit_pairs(proj, tile_spans(proj, tile_size), tile_size)
     depth_rank = torch.empty_like(proj.camera)
-    depth_rank[torch.argsort(proj.depth.detach(), stable=True)] = torch.arange(len(proj.depth), device=depth_rank.device)
+    depth_rank[torch.argsort(proj.depth.detach(), stable=True)] = torch.arange(len(proj.depth),
+                                                                               device=depth_rank.device)
     return _select(pairs, torch.argsort(pairs.tile * max(len(proj.depth), 1) + depth_rank[pairs.gaussian], stable=True))
 
 
@@ -304,7 +306,8 @@ class _Composite(torch.autograd.Function):
     def backward(ctx, grad_out):
         packed, frag_gaussian, frag_pixel, alpha, trans, alive, raw = ctx.saved_tensors
         f = packed[frag_gaussian]
-        _, du, dv, _, _ = _fragment_alpha(f, frag_pixel, ctx.height, ctx.width, ctx.wrap_u, ctx.settings, need_alpha=False)
+        _, du, dv, _, _ = _fragment_alpha(f, frag_pixel, ctx.height, ctx.width, ctx.wrap_u, ctx.settings,
+                                          need_alpha=False)
         g = grad_out[frag_pixel]  # (F, 5)
         weight = alpha * trans * alive
         s = (g * f[:, 6:]).sum(-1)

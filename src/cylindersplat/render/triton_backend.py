@@ -32,7 +32,8 @@ def triton_available() -> bool:
 
 class _TritonComposite(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, packed, pair_gaussian, rows, cols, tile_start, num_pixels, height, width, tiles_x, tiles_y, wrap_u, settings):
+    def forward(ctx, packed, pair_gaussian, rows, cols, tile_start, num_pixels, height, width, tiles_x, tiles_y, wrap_u,
+                settings):
         from . import triton_kernels as kernels
 
         # Every pixel is written: one program per tile of every camera, empty tiles included.

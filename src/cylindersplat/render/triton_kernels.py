@@ -34,7 +34,8 @@ def _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE: tl.conste
 
 
 @triton.jit
-def _fragment(packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U: tl.constexpr):
+def _fragment(packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min,
+              WRAP_U: tl.constexpr):
     """Offsets, alpha and the support mask of pair ``p`` (Gaussian ``g``) at the tile's pixels."""
     base = packed_ptr + g * 11
     u = tl.load(base + 0)

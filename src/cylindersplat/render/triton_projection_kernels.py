@@ -37,7 +37,8 @@ import triton.language as tl
 
 # Globals read inside @triton.jit functions must be constexpr (the compiler refuses others).
 PI = tl.constexpr(math.pi)
-_AXIS_EPS = tl.constexpr(1e-12)  # as geometry.equirect.ray_to_uv: (angle from the vertical axis)^2 below which u is fixed
+# as geometry.equirect.ray_to_uv: (angle from the vertical axis)^2 below which u is fixed
+_AXIS_EPS = tl.constexpr(1e-12)
 _TAN_PI_8 = tl.constexpr(0.41421356237309503)
 
 
@@ -207,7 +208,8 @@ def _pinhole_map(x, y, z, height, width, fx, fy, cx, cy, near):
     valid = valid & (tl.abs(tx - (cx - width / 2.0) / fx) <= lim_x) & (tl.abs(ty - (cy - height / 2.0) / fy) <= lim_y)
     depth = tl.sqrt(x * x + y * y + z * z)
     zero = 0.0 * x
-    return fx * tx + cx, fy * ty + cy, depth, fx / zs, zero, -fx * x / (zs * zs), zero, fy / zs, -fy * y / (zs * zs), valid
+    return (fx * tx + cx, fy * ty + cy, depth, fx / zs, zero, -fx * x / (zs * zs), zero, fy / zs, -fy * y / (zs * zs),
+            valid)
 
 
 @triton.jit
