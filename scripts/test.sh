@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Install the package with its test extras and run the whole test suite, slow tests included (CI: .ci/run).
+# Install the package with its test extras, lint (ruff), and run the whole test suite, slow tests included
+# (CI: .ci/run).
 #
 #   bash scripts/test.sh                        # installs only into the project's Python (scripts/_python.sh)
 #                                               # and the project folder; then runs pytest
@@ -25,6 +26,10 @@ done
 
 choose_python  # exported PYTHON: the scripts below install into the same one (.venv under PEP 668)
 bash scripts/install.sh test
+
+# Lint before anything slow: line length, pyflakes and import order as [tool.ruff] in pyproject.toml sets them
+# (ruff comes with the test extra). A finding stops the script.
+"$PYTHON" -m ruff check src tests studies benchmarks scripts
 
 skipped() { echo "test.sh: optional part '$1' skipped: $2; its tests will skip" >&2; }
 

@@ -107,6 +107,7 @@ STUBS = {  # what each stand-in does besides logging its call
     "node": 'echo 22',
     "id": 'echo 0',  # root: apt-get would run
 }
+RUFF = "python -m ruff check src tests studies benchmarks scripts"
 TOOLS = ("bash", "dirname", "mktemp", "grep", "tail", "rm", "timeout", "uname", "cat", "mkdir", "chmod", "sed",
          "basename", "printf", "env")
 
@@ -148,6 +149,7 @@ def test_test_sh_installs_nothing_system_wide_without_the_flag(test_sh):
     npm = [call for call in calls if call.startswith("npm ")]
     assert len(npm) == 1 and f"--prefix {repo}/.tools " in npm[0] and f"--cache {repo}/.tools/npm-cache" in npm[0]
     assert calls[-1] == "python -m pytest -q -x"
+    assert RUFF in calls  # linted before the tests (the last call)
     assert result.stderr.splitlines() == [
         "test.sh: optional part 'browser' skipped: chromium would be installed system-wide (apt-get); run "
         "`bash scripts/test.sh --with-system-tools` (or CYLINDERSPLAT_SYSTEM_INSTALLS=1) to install it; its tests "
@@ -161,6 +163,13 @@ def test_test_sh_installs_chromium_when_asked(test_sh, how):
     assert result.returncode == 0 and result.stderr == "", result.stderr
     assert "apt-get update -qq" in calls and "apt-get install -y -qq chromium" in calls
     assert calls[-1] == "python -m pytest -q -m not slow"  # the flag is test.sh's, not pytest's
+
+
+def test_test_sh_stops_at_a_ruff_finding_before_the_tests(test_sh, tmp_path):
+    (tmp_path / "bin" / "python").write_text(STUB.format(body='[ "$2" = ruff ] && exit 1; exit 0'))
+    result, calls, _ = test_sh()
+    assert result.returncode == 1
+    assert calls[-1] == RUFF and not any(call.startswith("python -m pytest") for call in calls), calls
 
 
 def test_test_sh_says_which_optional_part_it_skipped_and_why(test_sh, tmp_path):
