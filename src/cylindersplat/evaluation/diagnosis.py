@@ -38,9 +38,8 @@ from ..geometry import camera_to_world, equirect_rays
 from ..geometry.rotations import matrix_to_quaternion, quaternion_multiply
 from ..metrics import ssim, ws_psnr
 from ..model.gaussian_heads import surface_footprints
-from ..render import Equirect, render
+from ..render import Equirect, RasterSettings, render
 from ..render.api import RenderOutput
-from ..render.projection import RasterSettings
 from .fills import fill_uncovered
 from .masked import MIN_OCCLUDED_PIXELS, masked_ws_psnr
 

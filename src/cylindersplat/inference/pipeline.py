@@ -15,10 +15,9 @@ from torch import Tensor
 from ..data.io import DEPTH_PNG_SCALE, to_uint8, write_depth_png, write_rgb
 from ..errors import InputError
 from ..gaussians import Gaussians
-from ..render import Equirect, render
+from ..render import Equirect, RasterSettings, render
 from ..render.api import RenderOutput
 from ..render.cameras import CameraModel
-from ..render.projection import RasterSettings
 from ..render.rasterize import RenderMemoryError
 from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
