@@ -124,7 +124,7 @@ else
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
   train_args=(--config paper --height 512 --steps 3)
   synth_args=(--scenes 12 --resolution 256x512)
-  run_overrides=(model.preset=paper data.resolution=[256,512] train.steps_per_stage=[80,20] train.log_every=10)
+  run_overrides=(model.preset=paper data.resolution=[256,512] train.steps_per_stage=[160,40] train.log_every=4)
   base_scenes=100; base_resolution=256x512; base_overrides=()
   base_minutes=${CHECK_BASE_MINUTES:-20}; base_chunk=500; require_fall=--require-fall; run_backends=triton  # (CHECK_RUN_BACKENDS="triton torch": both)
 fi
