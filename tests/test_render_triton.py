@@ -86,6 +86,31 @@ def test_smaller_tiles_and_opaque_stacks_match_reference():
     _assert_match(*_both(g, yaw_pose(0.3, dtype=F32)[None], 16, 32, settings=RasterSettings(tile_size=8)))
 
 
+
+@pytest.mark.parametrize("binning,backward", [("depth_tile", "sums"), ("key64", "joined")])
+def test_binning_and_backward_variants_match_reference(monkeypatch, binning, backward):
+    # Each variant (issue 35) against the reference: seam-crossing footprints, two cameras, opaque and faint.
+    from cylindersplat.render import triton_backend, triton_binning
+
+    monkeypatch.setattr(triton_binning, "BINNING", binning)
+    monkeypatch.setattr(triton_backend, "BACKWARD", backward)
+    g = shell_scene(16, seed=8, scale=(0.1, 0.5), dtype=F32)
+    poses = torch.stack([yaw_pose(0.0, dtype=F32), yaw_pose(2.0, (0.1, -0.2, 0.1), dtype=F32)])
+    _assert_match(*_both(g, poses, 16, 32, settings=RasterSettings(tile_size=8)))
+
+
+def test_unknown_backward_is_refused_by_name(monkeypatch):
+    from cylindersplat.render import triton_backend
+
+    monkeypatch.setattr(triton_backend, "BACKWARD", "warp")
+    means = shell_scene(10, seed=9, dtype=F32).means.to(DEVICE).requires_grad_()
+    g = shell_scene(10, seed=9, dtype=F32).to(DEVICE)
+    out = render_equirect(Gaussians(means, g.scales, g.rotations, g.opacities, g.sh), torch.eye(4, device=DEVICE),
+                          8, 16, backend="triton")
+    with pytest.raises(ValueError, match="unknown Triton backward 'warp'.*joined"):
+        out.rgb.sum().backward()
+
+
 @pytest.mark.parametrize("name,g", list(degenerate_scenes()), ids=[n for n, _ in degenerate_scenes()])
 def test_degenerate_inputs_stay_finite(name, g):
     params = [t.clone().to(DEVICE).requires_grad_() for t in g.tensors().values()]

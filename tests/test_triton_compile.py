@@ -32,17 +32,18 @@ FLOAT_SCALARS = {"fx", "fy", "cx", "cy", "near", "pole_eps", "dilation", "sigma_
                  "sigma2", "alpha_max", "t_min"}
 POINTER_TYPES = {"valid_ptr": "*i8", "depth_bits_ptr": "*i32", "pair_gaussian_ptr": "*i64", "rows_ptr": "*i64",
                  "cols_ptr": "*i64", "tile_start_ptr": "*i64"}
-INT64_POINTER_KERNELS = {"emit_pairs_kernel"}  # every pointer of the binning kernel is int64 but the depth bits
+# Every pointer of the binning kernels is int64 but the depth bits, the tile keys and the depth ranks.
+INT64_POINTER_KERNELS = {"emit_pairs_kernel", "emit_tile_keys_kernel", "write_sorted_pairs_kernel"}
 
 
-def _signature(kernel, constexprs):
+def _signature(kernel, constexprs, pointers=None):
     sig = {}
     for name in kernel.arg_names:
         if name in constexprs:
             sig[name] = "constexpr"
         elif name.endswith("_ptr"):
             default = "*i64" if kernel.__name__ in INT64_POINTER_KERNELS else "*fp32"
-            sig[name] = POINTER_TYPES.get(name, default)
+            sig[name] = (pointers or {}).get(name, POINTER_TYPES.get(name, default))
         else:
             sig[name] = "fp32" if name in FLOAT_SCALARS else "i32"
     return sig
@@ -60,15 +61,21 @@ KERNELS = [
     (triton_projection_kernels.project_backward_kernel, {"MODEL": 0, "BLOCK": 128}),
     (triton_projection_kernels.project_backward_kernel, {"MODEL": 1, "BLOCK": 128}),
     (triton_binning_kernels.emit_pairs_kernel, {"TILE": 16, "BLOCK": 128}),
+    # the depth_tile binning: int16 tile keys (under 32768 tiles) and int32 ones
+    (triton_binning_kernels.emit_tile_keys_kernel, {"TILE": 16, "BLOCK": 128}, {"key_ptr": "*i16", "rank_ptr": "*i32"}),
+    (triton_binning_kernels.emit_tile_keys_kernel, {"TILE": 16, "BLOCK": 128}, {"key_ptr": "*i32", "rank_ptr": "*i32"}),
+    (triton_binning_kernels.write_sorted_pairs_kernel, {"TILE": 16, "BLOCK": 128}, {"rank_ptr": "*i32"}),
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True}),
-    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False}),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, "JOINED": False}),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, "JOINED": True}),
 ]
 
 
 def compile_all() -> None:
     """Compile every kernel of :data:`KERNELS` for sm_90 (run without ``TRITON_INTERPRET``)."""
-    for kernel, constexprs in KERNELS:
-        compiled = triton.compile(ASTSource(fn=kernel, signature=_signature(kernel, constexprs), constexprs=constexprs),
+    for kernel, constexprs, *pointers in KERNELS:
+        signature = _signature(kernel, constexprs, *pointers)
+        compiled = triton.compile(ASTSource(fn=kernel, signature=signature, constexprs=constexprs),
                                   target=GPUTarget("cuda", 90, 32))
         assert compiled.asm.get("cubin"), kernel.__name__
         print("compiled", kernel.__name__, constexprs)

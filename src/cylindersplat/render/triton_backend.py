@@ -23,7 +23,14 @@ from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings
 from .rasterize import TileBins, pack_projected, unpack_composited
 from .triton_binning import bin_to_tiles_by_key
 
-__all__ = ["triton_available", "triton_backend", "composite_triton"]
+__all__ = ["triton_available", "triton_backend", "composite_triton", "BACKWARDS", "BACKWARD"]
+
+# How the compositing backward sums a pair's gradients over a tile's pixels before its atomics
+# (:func:`.triton_kernels.composite_backward_kernel`): "sums" (ten block-wide sums, ten scalar atomics per
+# pair) or "joined" (one block-wide sum of the ten joined, one vector atomic). The same gradients (to float32
+# rounding); the default until both are measured on a GPU. Module-level: the benchmark switches it.
+BACKWARDS = ("sums", "joined")
+BACKWARD = "sums"
 
 
 def triton_available() -> bool:
@@ -52,13 +59,15 @@ class _TritonComposite(torch.autograd.Function):
     def backward(ctx, grad_out):
         from . import triton_kernels as kernels
 
+        if BACKWARD not in BACKWARDS:
+            raise ValueError(f"unknown Triton backward {BACKWARD!r}: choose one of {', '.join(BACKWARDS)}")
         packed, pair_gaussian, rows, cols, tile_start, out = ctx.saved_tensors
         grad_packed = torch.zeros_like(packed)
         grid = (len(tile_start) - 1,)
         if grid[0] > 0:
             kernels.composite_backward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out,
                                                     grad_out.float().contiguous(), grad_packed, *ctx.args,
-                                                    TILE=ctx.tile, WRAP_U=ctx.wrap_u)
+                                                    TILE=ctx.tile, WRAP_U=ctx.wrap_u, JOINED=BACKWARD == "joined")
         return (grad_packed,) + (None,) * 11
 
 

@@ -2,11 +2,24 @@
 
 The arrangement gsplat uses: :func:`.rasterize.tile_spans` counts each Gaussian's tiles, an exclusive
 prefix sum gives every Gaussian its place, a Triton kernel (:mod:`.triton_binning_kernels`) writes
-each pair with the 64-bit key ``tile << 32 | bits(float32 depth)``, and one stable sort of the keys
-(a radix sort on CUDA) orders the pairs by (tile, depth) - no depth ranking, no second sort. Ties in
-float32 depth keep the emission order (by Gaussian row), as the reference's ranking does, so the
-result equals :func:`.rasterize.bin_to_tiles` wherever the depths are float32 (the Triton
-projection's are).
+each pair's key, and one stable sort of the keys (a radix sort on CUDA) orders the pairs by (tile,
+depth) - no depth ranking, no second sort. Two variants (:data:`BINNINGS`), both equal to
+:func:`.rasterize.bin_to_tiles` field by field wherever the depths are float32 (the Triton projection's
+are):
+
+- ``"key64"``: pairs emitted Gaussian-major by row, with the 64-bit key ``tile << 32 | bits(float32
+  depth)``. Ties in float32 depth keep the emission order (by Gaussian row), as the reference's ranking
+  does. A radix sort over all 64 key bits, then five gathers of the pair fields.
+- ``"depth_tile"``: the Gaussians sorted once by depth (a stable sort of ``M`` float32 keys: ties by
+  row), their pairs emitted in that order with only the tile id as key, in the narrowest integer type
+  that holds the tile count (int16 below 32768 tiles, else int32), and one *stable* sort of those keys:
+  a pair's place in its tile is then its Gaussian's depth rank (ties by row; a Gaussian that meets one
+  tile twice across the seam keeps its emission order) - the reference's order, from 16 (or 32) key
+  bits instead of 64. The emission writes only the key and the Gaussian's depth rank; a second kernel
+  writes the pair fields once, straight into their sorted places (no gathers).
+
+:data:`BINNING` is the default (``"key64"`` until the variants are measured on a GPU); ``binning=`` picks
+one per call. Both make one host synchronisation: the pair count that sizes the buffers.
 """
 
 from __future__ import annotations
@@ -16,31 +29,81 @@ import torch
 from .projection import ProjectedGaussians
 from .rasterize import TileBins, tile_spans
 
-__all__ = ["bin_to_tiles_by_key"]
+__all__ = ["BINNINGS", "BINNING", "bin_to_tiles_by_key"]
 
+BINNINGS = ("key64", "depth_tile")
+BINNING = "key64"  # the default variant (module-level: the benchmark switches it)
 _BLOCK = 128
 
 
-def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16) -> TileBins:
-    """:func:`.rasterize.bin_to_tiles` by per-Gaussian counts, a prefix sum, key emission and one sort."""
-    from . import triton_binning_kernels as kernels
+def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16, binning: str | None = None) -> TileBins:
+    """:func:`.rasterize.bin_to_tiles` by per-Gaussian counts, a prefix sum, key emission and one sort.
 
+    ``binning``: one of :data:`BINNINGS` (default :data:`BINNING`); every variant gives the same bins."""
+    binning = BINNING if binning is None else binning
+    if binning not in BINNINGS:
+        raise ValueError(f"unknown Triton binning {binning!r}: choose one of {', '.join(BINNINGS)}")
     spans = tile_spans(proj, tile_size)
     counts = spans.count
-    offsets = torch.cumsum(counts, 0) - counts
-    total = int(counts.sum()) if len(counts) else 0  # the one host synchronisation: the output size
+    if binning == "depth_tile" and len(counts):
+        # Gaussians in depth order (ties by row): their counts and places in that order.
+        by_depth = torch.sort(proj.depth.detach().float(), stable=True).indices
+        counts = counts[by_depth]
+    ends = torch.cumsum(counts, 0)
+    total = int(ends[-1]) if len(counts) else 0  # the one host synchronisation: the output size
+    offsets = ends - counts
+    device = proj.camera.device
+    if total == 0:
+        none = [torch.empty(0, *shape, dtype=torch.int64, device=device) for shape in ((), (), (2,), (2,), ())]
+        return TileBins(*none, spans.tiles_x, spans.tiles_y)
+    if binning == "depth_tile":
+        return _bin_depth_then_tile(proj, spans, by_depth, offsets, total, tile_size)
+    return _bin_key64(proj, spans, offsets, total, tile_size)
+
+
+def _bin_key64(proj, spans, offsets, total, tile_size) -> TileBins:
+    from . import triton_binning_kernels as kernels
+
     device = proj.camera.device
     keys = torch.empty(total, dtype=torch.int64, device=device)
     gaussian = torch.empty(total, dtype=torch.int64, device=device)
     rows = torch.empty(total, 2, dtype=torch.int64, device=device)
     cols = torch.empty(total, 2, dtype=torch.int64, device=device)
     shift = torch.empty(total, dtype=torch.int64, device=device)
-    if total > 0:
-        depth_bits = proj.depth.detach().float().contiguous().view(torch.int32)
-        num = len(counts)
-        kernels.emit_pairs_kernel[((num + _BLOCK - 1) // _BLOCK,)](
-            proj.camera, depth_bits, spans.i0, spans.i1, spans.j0, spans.a0, spans.b0, spans.a1, spans.b1, spans.ny,
-            spans.nx0, spans.nx1, offsets, keys, gaussian, rows, cols, shift, num, proj.width, spans.tiles_x,
-            spans.tiles_x * spans.tiles_y, TILE=tile_size, BLOCK=_BLOCK)
+    depth_bits = proj.depth.detach().float().contiguous().view(torch.int32)
+    num = len(offsets)
+    kernels.emit_pairs_kernel[((num + _BLOCK - 1) // _BLOCK,)](
+        proj.camera, depth_bits, spans.i0, spans.i1, spans.j0, spans.a0, spans.b0, spans.a1, spans.b1, spans.ny,
+        spans.nx0, spans.nx1, offsets, keys, gaussian, rows, cols, shift, num, proj.width, spans.tiles_x,
+        spans.tiles_x * spans.tiles_y, TILE=tile_size, BLOCK=_BLOCK)
     keys, order = torch.sort(keys, stable=True)
     return TileBins(gaussian[order], keys >> 32, rows[order], cols[order], shift[order], spans.tiles_x, spans.tiles_y)
+
+
+def tile_key_dtype(num_tiles: int) -> torch.dtype:
+    """The narrowest signed integer type that holds every tile id ``0 .. num_tiles - 1``."""
+    return torch.int16 if num_tiles <= 2**15 else torch.int32
+
+
+def _bin_depth_then_tile(proj, spans, by_depth, offsets, total, tile_size) -> TileBins:
+    from . import triton_binning_kernels as kernels
+
+    device = proj.camera.device
+    num = len(offsets)
+    tiles_per_camera = spans.tiles_x * spans.tiles_y
+    keys = torch.empty(total, dtype=tile_key_dtype(proj.num_cameras * tiles_per_camera), device=device)
+    rank = torch.empty(total, dtype=torch.int32, device=device)  # the depth rank of each emitted pair's Gaussian
+    args = (proj.camera, spans.i0, spans.i1, spans.j0, spans.a0, spans.b0, spans.a1, spans.b1, spans.ny, spans.nx0,
+            spans.nx1, by_depth, offsets)
+    kernels.emit_tile_keys_kernel[((num + _BLOCK - 1) // _BLOCK,)](
+        *args, keys, rank, num, spans.tiles_x, tiles_per_camera, TILE=tile_size, BLOCK=_BLOCK)
+    order = torch.sort(keys, stable=True).indices  # by tile; within a tile, emission (= depth) order
+    gaussian = torch.empty(total, dtype=torch.int64, device=device)
+    tile = torch.empty(total, dtype=torch.int64, device=device)
+    rows = torch.empty(total, 2, dtype=torch.int64, device=device)
+    cols = torch.empty(total, 2, dtype=torch.int64, device=device)
+    shift = torch.empty(total, dtype=torch.int64, device=device)
+    kernels.write_sorted_pairs_kernel[((total + _BLOCK - 1) // _BLOCK,)](
+        *args, order, rank, gaussian, tile, rows, cols, shift, total, proj.width, spans.tiles_x, tiles_per_camera,
+        TILE=tile_size, BLOCK=_BLOCK)
+    return TileBins(gaussian, tile, rows, cols, shift, spans.tiles_x, spans.tiles_y)

@@ -57,3 +57,85 @@ def emit_pairs_kernel(
         tl.store(cols_ptr + 2 * at, tl.maximum(lo, tx * TILE), mask=on)
         tl.store(cols_ptr + 2 * at + 1, tl.minimum(hi, tx * TILE + TILE - 1), mask=on)
         tl.store(shift_ptr + at, a0 - j0 - tl.where(second, width, 0), mask=on)
+
+
+@triton.jit
+def _load_spans(g, mask, camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr):
+    """The tile spans (:class:`.rasterize.TileSpans`) of Gaussians ``g``."""
+    camera = tl.load(camera_ptr + g, mask=mask, other=0)
+    i0 = tl.load(i0_ptr + g, mask=mask, other=0)
+    i1 = tl.load(i1_ptr + g, mask=mask, other=0)
+    j0 = tl.load(j0_ptr + g, mask=mask, other=0)
+    a0 = tl.load(a0_ptr + g, mask=mask, other=0)
+    b0 = tl.load(b0_ptr + g, mask=mask, other=0)
+    a1 = tl.load(a1_ptr + g, mask=mask, other=0)
+    b1 = tl.load(b1_ptr + g, mask=mask, other=0)
+    ny = tl.load(ny_ptr + g, mask=mask, other=0)
+    nx0 = tl.load(nx0_ptr + g, mask=mask, other=0)
+    nx1 = tl.load(nx1_ptr + g, mask=mask, other=0)
+    return camera, i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1
+
+
+@triton.jit
+def _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE: tl.constexpr):
+    """Tile row, tile column, second-interval flag and global tile id of a Gaussian's ``k``-th pair."""
+    nx = nx0 + nx1
+    nx_safe = tl.where(nx > 0, nx, 1)
+    # Every value divided below is >= 0 (Triton's // truncates, torch's floors: they agree there).
+    ty = k // nx_safe + i0 // TILE
+    col = k % nx_safe
+    second = col >= nx0
+    tx = tl.where(second, a1 // TILE + col - nx0, a0 // TILE + col)
+    return ty, tx, second, camera * tiles_per_camera + ty * tiles_x + tx
+
+
+@triton.jit
+def emit_tile_keys_kernel(
+    camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr,
+    by_depth_ptr, offset_ptr, key_ptr, rank_ptr,
+    num_gaussians, tiles_x, tiles_per_camera,
+    TILE: tl.constexpr, BLOCK: tl.constexpr,
+):
+    """The ``depth_tile`` binning's emission: lane ``i`` takes the Gaussian of depth rank ``i`` and writes
+    its pairs' tile ids (the sort keys, int16 or int32) and ``i`` at its offset."""
+    i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    mask = i < num_gaussians
+    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
+    camera, i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _load_spans(
+        g, mask, camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr)
+    start = tl.load(offset_ptr + i, mask=mask, other=0)
+    count = ny * (nx0 + nx1)
+    for k in range(0, tl.max(count, axis=0)):
+        on = mask & (k < count)
+        ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
+        tl.store(key_ptr + start + k, tile.to(key_ptr.dtype.element_ty), mask=on)
+        tl.store(rank_ptr + start + k, i.to(tl.int32), mask=on)
+
+
+@triton.jit
+def write_sorted_pairs_kernel(
+    camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr,
+    by_depth_ptr, offset_ptr, order_ptr, rank_ptr, gaussian_ptr, tile_ptr, rows_ptr, cols_ptr, shift_ptr,
+    num_pairs, width, tiles_x, tiles_per_camera,
+    TILE: tl.constexpr, BLOCK: tl.constexpr,
+):
+    """The ``depth_tile`` binning's pair fields, one lane per sorted place ``q``: the pair emitted at
+    ``order[q]`` is the ``k``-th of the Gaussian of depth rank ``rank[order[q]]``."""
+    q = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    mask = q < num_pairs
+    at = tl.load(order_ptr + q, mask=mask, other=0)
+    i = tl.load(rank_ptr + at, mask=mask, other=0)
+    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
+    k = at - tl.load(offset_ptr + i, mask=mask, other=0)
+    camera, i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _load_spans(
+        g, mask, camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr)
+    ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
+    lo = tl.where(second, a1, a0)
+    hi = tl.where(second, b1, b0)
+    tl.store(gaussian_ptr + q, g.to(tl.int64), mask=mask)
+    tl.store(tile_ptr + q, tile.to(tl.int64), mask=mask)
+    tl.store(rows_ptr + 2 * q, tl.maximum(i0, ty * TILE), mask=mask)
+    tl.store(rows_ptr + 2 * q + 1, tl.minimum(i1, ty * TILE + TILE - 1), mask=mask)
+    tl.store(cols_ptr + 2 * q, tl.maximum(lo, tx * TILE), mask=mask)
+    tl.store(cols_ptr + 2 * q + 1, tl.minimum(hi, tx * TILE + TILE - 1), mask=mask)
+    tl.store(shift_ptr + q, a0 - j0 - tl.where(second, width, 0), mask=mask)

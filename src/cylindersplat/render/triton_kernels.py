@@ -82,6 +82,37 @@ def _transmittance_step(trans, alpha, support, alive, t_min):
 
 
 @triton.jit
+def _add_gradients(gp, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, o, JOINED: tl.constexpr):
+    """``gp[j] += sum(x_j)`` over the tile's pixels (``/ max(o, 1e-30)`` for ``j = 5``, the opacity), for the
+    ten packed parameters of one Gaussian.
+
+    ``JOINED=False``: ten block-wide sums and ten scalar atomics. ``JOINED=True``: the ten per-pixel
+    values joined into one ``(pixels, 2, 2, 2, 2)`` tensor (registers, no data movement), one block-wide
+    sum of it (one pass through shared memory instead of ten, each with its barriers) and one vector
+    atomic of the ten sums (six padding lanes masked off)."""
+    if JOINED:
+        z = tl.zeros_like(x0)
+        low = tl.join(tl.join(tl.join(x0, x1), tl.join(x2, x3)), tl.join(tl.join(x4, x5), tl.join(x6, x7)))
+        high = tl.join(tl.join(tl.join(x8, x9), tl.join(z, z)), tl.join(tl.join(z, z), tl.join(z, z)))
+        sums = tl.sum(tl.join(low, high), axis=0)  # sums[s1, s2, s3, s4] = sum of x_(s1 + 2 s2 + 4 s3 + 8 s4)
+        bit = tl.arange(0, 2)
+        j = (bit[:, None, None, None] + 2 * bit[None, :, None, None] + 4 * bit[None, None, :, None]
+             + 8 * bit[None, None, None, :])
+        tl.atomic_add(gp + j, sums / tl.where(j == 5, tl.maximum(o, 1e-30), 1.0), mask=j < 10)
+    else:
+        tl.atomic_add(gp + 0, tl.sum(x0, axis=0))
+        tl.atomic_add(gp + 1, tl.sum(x1, axis=0))
+        tl.atomic_add(gp + 2, tl.sum(x2, axis=0))
+        tl.atomic_add(gp + 3, tl.sum(x3, axis=0))
+        tl.atomic_add(gp + 4, tl.sum(x4, axis=0))
+        tl.atomic_add(gp + 5, tl.sum(x5, axis=0) / tl.maximum(o, 1e-30))
+        tl.atomic_add(gp + 6, tl.sum(x6, axis=0))
+        tl.atomic_add(gp + 7, tl.sum(x7, axis=0))
+        tl.atomic_add(gp + 8, tl.sum(x8, axis=0))
+        tl.atomic_add(gp + 9, tl.sum(x9, axis=0))
+
+
+@triton.jit
 def composite_forward_kernel(
     packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr,
     height, width, tiles_x, tiles_per_camera,
@@ -127,11 +158,13 @@ def composite_backward_kernel(
     packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr, grad_out_ptr, grad_packed_ptr,
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, JOINED: tl.constexpr,
 ):
     """Front to back again: ``dL/dalpha_i = T_i s_i - (S - P_i) / (1 - alpha_i)`` with ``s_i = g . f_i``,
     ``S = g . out`` (all contributions) and ``P_i`` the running sum of ``s_k w_k`` up to ``i``.
-    Per-pair gradients are summed over the tile's pixels and added atomically per Gaussian."""
+    Per-pair gradients are summed over the tile's pixels and added atomically per Gaussian
+    (:func:`_add_gradients`). ``JOINED``: fewer block-wide sums per pair (the ten gradients in one, and the
+    counts of used and still-alive pixels in one), the same arithmetic per pixel."""
     tile = tl.program_id(0)
     row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
@@ -159,26 +192,24 @@ def composite_backward_kernel(
         cr, cg, cb, cd = _colour(packed_ptr, g)
         s = g_r * cr + g_g * cg + g_b * cb + g_d * cd + g_a
         prefix += s * w
+        if JOINED:  # both counts from one block-wide sum
+            n_use, n_alive_next = tl.split(tl.sum(tl.join(use.to(tl.int32), next_alive.to(tl.int32)), axis=0))
+        else:
+            n_use = tl.sum(use.to(tl.int32), axis=0)
+            n_alive_next = tl.sum(next_alive.to(tl.int32), axis=0)
         # Pairs that touch none of the tile's pixels (bounding box only) add nothing: skip their atomics.
-        if tl.sum(use.to(tl.int32), axis=0) > 0:
+        if n_use > 0:
             d_alpha = trans * s - (total - prefix) / (1.0 - alpha)
             on = use & (raw < alpha_max)
             # where(), not a product with 0: alpha, du, dv are garbage (even NaN) outside the support.
             d_mahal = tl.where(on, -0.5 * alpha * d_alpha, 0.0)
             du = tl.where(on, du, 0.0)
             dv = tl.where(on, dv, 0.0)
-            gp = grad_packed_ptr + g * 11
-            tl.atomic_add(gp + 0, tl.sum(-2.0 * d_mahal * (a * du + b * dv), axis=0))
-            tl.atomic_add(gp + 1, tl.sum(-2.0 * d_mahal * (b * du + c * dv), axis=0))
-            tl.atomic_add(gp + 2, tl.sum(d_mahal * du * du, axis=0))
-            tl.atomic_add(gp + 3, tl.sum(2.0 * d_mahal * du * dv, axis=0))
-            tl.atomic_add(gp + 4, tl.sum(d_mahal * dv * dv, axis=0))
-            tl.atomic_add(gp + 5, tl.sum(tl.where(on, d_alpha * alpha, 0.0), axis=0) / tl.maximum(o, 1e-30))
-            tl.atomic_add(gp + 6, tl.sum(g_r * w, axis=0))
-            tl.atomic_add(gp + 7, tl.sum(g_g * w, axis=0))
-            tl.atomic_add(gp + 8, tl.sum(g_b * w, axis=0))
-            tl.atomic_add(gp + 9, tl.sum(g_d * w, axis=0))
+            _add_gradients(grad_packed_ptr + g * 11,
+                           -2.0 * d_mahal * (a * du + b * dv), -2.0 * d_mahal * (b * du + c * dv),
+                           d_mahal * du * du, 2.0 * d_mahal * du * dv, d_mahal * dv * dv,
+                           tl.where(on, d_alpha * alpha, 0.0), g_r * w, g_g * w, g_b * w, g_d * w, o, JOINED)
         trans = next_trans
         alive = next_alive
-        n_alive = tl.sum(alive.to(tl.int32), axis=0)
+        n_alive = n_alive_next
         p += 1
