@@ -26,6 +26,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from ..errors import InputError
+
 __all__ = [
     "BackboneConfig",
     "AttentionConfig",
@@ -39,6 +41,9 @@ __all__ = [
     "config_from_dict",
     "CHOICES",
     "COLOR_RULES",
+    "UnknownConfigKey",
+    "set_dotted",
+    "get_dotted",
 ]
 
 BranchMode = Literal["pixel", "volume", "both"]
@@ -70,7 +75,61 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "pixel.footprint": ("learned", "pixel", "surface"),
     "pixel.opacity": ("learned", "opaque"),
     "pixel.refine_depth": ("everywhere", "where_missing"),
+    # The training run's choices: keys of the experiment config (training/config.py's TrainConfig and LossConfig),
+    # checked when a preset or override sets them. loss.volume_loss names training/loss_terms/volume.py's
+    # VOLUME_LOSS_MODES (a test keeps the two equal); train.stage2_render is model/curriculum.py's STAGE2_RENDERS.
+    "train.amp": ("auto", "bf16", "off"),
+    "train.stage2_render": ("volume", "fused"),
+    "loss.use_lpips": ("auto", "on", "off"),
+    "loss.volume_loss": ("scaled", "released"),
+    "loss.pixel_stage_hidden": ("fill", "leave"),
 }
+
+
+class UnknownConfigKey(InputError, AttributeError):
+    """A dotted key that names no field of the config (a ``ValueError``, and an ``AttributeError`` as
+    :meth:`ModelConfig.replace` raised before)."""
+
+
+def set_dotted(tree: Any, key: str, value: Any, *, what: str = "key") -> None:
+    """Write ``value`` at the dotted ``key`` (``"volume.grid"``) of ``tree``: the one dotted-path writer.
+
+    ``tree`` is a nested dict (a preset, overrides, changes: missing sections are created) or a config dataclass
+    (every name must be a field: :class:`UnknownConfigKey` names the key and the valid fields). Values are stored
+    as given (a list stays one value). ``what`` names the key's kind in errors (``"override"``, ``"change"``).
+    """
+    parts = key.split(".")
+    if not all(part.strip() for part in parts):
+        raise InputError(f"{what} {key!r}: a dotted key needs a name before, between and after its dots")
+    target = tree
+    for depth, part in enumerate(parts):
+        last = depth == len(parts) - 1
+        if dataclasses.is_dataclass(target) and not isinstance(target, type):
+            names = [f.name for f in dataclasses.fields(target)]
+            if part not in names:
+                section = ".".join(parts[:depth]) or type(target).__name__
+                raise UnknownConfigKey(f"unknown config field {key!r}: {section} has no {part!r}; "
+                                       f"valid: {', '.join(names)}")
+            if last:
+                setattr(target, part, value)
+            else:
+                target = getattr(target, part)
+        elif isinstance(target, dict):
+            if last:
+                target[part] = value
+            else:
+                target = target.setdefault(part, {})
+        else:
+            section = ".".join(parts[:depth])
+            clash = f" conflicts with another {what}:" if isinstance(tree, dict) else ":"
+            raise InputError(f"{what} {key!r}{clash} {section} is the value {target!r:.40}, not a section")
+
+
+def get_dotted(tree: Any, key: str) -> Any:
+    """The value at the dotted ``key`` of a config dataclass or nested dict (the reader beside :func:`set_dotted`)."""
+    for part in key.split("."):
+        tree = tree[part] if isinstance(tree, dict) else getattr(tree, part)
+    return tree
 
 
 @dataclass
@@ -246,12 +305,14 @@ class ModelConfig:
         return self
 
     def _choice_checks(self) -> list[tuple[bool, str]]:
-        """Every string choice among its :data:`CHOICES`."""
+        """Every string choice of the model among its :data:`CHOICES` (the table's ``train.``/``loss.`` keys are the
+        experiment config's)."""
         checks = []
+        fields = {f.name for f in dataclasses.fields(self)}
         for key, allowed in CHOICES.items():
-            value = self
-            for part in key.split("."):
-                value = getattr(value, part)
+            if key.split(".")[0] not in fields:
+                continue
+            value = get_dotted(self, key)
             checks.append((value in allowed, f"{key} must be one of {', '.join(allowed)}; got {value!r}"))
         return checks
 
@@ -276,13 +337,7 @@ class ModelConfig:
         """Copy with top-level fields or dotted sub-fields replaced: ``replace(**{"volume.init": "isolated"})``."""
         cfg = config_from_dict(config_to_dict(self))
         for key, value in changes.items():
-            target = cfg
-            *path, last = key.split(".")
-            for part in path:
-                target = getattr(target, part)
-            if not hasattr(target, last):
-                raise AttributeError(f"unknown config field {key!r}")
-            setattr(target, last, value)
+            set_dotted(cfg, key, value)
         return cfg
 
 

@@ -11,9 +11,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .config import CHOICES
+
 __all__ = ["StagePolicy", "stage_policy", "STAGE2_RENDERS", "KIND_STAGES", "volume_stage_follows"]
 
-STAGE2_RENDERS = ("volume", "fused")
+STAGE2_RENDERS = CHOICES["train.stage2_render"]  # ("volume", "fused"), from the one choice table
 # ablation variant kind -> the curriculum stages it runs
 KIND_STAGES = {"full": (1, 2, 3), "pixel": (1,), "volume": (1, 2)}
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -22,9 +21,8 @@ import yaml
 
 from ..data.datasets import check_reference_spec
 from ..dataset_layouts import DATASET_SPECS
-from ..model.config import ModelConfig, config_to_dict, get_config
-from ..model.curriculum import STAGE2_RENDERS
-from .losses import VOLUME_LOSSES, LossConfig
+from ..model.config import CHOICES, ModelConfig, config_to_dict, get_config, set_dotted
+from .losses import LossConfig
 
 __all__ = [
     "DataConfig",
@@ -155,16 +153,11 @@ def parse_overrides(overrides: list[str] | tuple[str, ...]) -> dict[str, Any]:
         key, sep, raw = item.partition("=")
         if not sep or not key.strip():
             raise ValueError(f"override {item!r} must look like section.key=value")
-        target = nested
-        *path, last = key.strip().split(".")
-        for part in path:
-            target = target.setdefault(part, {})
-            if not isinstance(target, dict):
-                raise ValueError(f"override {item!r} conflicts with another override of {part!r}")
         try:
-            target[last] = yaml.safe_load(raw) if raw.strip() else None
+            value = yaml.safe_load(raw) if raw.strip() else None
         except yaml.YAMLError:
             raise ValueError(f"override {item!r}: the value is not valid YAML") from None
+        set_dotted(nested, key.strip(), value, what="override")
     return nested
 
 
@@ -227,7 +220,6 @@ def _coerce(value: Any, current: Any, where: str) -> Any:
 
 def _update(obj: Any, values: dict[str, Any], prefix: str) -> None:
     names = {f.name for f in dataclasses.fields(obj)}
-    hints = typing.get_type_hints(type(obj))
     for key, value in values.items():
         where = f"{prefix}{key}"
         if key not in names:
@@ -238,12 +230,13 @@ def _update(obj: Any, values: dict[str, Any], prefix: str) -> None:
                 raise ValueError(f"{where} is a section; set its fields, e.g. {where}.<field>=...")
             _update(current, value, f"{where}.")
         else:
-            setattr(obj, key, _check_choice(_coerce(value, current, where), hints.get(key), where))
+            setattr(obj, key, _check_choice(_coerce(value, current, where), where))
 
 
-def _check_choice(value: Any, hint: Any, where: str) -> Any:
-    """``value`` if the field's type allows it: one of a ``Literal``'s choices (e.g. train.amp)."""
-    choices = typing.get_args(hint) if typing.get_origin(hint) is Literal else ()
+def _check_choice(value: Any, where: str) -> Any:
+    """``value`` if the key has no named choices or is one of them: the model's and the training run's string choices
+    are one table, :data:`~cylindersplat.model.config.CHOICES` (``model.volume.color`` is its ``volume.color``)."""
+    choices = CHOICES.get(where.removeprefix("model."), ())
     if choices and value not in choices:
         raise ValueError(f"{where} must be one of {', '.join(map(str, choices))}; got {value!r}")
     return value
@@ -288,15 +281,8 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     check_reference_spec(cfg.eval.pcc_reference, "eval.pcc_reference", allowed=("gt",))
     if cfg.loss.occluded_weight < 0:
         raise ValueError(f"loss.occluded_weight must be >= 0, got {cfg.loss.occluded_weight}")
-    if cfg.loss.volume_loss not in VOLUME_LOSSES:
-        raise ValueError(f"loss.volume_loss must be one of {', '.join(VOLUME_LOSSES)}, got {cfg.loss.volume_loss!r}")
-    if cfg.loss.pixel_stage_hidden not in ("fill", "leave"):
-        raise ValueError(f"loss.pixel_stage_hidden must be fill or leave, got {cfg.loss.pixel_stage_hidden!r}")
     if cfg.loss.volume_weight < 0:
         raise ValueError(f"loss.volume_weight must be >= 0, got {cfg.loss.volume_weight}")
-    if cfg.train.stage2_render not in STAGE2_RENDERS:
-        raise ValueError(f"train.stage2_render must be one of {', '.join(STAGE2_RENDERS)}, got "
-                         f"{cfg.train.stage2_render!r}")
     if not cfg.train.volume_lr_scale > 0:
         raise ValueError(f"train.volume_lr_scale must be > 0, got {cfg.train.volume_lr_scale}")
     if cfg.train.max_nonfinite_steps < 0:
@@ -341,13 +327,7 @@ def nest_changes(changes: dict[str, Any]) -> dict[str, Any]:
     """``{"train.lr": 3e-4, "data.root": path}`` -> nested dict (values as given: Paths become strings)."""
     nested: dict[str, Any] = {}
     for key, value in changes.items():
-        target = nested
-        *path, last = key.split(".")
-        for part in path:
-            target = target.setdefault(part, {})
-            if not isinstance(target, dict):
-                raise ValueError(f"change {key!r} conflicts with another change of {part!r}")
-        target[last] = str(value) if isinstance(value, Path) else value
+        set_dotted(nested, key, str(value) if isinstance(value, Path) else value, what="change")
     return nested
 
 
