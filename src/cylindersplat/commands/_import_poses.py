@@ -26,6 +26,7 @@ class _FormatNames:
 def _run(args: argparse.Namespace) -> int:
     from ..data.poses import PoseRecord, match_timestamps_to_images, pose_format, write_poses_json
     from ..inference.inputs import IMAGE_SUFFIXES
+    from ..utils.atomic import output_set
 
     source, out = args.source, args.out
     source_format = pose_format(args.source_format)
@@ -36,6 +37,8 @@ def _run(args: argparse.Namespace) -> int:
                          f"{args.source_format}")
     if args.start_time is not None and args.fps is None:
         raise ValueError("--start-time is the timestamp of the first image when matching by --fps; give --fps too")
+    if os.path.realpath(out) == os.path.realpath(source):  # --overwrite or not: the source is the user's
+        raise ValueError(f"--out {out} is the source file it reads: give another --out (e.g. poses.json beside it)")
     if out.exists() and not args.overwrite:  # a hand-written or earlier poses file is never lost silently
         raise ValueError(f"{out} already exists (poses imported earlier, or written by hand) and is kept: give "
                          "--overwrite to replace it, or --out another file")
@@ -72,12 +75,43 @@ def _run(args: argparse.Namespace) -> int:
             raise FileNotFoundError(f"{len(missing)} image(s) of the poses are not there, e.g. {base / missing[0]}")
     elif source_format.images == "ordered":
         records = [PoseRecord(None, r.c2w, None, r.timestamp) for r in records]
-    path = write_poses_json(out, records, depth_scale=depth_scale, source=f"{args.source_format}: {source}",
-                            scale=args.scale)
+    records, extra = _near_origin(records, source, args.recentre)
+    with output_set(out.parent):  # a failure keeps an earlier file and says so
+        path = write_poses_json(out, records, depth_scale=depth_scale, source=f"{args.source_format}: {source}",
+                                scale=args.scale, **extra)
     named = sum(r.image is not None for r in records)
     print(f"wrote {len(records)} poses (OpenCV camera-to-world, {args.scale:g} m per source unit) to {path}"
           + (f" with their {named} image names" if named else "; they pair with the folder's images in name order"))
     return 0
+
+
+def _near_origin(records: list, source: Path, recentre: bool) -> tuple[list, dict]:
+    """``(records, extra poses.json keys)``: with ``recentre``, the cameras moved so that the first lies at the
+    origin (float64; ``"origin"``: the metres subtracted). Without it, cameras beyond
+    :data:`~cylindersplat.validation.MAX_TRANSLATION_M` (georeferenced coordinates, such as UTM's millions of metres)
+    are refused: render and export compute in float32, which has no centimetres left there."""
+    import numpy as np
+    import torch
+
+    from ..data.poses import PoseRecord
+    from ..validation import MAX_TRANSLATION_M, farthest_camera
+
+    if recentre:
+        origin = records[0].c2w[:3, 3].to(torch.float64).clone()
+        moved = []
+        for r in records:
+            c2w = r.c2w.to(torch.float64).clone()
+            c2w[:3, 3] -= origin
+            moved.append(PoseRecord(r.image, c2w, r.depth, r.timestamp))
+        return moved, {"origin": origin.tolist()}
+    far = farthest_camera(torch.stack([r.c2w.to(torch.float64) for r in records]))
+    if far > MAX_TRANSLATION_M:
+        step = float(np.spacing(np.float32(far)))
+        raise ValueError(f"{source}: the cameras lie up to {far:.3g} m from the origin (georeferenced coordinates?), "
+                         f"beyond {MAX_TRANSLATION_M:g} m: render and export compute in float32, which keeps only "
+                         f"{step:.2g} m steps there; give --recentre to move the first camera to the origin (the "
+                         "offset is kept in poses.json as \"origin\")")
+    return records, {}
 
 
 def _image_file(folder: Path, name: str) -> str:
@@ -131,6 +165,10 @@ def register(sub) -> None:
                         help="with --fps: the timestamp of image 0 (default 0); 'first' takes the trajectory's first "
                         "timestamp, for SLAM runs that stamp poses with the clock")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out file (kept by default)")
+    parser.add_argument("--recentre", "--recenter", action="store_true",
+                        help="move the cameras so that the first lies at the origin (for georeferenced poses, "
+                        "millions of metres out, where float32 has no centimetres left; the offset is stored in "
+                        "poses.json as \"origin\"); cameras beyond 10 km are refused without it")
     parser.add_argument("--reconstruction", type=int, default=0,
                         help="OpenSfM: which reconstruction of the file (default 0, the largest)")
     parser.set_defaults(func=_run)

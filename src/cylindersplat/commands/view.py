@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
 from pathlib import Path
 
 from ._arguments import image_resolution
@@ -37,6 +39,35 @@ def check_sources(args: argparse.Namespace) -> None:
     if args.splats is None and args.input is None:
         raise ValueError("give a splat file (scene.ply, .spz, .compressed.ply, .sog) or --input (with --checkpoint, or "
                          "the shipped weights)")
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """Refuse, before any work, an --html or --screenshot that would replace what the command reads: the splat
+    file, the poses file, a panorama or depth file of the --input folder (or the other output)."""
+    from ..data.folder import IMAGE_SUFFIXES, POSES_FILE
+    from ._arguments import check_output
+
+    reads = [(args.splats, "the splat file"), (args.poses_file, "the poses file")]
+    if args.input is not None and args.poses_file is None:
+        reads.append((Path(args.input) / POSES_FILE, "the poses file"))
+    if args.html is not None and args.screenshot is not None and _same(args.html, args.screenshot):
+        raise ValueError(f"--html and --screenshot name the same file {args.html}: give two")
+    for option, target in (("--html", args.html), ("--screenshot", args.screenshot)):
+        if target is None:
+            continue
+        check_output(target, folder=False, option=option)
+        for source, what in reads:
+            if source is not None and _same(target, source):
+                raise ValueError(f"{option} {target} is {what} this command reads: give another {option}")
+        if (args.input is not None and target.is_file() and os.path.realpath(target.parent) ==
+                os.path.realpath(args.input) and target.suffix.lower() in (*IMAGE_SUFFIXES, ".npy")):
+            raise ValueError(f"{option} {target} is a file of the --input folder {args.input} (a panorama or depth "
+                             f"the folder reader takes): give another {option}")
+
+
+def _same(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (links followed; what does not exist yet is compared by its path)."""
+    return os.path.realpath(a) == os.path.realpath(b)
 
 
 def load_scene(args: argparse.Namespace):
@@ -79,25 +110,33 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from ..geometry import look_at_c2w
+    from ..utils.atomic import output_set
     from ..viewer import default_view, import_viser, serve, write_html
 
     check_sources(args)
+    check_outputs(args)
     if args.screenshot is None or args.html is not None:
         import_viser()  # a missing viewer package fails before the (slow) reconstruction
     if args.panorama and args.screenshot_size[1] != 2 * args.screenshot_size[0]:
         raise ValueError(f"--panorama needs --screenshot-size HxW with W == 2H, got {args.screenshot_size}")
     gaussians, cameras = load_scene(args)
-    if args.html is not None:
-        path = write_html(args.html, gaussians, cameras, args.frustum_scale)
-        print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB; open it in a browser, no server needed)")
+    both = args.html is not None and args.screenshot is not None  # one file alone is written atomically
+    folder = os.path.commonpath([os.path.abspath(args.html.parent), os.path.abspath(args.screenshot.parent)]) \
+        if both else "."
+    with output_set(folder) if both else contextlib.nullcontext():  # both replace earlier files, or neither does
+        if args.html is not None:
+            write_html(args.html, gaussians, cameras, args.frustum_scale)
+        if args.screenshot is not None:
+            if args.panorama:
+                pose = cameras[0].c2w if cameras else torch.eye(4)
+            else:
+                position, look_at = default_view(gaussians, cameras)
+                pose = look_at_c2w(torch.tensor(position), torch.tensor(look_at)).float()
+            _screenshot(args, gaussians, pose)
+    if args.html is not None:  # in place once the set is whole
+        print(f"wrote {args.html} ({args.html.stat().st_size / 1e6:.1f} MB; open it in a browser, no server needed)")
     if args.screenshot is not None:
-        if args.panorama:
-            pose = cameras[0].c2w if cameras else torch.eye(4)
-        else:
-            position, look_at = default_view(gaussians, cameras)
-            pose = look_at_c2w(torch.tensor(position), torch.tensor(look_at)).float()
-        path = _screenshot(args, gaussians, pose)
-        print(f"wrote {path} ({'panorama' if args.panorama else 'pinhole view'}, "
+        print(f"wrote {args.screenshot} ({'panorama' if args.panorama else 'pinhole view'}, "
               f"{args.screenshot_size[0]}x{args.screenshot_size[1]})")
     if args.html is None and args.screenshot is None:
         serve(gaussians, cameras, args.host, args.port, args.frustum_scale, args.duration)

@@ -6,11 +6,19 @@ next to ``prior.json``: the network spec, what identifies it (file SHA-256, pack
 resolution, the file format and the date. :class:`~.files.FilePrior` (``file:NAME`` / ``file:DIR``)
 reads exactly these files. A second run skips every frame whose file exists when ``prior.json``
 matches the network and settings, and refuses a tree made by another network unless ``overwrite``.
+
+Nothing the user had is lost: a tree that would hold the dataset (``--out DATA``: the prior files would take the
+panoramas' names) is refused, ``--overwrite`` included; a run that replaces existing prior files writes the new
+tree beside them and swaps it in only when whole (:func:`~cylindersplat.utils.atomic.output_set`), so a failure
+part-way (a full disk, a file-size limit) leaves the earlier tree as it was. A run that only adds files keeps
+those it finished (the next run resumes from them).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import warnings
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -21,7 +29,7 @@ import torch
 from tqdm.auto import tqdm
 
 from ...dataset_layouts import DATASET_LAYOUTS, dataset_spec, detect_layout, layout_name
-from ...utils.atomic import atomic_path, atomic_write_text
+from ...utils.atomic import atomic_path, atomic_write_text, output_set
 from ..io import DEPTH_PNG_SCALE, read_rgb, write_depth_png
 from .files import SIDECAR, check_prior_name, prior_tree, read_sidecar, tree_file
 from .registry import parse_network_prior
@@ -49,6 +57,25 @@ def prior_frames(data: str | Path, layout: str = "auto", split: str = "all"
     layout = detect_layout(data) if layout == "auto" else layout_name(layout)
     dataset = dataset_spec(layout).frames(data, split)
     return Path(dataset.data_root), [(Path(f.rgb), key) for f, key in dataset.frames()], layout
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    """Whether ``path`` is ``folder`` or lies in it, links followed (``realpath``: a symlink loop does not raise)."""
+    path, folder = Path(os.path.realpath(path)), Path(os.path.realpath(folder))
+    return path == folder or folder in path.parents
+
+
+def _check_tree(tree: Path, root: Path, targets: list[tuple[Path, str, Path]]) -> None:
+    """Refuse a prior tree whose files would replace the dataset's own (``--out DATA`` or a folder above it, or a
+    link that leads there), ``--overwrite`` or not."""
+    if _inside(root, tree):
+        raise ValueError(f"--out {tree} holds the dataset {root}: prior files named like its panoramas would "
+                         "replace them; give a folder outside it (default: DATA/priors/NAME with --name)")
+    inputs = {os.path.realpath(rgb) for rgb, _, _ in targets}
+    clash = next((path for _, _, path in targets if os.path.realpath(path) in inputs), None)
+    if clash is not None:
+        raise ValueError(f"the prior file {clash} would replace a panorama of the dataset {root}: give another "
+                         "--out or --name")
 
 
 def _same_network(old: dict, new: dict) -> bool:
@@ -85,8 +112,6 @@ def write_priors(
     have (default: each panorama's stored size). ``net_size`` ``(h, w)``: the size an ``exported:``
     network runs at (input resized, output resized back), for networks exported with fixed shapes.
     """
-    import time
-
     from ... import __version__
 
     if file_format not in ("png", "npy"):
@@ -106,6 +131,7 @@ def write_priors(
     targets = [(rgb, key, tree_file(tree, rgb, root, suffix)) for rgb, key in frames]
     if len({t[2] for t in targets}) != len(targets):
         raise ValueError(f"{data}: two panoramas differ only in their suffix and would share a prior file")
+    _check_tree(tree, Path(root), targets)
     options = {}
     if net_size is not None:
         if not net.startswith("exported:"):
@@ -137,6 +163,19 @@ def write_priors(
     pending = [t for t in targets if not (resume and t[2].is_file())]
     if resume:
         record["created"] = existing.get("created", record["created"])
+    # Replacing files: the new tree is written beside the earlier one and swapped in whole (a failure keeps it).
+    replacing = any(path.exists() for _, _, path in pending)
+    with output_set(tree, planned=[path for _, _, path in pending]) if replacing else contextlib.nullcontext():
+        run = _write(network, net, name, tree, record, pending, batch_size, resolution, file_format, progress)
+    return PriorRun(tree, len(frames), len(pending), len(targets) - len(pending), run)
+
+
+def _write(network, net: str, name: str, tree: Path, record: dict, pending: list[tuple[Path, str, Path]],
+           batch_size: int, resolution: tuple[int, int] | None, file_format: str, progress: bool) -> float:
+    """Write the sidecar (``complete: false``), every pending frame's prior file and the finished sidecar;
+    returns the seconds taken."""
+    import time
+
     atomic_write_text(tree / SIDECAR, json.dumps(record, indent=1))
 
     start = time.perf_counter()
@@ -176,7 +215,7 @@ def write_priors(
     bar.close()
     if clipped:
         warnings.warn(f"{clipped} pixels lie beyond {_PNG_MAX_METRES:.3f} m, the 16-bit PNG range, and were stored "
-                      "as 0 (unknown); use --format npy to keep them", stacklevel=2)
+                      "as 0 (unknown); use --format npy to keep them", stacklevel=3)
     record.update(complete=True, finished=datetime.now(timezone.utc).isoformat(timespec="seconds"))
     atomic_write_text(tree / SIDECAR, json.dumps(record, indent=1))
-    return PriorRun(tree, len(frames), len(pending), len(targets) - len(pending), time.perf_counter() - start)
+    return time.perf_counter() - start
