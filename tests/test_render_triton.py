@@ -87,7 +87,7 @@ def test_smaller_tiles_and_opaque_stacks_match_reference():
 
 
 
-@pytest.mark.parametrize("binning,backward", [("depth_tile", "sums"), ("key64", "joined")])
+@pytest.mark.parametrize("binning,backward", [("fused", "sums"), ("depth_tile", "joined")])
 def test_binning_and_backward_variants_match_reference(monkeypatch, binning, backward):
     # Each variant (issue 35) against the reference: seam-crossing footprints, two cameras, opaque and faint.
     from cylindersplat.render import triton_backend, triton_binning

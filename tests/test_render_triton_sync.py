@@ -58,7 +58,12 @@ def _calls_during(fn) -> set:
     return found
 
 
-def test_the_triton_render_path_makes_no_host_copies_and_no_new_synchronisation():
+@pytest.mark.parametrize("binning,backward", [("key64", "sums"), ("depth_tile", "sums"), ("fused", "joined")])
+def test_the_triton_render_path_makes_no_host_copies_and_no_new_synchronisation(monkeypatch, binning, backward):
+    from cylindersplat.render import triton_backend, triton_binning
+
+    monkeypatch.setattr(triton_binning, "BINNING", binning)  # every variant (issue 35) makes the same one sync
+    monkeypatch.setattr(triton_backend, "BACKWARD", backward)
     g = shell_scene(20, seed=1, dtype=torch.float32)
     params = {k: v.to(DEVICE).requires_grad_() for k, v in g.tensors().items()}
 

@@ -30,10 +30,12 @@ from cylindersplat.render import triton_binning_kernels, triton_kernels, triton_
 FLOAT_SCALARS = {"fx", "fy", "cx", "cy", "near", "pole_eps", "dilation", "sigma_extent", "alpha_min", "max_u2",
                  "max_v2",
                  "sigma2", "alpha_max", "t_min"}
-POINTER_TYPES = {"valid_ptr": "*i8", "depth_bits_ptr": "*i32", "pair_gaussian_ptr": "*i64", "rows_ptr": "*i64",
-                 "cols_ptr": "*i64", "tile_start_ptr": "*i64"}
-# Every pointer of the binning kernels is int64 but the depth bits, the tile keys and the depth ranks.
-INT64_POINTER_KERNELS = {"emit_pairs_kernel", "emit_tile_keys_kernel", "write_sorted_pairs_kernel"}
+POINTER_TYPES = {"valid_ptr": "*i8", "uv_ptr": "*fp32", "ext_ptr": "*fp32", "depth_bits_ptr": "*i32",
+                 "pair_gaussian_ptr": "*i64", "rows_ptr": "*i64", "cols_ptr": "*i64", "tile_start_ptr": "*i64"}
+# Every pointer of the binning kernels is int64 but the depth bits, the tile keys and the depth ranks
+# (and the centres and extents the fused binning reads).
+INT64_POINTER_KERNELS = {"emit_pairs_kernel", "emit_tile_keys_kernel", "write_sorted_pairs_kernel",
+                         "count_pairs_kernel", "emit_fused_keys_kernel", "write_fused_pairs_kernel"}
 
 
 def _signature(kernel, constexprs, pointers=None):
@@ -65,6 +67,16 @@ KERNELS = [
     (triton_binning_kernels.emit_tile_keys_kernel, {"TILE": 16, "BLOCK": 128}, {"key_ptr": "*i16", "rank_ptr": "*i32"}),
     (triton_binning_kernels.emit_tile_keys_kernel, {"TILE": 16, "BLOCK": 128}, {"key_ptr": "*i32", "rank_ptr": "*i32"}),
     (triton_binning_kernels.write_sorted_pairs_kernel, {"TILE": 16, "BLOCK": 128}, {"rank_ptr": "*i32"}),
+    # the fused binning, panorama (wrapped columns) and pinhole
+    (triton_binning_kernels.count_pairs_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128}),
+    (triton_binning_kernels.count_pairs_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128}),
+    (triton_binning_kernels.emit_fused_keys_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128},
+     {"key_ptr": "*i16", "rank_ptr": "*i32"}),
+    (triton_binning_kernels.emit_fused_keys_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},
+     {"key_ptr": "*i32", "rank_ptr": "*i32"}),
+    (triton_binning_kernels.write_fused_pairs_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128}, {"rank_ptr": "*i32"}),
+    (triton_binning_kernels.write_fused_pairs_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},
+     {"rank_ptr": "*i32"}),
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True}),
     (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, "JOINED": False}),
     (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, "JOINED": True}),

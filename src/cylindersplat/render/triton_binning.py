@@ -17,12 +17,18 @@ are):
   tile twice across the seam keeps its emission order) - the reference's order, from 16 (or 32) key
   bits instead of 64. The emission writes only the key and the Gaussian's depth rank; a second kernel
   writes the pair fields once, straight into their sorted places (no gathers).
+- ``"fused"``: ``"depth_tile"`` without :func:`.rasterize.tile_spans` (some thirty small PyTorch operations):
+  each of its three kernels recomputes a Gaussian's tile spans from its centre and extent (the same
+  arithmetic in the same float type), so the whole binning is a depth sort, a count kernel, a prefix
+  sum, the emission, the tile sort and the writing kernel.
 
 :data:`BINNING` is the default (``"key64"`` until the variants are measured on a GPU); ``binning=`` picks
 one per call. Both make one host synchronisation: the pair count that sizes the buffers.
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 
@@ -31,7 +37,7 @@ from .rasterize import TileBins, tile_spans
 
 __all__ = ["BINNINGS", "BINNING", "bin_to_tiles_by_key"]
 
-BINNINGS = ("key64", "depth_tile")
+BINNINGS = ("key64", "depth_tile", "fused")
 BINNING = "key64"  # the default variant (module-level: the benchmark switches it)
 _BLOCK = 128
 
@@ -43,22 +49,27 @@ def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16, binning: 
     binning = BINNING if binning is None else binning
     if binning not in BINNINGS:
         raise ValueError(f"unknown Triton binning {binning!r}: choose one of {', '.join(BINNINGS)}")
-    spans = tile_spans(proj, tile_size)
-    counts = spans.count
-    if binning == "depth_tile" and len(counts):
+    spans = by_depth = None
+    if binning != "key64" and len(proj.depth):
         # Gaussians in depth order (ties by row): their counts and places in that order.
         by_depth = torch.sort(proj.depth.detach().float(), stable=True).indices
-        counts = counts[by_depth]
+    if binning == "fused":
+        counts = _fused_counts(proj, by_depth, tile_size)
+    else:
+        spans = tile_spans(proj, tile_size)
+        counts = spans.count if by_depth is None else spans.count[by_depth]
     ends = torch.cumsum(counts, 0)
     total = int(ends[-1]) if len(counts) else 0  # the one host synchronisation: the output size
-    offsets = ends - counts
-    device = proj.camera.device
+    tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
     if total == 0:
-        none = [torch.empty(0, *shape, dtype=torch.int64, device=device) for shape in ((), (), (2,), (2,), ())]
-        return TileBins(*none, spans.tiles_x, spans.tiles_y)
+        none = [torch.empty(0, *shape, dtype=torch.int64, device=proj.camera.device)
+                for shape in ((), (), (2,), (2,), ())]
+        return TileBins(*none, tiles_x, tiles_y)
+    if binning == "fused":
+        return _bin_fused(proj, by_depth, ends, total, tile_size)
     if binning == "depth_tile":
-        return _bin_depth_then_tile(proj, spans, by_depth, offsets, total, tile_size)
-    return _bin_key64(proj, spans, offsets, total, tile_size)
+        return _bin_depth_then_tile(proj, spans, by_depth, ends - counts, total, tile_size)
+    return _bin_key64(proj, spans, ends - counts, total, tile_size)
 
 
 def _bin_key64(proj, spans, offsets, total, tile_size) -> TileBins:
@@ -91,8 +102,7 @@ def _bin_depth_then_tile(proj, spans, by_depth, offsets, total, tile_size) -> Ti
     device = proj.camera.device
     num = len(offsets)
     tiles_per_camera = spans.tiles_x * spans.tiles_y
-    keys = torch.empty(total, dtype=tile_key_dtype(proj.num_cameras * tiles_per_camera), device=device)
-    rank = torch.empty(total, dtype=torch.int32, device=device)  # the depth rank of each emitted pair's Gaussian
+    keys, rank = _key_buffers(proj, total, proj.num_cameras * tiles_per_camera)  # rank: its Gaussian's depth rank
     args = (proj.camera, spans.i0, spans.i1, spans.j0, spans.a0, spans.b0, spans.a1, spans.b1, spans.ny, spans.nx0,
             spans.nx1, by_depth, offsets)
     kernels.emit_tile_keys_kernel[((num + _BLOCK - 1) // _BLOCK,)](
@@ -107,3 +117,49 @@ def _bin_depth_then_tile(proj, spans, by_depth, offsets, total, tile_size) -> Ti
         *args, order, rank, gaussian, tile, rows, cols, shift, total, proj.width, spans.tiles_x, tiles_per_camera,
         TILE=tile_size, BLOCK=_BLOCK)
     return TileBins(gaussian, tile, rows, cols, shift, spans.tiles_x, spans.tiles_y)
+
+
+def _key_buffers(proj, total, num_tiles):
+    keys = torch.empty(total, dtype=tile_key_dtype(num_tiles), device=proj.camera.device)
+    return keys, torch.empty(total, dtype=torch.int32, device=proj.camera.device)
+
+
+def _centres_and_extents(proj):
+    return proj.uv.detach().contiguous(), proj.extent.detach().to(proj.uv.dtype).contiguous()
+
+
+def _fused_counts(proj, by_depth, tile_size):
+    """Pair counts of the Gaussians in depth order, from their centres and extents (one kernel)."""
+    from . import triton_binning_kernels as kernels
+
+    num = len(proj.depth)
+    counts = torch.empty(num, dtype=torch.int64, device=proj.camera.device)
+    if num:
+        kernels.count_pairs_kernel[((num + _BLOCK - 1) // _BLOCK,)](
+            *_centres_and_extents(proj), by_depth, counts, num, proj.height, proj.width, TILE=tile_size,
+            WRAP_U=bool(proj.wrap_u), BLOCK=_BLOCK)
+    return counts
+
+
+def _bin_fused(proj, by_depth, ends, total, tile_size) -> TileBins:
+    from . import triton_binning_kernels as kernels
+
+    device = proj.camera.device
+    num = len(by_depth)
+    tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
+    tiles_per_camera = tiles_x * tiles_y
+    keys, rank = _key_buffers(proj, total, proj.num_cameras * tiles_per_camera)
+    head = (*_centres_and_extents(proj), proj.camera, by_depth, ends)
+    constants = dict(TILE=tile_size, WRAP_U=bool(proj.wrap_u), BLOCK=_BLOCK)
+    kernels.emit_fused_keys_kernel[((num + _BLOCK - 1) // _BLOCK,)](
+        *head, keys, rank, num, proj.height, proj.width, tiles_x, tiles_per_camera, **constants)
+    order = torch.sort(keys, stable=True).indices  # by tile; within a tile, emission (= depth) order
+    gaussian = torch.empty(total, dtype=torch.int64, device=device)
+    tile = torch.empty(total, dtype=torch.int64, device=device)
+    rows = torch.empty(total, 2, dtype=torch.int64, device=device)
+    cols = torch.empty(total, 2, dtype=torch.int64, device=device)
+    shift = torch.empty(total, dtype=torch.int64, device=device)
+    kernels.write_fused_pairs_kernel[((total + _BLOCK - 1) // _BLOCK,)](
+        *head, order, rank, gaussian, tile, rows, cols, shift, total, proj.height, proj.width, tiles_x,
+        tiles_per_camera, **constants)
+    return TileBins(gaussian, tile, rows, cols, shift, tiles_x, tiles_y)

@@ -139,3 +139,103 @@ def write_sorted_pairs_kernel(
     tl.store(cols_ptr + 2 * q, tl.maximum(lo, tx * TILE), mask=mask)
     tl.store(cols_ptr + 2 * q + 1, tl.minimum(hi, tx * TILE + TILE - 1), mask=mask)
     tl.store(shift_ptr + q, a0 - j0 - tl.where(second, width, 0), mask=mask)
+
+
+@triton.jit
+def _spans_of(uv_ptr, ext_ptr, g, mask, height, width, TILE: tl.constexpr, WRAP_U: tl.constexpr):
+    """:func:`.rasterize.tile_spans` of Gaussians ``g``, computed from their centres and extents, the same
+    arithmetic in the same float type: ``(i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1)``."""
+    u = tl.load(uv_ptr + 2 * g, mask=mask, other=0.0)
+    v = tl.load(uv_ptr + 2 * g + 1, mask=mask, other=0.0)
+    eu = tl.load(ext_ptr + 2 * g, mask=mask, other=0.0)
+    ev = tl.load(ext_ptr + 2 * g + 1, mask=mask, other=0.0)
+    i0 = tl.maximum(tl.ceil(v - ev - 0.5), 0.0).to(tl.int64)
+    i1 = tl.minimum(tl.floor(v + ev - 0.5), height - 1.0).to(tl.int64)
+    j0 = tl.ceil(u - eu - 0.5).to(tl.int64)
+    j1 = tl.floor(u + eu - 0.5).to(tl.int64)
+    if WRAP_U:
+        j1 = tl.minimum(j1, j0 + width - 1)
+        rem = j0 % width  # Triton's % keeps the dividend's sign; torch.remainder the divisor's
+        a0 = tl.where(rem < 0, rem + width, rem)
+        end = a0 + (j1 - j0)
+        b0 = tl.minimum(end, width - 1)
+        a1 = tl.zeros_like(a0)
+        b1 = end - width
+        second = end >= width
+    else:
+        j0 = tl.maximum(j0, 0)
+        j1 = tl.minimum(j1, width - 1)
+        a0 = j0
+        b0 = j1
+        a1 = tl.zeros_like(a0)
+        b1 = a1 - 1
+        second = a1 != 0
+    ok = (i1 >= i0) & (j1 >= j0)
+    # Every value divided below is >= 0 where it is used (ok).
+    ny = tl.where(ok, i1 // TILE - i0 // TILE + 1, 0)
+    nx0 = tl.where(ok, b0 // TILE - a0 // TILE + 1, 0)
+    nx1 = tl.where(ok & second, b1 // TILE - a1 // TILE + 1, 0)
+    return i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1
+
+
+@triton.jit
+def count_pairs_kernel(
+    uv_ptr, ext_ptr, by_depth_ptr, count_ptr, num_gaussians, height, width,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
+):
+    """The ``fused`` binning's first pass: the pair count of the Gaussian of depth rank ``i``."""
+    i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    mask = i < num_gaussians
+    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
+    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_of(uv_ptr, ext_ptr, g, mask, height, width, TILE, WRAP_U)
+    tl.store(count_ptr + i, ny * (nx0 + nx1), mask=mask)
+
+
+@triton.jit
+def emit_fused_keys_kernel(
+    uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, key_ptr, rank_ptr,
+    num_gaussians, height, width, tiles_x, tiles_per_camera,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
+):
+    """The ``fused`` binning's emission: :func:`emit_tile_keys_kernel` with the spans recomputed
+    (``end``: the inclusive prefix sum of the counts in depth order)."""
+    i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    mask = i < num_gaussians
+    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
+    camera = tl.load(camera_ptr + g, mask=mask, other=0)
+    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_of(uv_ptr, ext_ptr, g, mask, height, width, TILE, WRAP_U)
+    count = ny * (nx0 + nx1)
+    start = tl.load(end_ptr + i, mask=mask, other=0) - count
+    for k in range(0, tl.max(count, axis=0)):
+        on = mask & (k < count)
+        ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
+        tl.store(key_ptr + start + k, tile.to(key_ptr.dtype.element_ty), mask=on)
+        tl.store(rank_ptr + start + k, i.to(tl.int32), mask=on)
+
+
+@triton.jit
+def write_fused_pairs_kernel(
+    uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, order_ptr, rank_ptr,
+    gaussian_ptr, tile_ptr, rows_ptr, cols_ptr, shift_ptr,
+    num_pairs, height, width, tiles_x, tiles_per_camera,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
+):
+    """The ``fused`` binning's pair fields: :func:`write_sorted_pairs_kernel` with the spans recomputed."""
+    q = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    mask = q < num_pairs
+    at = tl.load(order_ptr + q, mask=mask, other=0)
+    i = tl.load(rank_ptr + at, mask=mask, other=0)
+    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
+    camera = tl.load(camera_ptr + g, mask=mask, other=0)
+    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_of(uv_ptr, ext_ptr, g, mask, height, width, TILE, WRAP_U)
+    k = at - (tl.load(end_ptr + i, mask=mask, other=0) - ny * (nx0 + nx1))
+    ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
+    lo = tl.where(second, a1, a0)
+    hi = tl.where(second, b1, b0)
+    tl.store(gaussian_ptr + q, g.to(tl.int64), mask=mask)
+    tl.store(tile_ptr + q, tile.to(tl.int64), mask=mask)
+    tl.store(rows_ptr + 2 * q, tl.maximum(i0, ty * TILE), mask=mask)
+    tl.store(rows_ptr + 2 * q + 1, tl.minimum(i1, ty * TILE + TILE - 1), mask=mask)
+    tl.store(cols_ptr + 2 * q, tl.maximum(lo, tx * TILE), mask=mask)
+    tl.store(cols_ptr + 2 * q + 1, tl.minimum(hi, tx * TILE + TILE - 1), mask=mask)
+    tl.store(shift_ptr + q, a0 - j0 - tl.where(second, width, 0), mask=mask)
