@@ -11,7 +11,8 @@ Plausibility bounds (finite values that are almost surely a unit or format mista
 * depth: the median positive depth of a view must lie in [:data:`MIN_DEPTH_M`, :data:`MAX_DEPTH_M`]
   (1 cm to 1 km; millimetres read as metres land above it, a wrong ``depth_scale`` on either side);
 * pose: camera translations up to :data:`MAX_TRANSLATION_M` (10 km) from the origin (float32 loses
-  centimetres beyond it: recentre the poses).
+  centimetres beyond it: recentre the poses); a splat file whose Gaussians lie beyond it is warned about
+  (:func:`check_splats_near_origin`).
 
 Scale warnings (:func:`check_scene_scale`; a :class:`ScaleWarning`, the input is used as given): the scene's
 median depth beyond :data:`INDOOR_MAX_MEDIAN_M` (100 m, deeper than any room) or below
@@ -32,8 +33,9 @@ from .errors import ImplausibleInputError, InputError
 from .utils.notices import Notice
 
 __all__ = ["check_images", "check_depths", "check_c2w", "check_depth_plausible", "check_translation_plausible",
-           "check_opacity_threshold", "check_constant_depth", "farthest_camera", "check_scene_scale", "ScaleWarning",
-           "PLAUSIBILITY_OVERRIDE", "MIN_DEPTH_M", "MAX_DEPTH_M", "MAX_TRANSLATION_M"]
+           "check_opacity_threshold", "check_constant_depth", "farthest_camera", "check_splats_near_origin",
+           "check_scene_scale", "ScaleWarning", "PLAUSIBILITY_OVERRIDE", "MIN_DEPTH_M", "MAX_DEPTH_M",
+           "MAX_TRANSLATION_M"]
 
 MIN_DEPTH_M = 0.01
 MAX_DEPTH_M = 1000.0
@@ -198,6 +200,21 @@ def check_translation_plausible(c2w: Tensor, where: str) -> None:
         raise ImplausibleInputError(f"{where}: a camera lies {far:.3g} m from the origin, "
                                     f"beyond {MAX_TRANSLATION_M:g} m; recentre the poses (subtract a common "
                                     "origin) and give them in metres")
+
+
+def check_splats_near_origin(means: Tensor, where: str) -> None:
+    """Warn (``RuntimeWarning``) when most Gaussians of a splat file lie beyond :data:`MAX_TRANSLATION_M` from the
+    origin (georeferenced coordinates): their float32 positions there are only good to the step float32 keeps, and
+    every render of them smears. The median distance decides (a few far sky Gaussians do not)."""
+    if not means.numel():
+        return
+    median = float(means.detach().double().norm(dim=-1).median())
+    if median > MAX_TRANSLATION_M:
+        step = float(torch.finfo(torch.float32).eps) * 2.0 ** math.floor(math.log2(median))
+        warnings.warn(f"{where}: the Gaussians lie {median:.3g} m from the origin (median), beyond "
+                      f"{MAX_TRANSLATION_M:g} m: float32 keeps only {step:.2g} m steps there, so positions and "
+                      "renders are wrong; recentre the scene (subtract a common origin from the Gaussians and the "
+                      "poses)", RuntimeWarning, stacklevel=2)
 
 
 def check_opacity_threshold(value, name: str = "min_opacity") -> float:

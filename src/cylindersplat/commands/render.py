@@ -144,9 +144,11 @@ def run(args: argparse.Namespace) -> int:
 
     if args.ply:
         from ..gaussians import load_gaussians
+        from ..validation import check_splats_near_origin
 
         gaussians = load_gaussians(args.ply, device=args.device)  # the loader of `view`: every splat format
         print(f"loaded {len(gaussians):,} Gaussians from {args.ply}")
+        check_splats_near_origin(gaussians.means, str(args.ply))
         inputs, settings = None, None  # a splat file is drawn as 3DGS draws it
     else:
         inputs, gaussians, model = reconstruct_from_args(args)

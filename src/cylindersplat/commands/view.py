@@ -76,10 +76,12 @@ def load_scene(args: argparse.Namespace):
 
     if args.splats is not None:
         from ..gaussians import load_gaussians
+        from ..validation import check_splats_near_origin
 
         gaussians = load_gaussians(args.splats)
         cameras = _cameras_from_poses(args.poses_file, args.allow_outside_paths) if args.poses_file else []
         print(f"loaded {len(gaussians):,} Gaussians from {args.splats}")
+        check_splats_near_origin(gaussians.means, str(args.splats))
         return gaussians, cameras
     from ..data.io import to_uint8
 
