@@ -193,6 +193,23 @@ def test_view_refuses_to_write_over_its_own_inputs(tmp_path, capsys, option):
     assert _files(tmp_path) == before
 
 
+@pytest.mark.parametrize("name, what", [
+    ("pano_01.png", "is a file of the --input folder {folder} (a panorama or depth the folder reader takes)"),
+    ("pano_00_depth.png", "is a file of the --input folder {folder} (a panorama or depth the folder reader takes)"),
+    ("poses.json", "is the poses file this command reads"),
+])
+def test_view_of_an_input_folder_refuses_to_write_over_its_files(panorama_folder, tiny_checkpoint, tmp_path, capsys,
+                                                                 name, what):
+    folder = panorama_folder[0]
+    before = _files(folder)
+    target = folder / name
+    assert main(["view", "--input", str(folder), "--checkpoint", str(tiny_checkpoint), "--screenshot", str(target),
+                 "--resolution", "16x32", "--device", "cpu"]) == 1
+    assert _error_line(capsys) == (f"cylindersplat view: error: --screenshot {target} {what.format(folder=folder)}: "
+                                   "give another --screenshot")
+    assert _files(folder) == before
+
+
 # data import-poses ----------------------------------------------------------------------------------------------
 
 def _trajectory(tmp_path: Path, x0: float = 0.0) -> Path:
