@@ -13,12 +13,14 @@
 #   model           the paper config end to end (network + one render), 1-4 views;
 #   train           one training step of each curriculum stage at 512x1024, batch 1, bf16 autocast;
 #   run             a short training run of the paper config on procedural 256x512 data (loss must fall).
-# Not in the default run (name them): model_compiled (the model through torch.compile) and base (the `base`
+# Not in the default run (name them): binning (the Triton binning and backward variants side by side, with stages,
+# at 0.1 and 1.3 M Gaussians, 512x1024: `bench render --binning ... --backward ...`, under a minute),
+# model_compiled (the model through torch.compile) and base (the `base`
 # preset trained for at most CHECK_BASE_MINUTES (20) in all, resumed by later calls from $CHECK_BASE_DIR,
 # default outputs/gpu_check_base; at its budget the trainer is interrupted cleanly - a checkpoint - and the
 # item ends with the run's summary line).
 # Usage: bash benchmarks/gpu_check.sh [--smoke] [--append] [OUT_DIR] [ITEMS]
-#   ITEMS (default: tests render stages gsplat model train run); also model_compiled base
+#   ITEMS (default: tests render stages gsplat model train run); also binning model_compiled base
 #   --smoke: every item at tiny sizes on whatever machine this is (Triton's CPU interpreter without a
 #   GPU; training runs use the reference renderer there; model_compiled is left out), to show that the
 #   script works end to end; its numbers mean nothing.
@@ -34,7 +36,7 @@ while [ $# -gt 0 ]; do
   case $1 in --smoke) smoke=1; shift ;; --append) append=1; shift ;; *) break ;; esac
 done
 out=$(realpath -m "${1:-outputs/gpu_check}")
-all_items="tests render stages gsplat model model_compiled train run base"
+all_items="tests render stages binning gsplat model model_compiled train run base"
 items=${2:-tests render stages gsplat model train run}
 total=${CHECK_TOTAL_SECONDS:-540}
 deadline=$((SECONDS + total))  # every item ends by then (the archive and summary take a few seconds more)
@@ -99,17 +101,19 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
 }
 
 # Item sizes: full (the issue's) or smoke (seconds on a CPU).
+binning_variants="--binning key64 depth_tile fused --backward sums joined"  # every combination, one row each
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
   render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
   stages_args=(--num 300 --height 8 --device "$device" --backend triton --stages --repeats 1)
+  binning_args=(--num 40 --height 8 --device "$device" --backend triton --stages --repeats 1 $binning_variants)
   gsplat_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
-  model_args=(--config tiny --height 64 --render --views 1 2 --repeats 1 --device "$device")
+  model_args=(--config tiny_paper --height 64 --render --views 1 2 --repeats 1 --device "$device")
   train_args=(--config tiny --height 64 --steps 1 --warmup 0 --lpips off --device "$device")
   synth_args=(--scenes 4 --resolution 64x128)
-  run_overrides=(model.preset=tiny data.resolution=[64,128] train.steps_per_stage=[12,6] train.log_every=1)
+  run_overrides=(model.preset=tiny_paper data.resolution=[64,128] train.steps_per_stage=[12,6] train.log_every=1)
   base_scenes=4; base_resolution=64x128; rm -rf "$base_dir"  # a fresh run each time: chunks and resumes are exercised
-  base_overrides=(model.preset=tiny data.resolution=[64,128] train.steps_per_stage=[4,2,4] train.log_every=1
+  base_overrides=(model.preset=tiny_paper data.resolution=[64,128] train.steps_per_stage=[4,2,4] train.log_every=1
                   train.checkpoint_every=2 data.num_workers=0)
   base_minutes=${CHECK_BASE_MINUTES:-3}; base_chunk=3; require_fall=
   # Training through the Triton interpreter takes minutes per step: on a CPU the run uses the reference.
@@ -120,6 +124,7 @@ else
              tests/test_render_triton_sync.py tests/test_triton_compile.py)
   render_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --repeats 3)
   stages_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3)
+  binning_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3 $binning_variants)
   gsplat_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 3)
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
   train_args=(--config paper --height 512 --steps 3)
@@ -196,6 +201,9 @@ for item in $items; do
     stages)
       run_item stages "${CHECK_LIMIT_STAGES:-60}" $py -m cylindersplat bench render "${stages_args[@]}"
       excerpt '^[{#]' "$out/stages.log" ;;
+    binning)
+      run_item binning "${CHECK_LIMIT_BINNING:-90}" $py -m cylindersplat bench render "${binning_args[@]}"
+      excerpt '^[{#|]' "$out/binning.log" ;;
     gsplat)
       if [ -n "$gsplat_build" ]; then  # its background build, within what is left of the budget
         while kill -0 "$gsplat_build" 2>/dev/null && [ "$(left_s)" -gt 15 ]; do sleep 2; done

@@ -11,11 +11,16 @@ binning, fragment expansion + sort, compositing, backward for the PyTorch refere
 compositing kernels). ``--ply-view N`` also times what a user waits for to see a scene: a PLY of ``N``
 Gaussians loaded and one 512x1024 view rendered (no gradients), per backend. A backend that runs out
 of memory is reported as such in the rows and the closing table (the others are still timed).
+``--binning`` and ``--backward`` time the Triton backend's variants side by side (issue 35): one
+``triton[binning,backward]`` row per combination, e.g. ``--backend triton --stages --binning key64
+depth_tile fused --backward sums joined``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import itertools
 import os
 import platform
 import resource
@@ -26,7 +31,7 @@ import time
 import torch
 
 from cylindersplat.gaussians import load_ply, save_ply
-from cylindersplat.render import Equirect, render_cubemap, render_equirect
+from cylindersplat.render import Equirect, render_cubemap, render_equirect, triton_backend, triton_binning
 from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
 from cylindersplat.scenes import random_indoor
@@ -212,6 +217,18 @@ def ply_view(num: int, device: torch.device, backends: list[str], folder: str, h
     return rows
 
 
+@contextlib.contextmanager
+def triton_variant(binning: str | None, backward: str | None):
+    """The Triton backend with the given binning and backward variants (None: the default) while inside."""
+    saved = triton_binning.BINNING, triton_backend.BACKWARD
+    triton_binning.BINNING = binning or saved[0]
+    triton_backend.BACKWARD = backward or saved[1]
+    try:
+        yield
+    finally:
+        triton_binning.BINNING, triton_backend.BACKWARD = saved
+
+
 def ratio_line(base: dict, row: dict, dev: str) -> str:
     """``# B vs A (...)``: how many times faster ``row`` is than ``base``; a run out of memory says so instead."""
     head = f"# {row['backend']} vs {base['backend']} ({row['num']} Gaussians, {row['size']}, {dev}): "
@@ -263,6 +280,11 @@ def main(argv: list[str] | None = None) -> None:
                         help="print torch.profiler's top kernels of one forward+backward")
     parser.add_argument("--compile", action="store_true", help="projection through torch.compile "
                                                                "(render.projection.compile_projection)")
+    parser.add_argument("--binning", nargs="+", default=[None], choices=triton_binning.BINNINGS,
+                        help="Triton binning variants, timed side by side (default: "
+                             f"{triton_binning.BINNING})")
+    parser.add_argument("--backward", nargs="+", default=[None], choices=triton_backend.BACKWARDS,
+                        help=f"Triton backward variants, timed side by side (default: {triton_backend.BACKWARD})")
     parser.add_argument("--ply-view", type=positive_int, nargs="+", default=[], metavar="N",
                         help="also time loading a PLY of N Gaussians and rendering one 512x1024 view, per backend")
     args = parser.parse_args(argv)
@@ -288,11 +310,17 @@ def main(argv: list[str] | None = None) -> None:
                 if backend == "triton" and torch.device(dev).type != "cuda" and not interpreted:
                     print(f"# skipping triton on {dev}: needs CUDA (or TRITON_INTERPRET=1, very slow)")
                     continue
-                rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, args.cubemap,
-                                  args.stages))
-                print(rows[-1])
-                if args.profile:
-                    profile(num, args.height, torch.device(dev), backend)
+                named = args.binning != [None] or args.backward != [None]
+                variants = itertools.product(args.binning, args.backward) if backend == "triton" else [(None, None)]
+                for binning, backward in variants:
+                    with triton_variant(binning, backward):
+                        rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, args.cubemap,
+                                          args.stages))
+                        if backend == "triton" and named:
+                            rows[-1]["backend"] = f"triton[{triton_binning.BINNING},{triton_backend.BACKWARD}]"
+                        print(rows[-1])
+                        if args.profile:
+                            profile(num, args.height, torch.device(dev), backend)
             for row in rows[1:]:
                 print(ratio_line(rows[0], row, dev))
             timed += rows
