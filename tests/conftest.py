@@ -67,11 +67,11 @@ def synth_dataset(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def tiny_model():
-    """An untrained ``tiny`` model (seed 0), one per test module."""
+    """An untrained ``tiny_paper`` model (seed 0), one per test module."""
     from cylindersplat.model import from_config
 
     torch.manual_seed(0)
-    return from_config("tiny")
+    return from_config("tiny_paper")
 
 
 @pytest.fixture()
@@ -90,10 +90,10 @@ def panorama_folder(tmp_path):
 
 @pytest.fixture()
 def tiny_checkpoint(tmp_path) -> Path:
-    """Weights of an untrained ``tiny`` model (seed 0) as written by ``cylindersplat train``."""
+    """Weights of an untrained ``tiny_paper`` model (seed 0) as written by ``cylindersplat train``."""
     from cylindersplat.model import from_config, save_model
 
     torch.manual_seed(0)
     path = tmp_path / "tiny.safetensors"
-    save_model(from_config("tiny"), path)
+    save_model(from_config("tiny_paper"), path)
     return path

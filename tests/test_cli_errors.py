@@ -93,7 +93,7 @@ def test_debug_flag_shows_the_traceback(tmp_path):
 def test_weights_with_nan_are_refused_by_name(tmp_path):
     from cylindersplat.model import from_config, load_model, save_model
 
-    model = from_config("tiny")
+    model = from_config("tiny_paper")
     with torch.no_grad():
         next(model.parameters()).fill_(float("nan"))
     save_model(model, tmp_path / "diverged.safetensors")

@@ -63,10 +63,10 @@ def test_set_dotted_on_a_config_writes_the_field():
 
 
 def test_replace_copies_and_goes_through_the_writer():
-    base = get_config("tiny")
+    base = get_config("tiny_paper")
     changed = base.replace(**{"fusion.side": "hidden", "fusion.sigma": 0.2, "mode": "pixel"})
     expected = dataclasses.replace(base, mode="pixel", fusion=FusionConfig(side="hidden", sigma=0.2))
-    assert changed == expected and base == get_config("tiny")  # the original is untouched
+    assert changed == expected and base == get_config("tiny_paper")  # the original is untouched
 
 
 @pytest.mark.parametrize("key,section,valid", [
@@ -76,7 +76,7 @@ def test_replace_copies_and_goes_through_the_writer():
 ])
 def test_unknown_config_field_names_the_key_and_the_valid_ones(key, section, valid):
     with pytest.raises(UnknownConfigKey) as caught:
-        get_config("tiny").replace(**{key: 1})
+        get_config("tiny_paper").replace(**{key: 1})
     message = str(caught.value)
     part = key.split(".")[1 if section != "ModelConfig" else 0]
     assert message.startswith(f"unknown config field {key!r}: {section} has no {part!r}; valid: {valid}")
@@ -85,7 +85,7 @@ def test_unknown_config_field_names_the_key_and_the_valid_ones(key, section, val
 
 def test_a_field_below_a_value_is_refused_on_a_config():
     with pytest.raises(ValueError, match=r"'volume.grid.x': volume.grid is the value \(4, 16, 8\), not a section"):
-        get_config("tiny").replace(**{"volume.grid.x": 1})
+        get_config("tiny_paper").replace(**{"volume.grid.x": 1})
 
 
 # -- the one choice table --------------------------------------------------------------------------------------
@@ -132,3 +132,31 @@ def test_the_registries_agree_with_the_table():
 
     assert tuple(VOLUME_LOSS_MODES) == CHOICES["loss.volume_loss"]
     assert STAGE2_RENDERS == CHOICES["train.stage2_render"]
+
+
+# -- the two tiny models ---------------------------------------------------------------------------------------
+
+def test_the_two_tiny_models_have_distinct_names():
+    """``tiny_paper`` (the paper's choices at tiny sizes, what the tests build) and ``tiny``, the training preset's
+    model, which the shipped weights' stored config names (tests/test_pretrained.py: the same fields)."""
+    from cylindersplat.model.checkpoint import read_model_config
+    from cylindersplat.model.pretrained import pretrained_path
+
+    small, trained = get_config("tiny_paper"), load_config("tiny").model
+    assert (small.name, trained.name) == ("tiny_paper", "tiny")
+    assert small.volume.grid == (4, 16, 8) and trained.volume.grid == (8, 32, 16)
+    assert (small.volume.color, trained.volume.color) == ("retrieval", "surface")
+    model_choices = [key for key in CHOICES if key not in TRAINING_CHOICES]
+    assert all(get_dotted(small, key) == get_dotted(get_config("paper"), key) for key in model_choices)
+    assert {key for key in model_choices if get_dotted(trained, key) != get_dotted(small, key)} == {
+        "prior_alignment", "volume.color", "fusion.strategy", "fusion.side", "fusion.pixel_clearing"}
+    assert read_model_config(pretrained_path()).name == "tiny"
+
+
+def test_the_old_model_preset_name_still_works_with_a_warning():
+    with pytest.warns(FutureWarning, match="model preset 'tiny' is now 'tiny_paper'") as caught:
+        old = get_config("tiny", **{"volume.init": "isolated"})
+    assert old == get_config("tiny_paper", **{"volume.init": "isolated"})
+    assert caught[0].filename == __file__  # it points at the caller's line
+    with pytest.warns(FutureWarning, match="'tiny_paper'"):
+        assert load_config(None, ["model.preset=tiny"]).model == get_config("tiny_paper")

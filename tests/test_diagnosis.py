@@ -23,7 +23,7 @@ def sample(synth_dataset):
 @pytest.fixture(scope="module")
 def model_output(sample):
     torch.manual_seed(0)
-    model = from_config("tiny").eval()
+    model = from_config("tiny_paper").eval()
     with torch.no_grad():
         return model(sample.context_images[None], sample.context_priors[None], sample.context_poses[None])
 
@@ -99,7 +99,7 @@ def test_surface_footprints_make_no_needles_at_depth_edges():
 
 def test_pixel_switches_do_what_they_say(sample):
     torch.manual_seed(0)
-    base = from_config("tiny", **{"pixel.edge_sigma": 0.0}).eval()
+    base = from_config("tiny_paper", **{"pixel.edge_sigma": 0.0}).eval()
     images, prior, c2w = sample.context_images[None], sample.context_priors[None].clone(), sample.context_poses[None]
     prior[0, 0, :4] = 0.0  # a hole in the first view's prior
     h = images.shape[-2]
@@ -123,7 +123,7 @@ def test_pixel_switches_do_what_they_say(sample):
 
 def test_with_config_keeps_the_weights_and_refuses_a_shape_change():
     torch.manual_seed(0)
-    model = from_config("tiny")
+    model = from_config("tiny_paper")
     other = model.with_config(render_dilation=0.0)
     assert other.config.render_dilation == 0.0 and model.config.render_dilation == 0.3
     for (name, a), (_, b) in zip(model.state_dict().items(), other.state_dict().items()):
@@ -139,7 +139,7 @@ def test_model_method_draws_with_the_models_dilation(sample):
     from cylindersplat.inference import reconstruct_gaussians
 
     torch.manual_seed(0)
-    model = from_config("tiny", render_dilation=0.0).eval()
+    model = from_config("tiny_paper", render_dilation=0.0).eval()
     out = model_method(model).run(sample)
     gaussians = reconstruct_gaussians(model, sample.context_images, sample.context_priors, sample.context_poses)
     h, w = sample.target_images.shape[-2:]

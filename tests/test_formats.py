@@ -169,7 +169,7 @@ def test_export_writes_spz(tmp_path, capsys):
     torch.manual_seed(0)
     poses = torch.stack([make_c2w(), make_c2w(translation=torch.tensor([0.5, 0.0, 0.2]))])
     folder = write_panorama_folder(tmp_path / "scene", torch.rand(2, 3, 16, 32), poses, torch.rand(2, 16, 32) * 3 + 0.5)
-    save_model(from_config("tiny"), tmp_path / "tiny.safetensors")
+    save_model(from_config("tiny_paper"), tmp_path / "tiny.safetensors")
     common = ["export", "--input", str(folder), "--checkpoint", str(tmp_path / "tiny.safetensors"), "--resolution",
               "16x32",
               "--min-opacity", "0", "--device", "cpu"]

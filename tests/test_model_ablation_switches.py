@@ -61,12 +61,12 @@ DEFAULT_CHECKSUMS = {
 
 
 def test_default_configuration_is_unchanged():
-    cfg = get_config("tiny")
+    cfg = get_config("tiny_paper")
     vol = cfg.volume
     assert (vol.color, vol.placement, vol.scale_transform, vol.image_query) == ("retrieval", "per_camera", "paper",
                                                                                 "coarse")
     torch.manual_seed(0)
-    model = from_config("tiny")
+    model = from_config("tiny_paper")
     # no new parameters in the default model (checkpoints stay loadable)
     assert sum(p.numel() for p in model.parameters()) == 234746
     assert not any("color_decoder" in name for name, _ in model.named_parameters())
@@ -84,7 +84,7 @@ def test_default_configuration_is_unchanged():
 def test_switch_forward_backward(name):
     changes = SWITCHES[name]
     torch.manual_seed(0)
-    model = from_config("tiny", **changes)
+    model = from_config("tiny_paper", **changes)
     images, depth, c2w = make_inputs(2)
     out = model(images, depth, c2w)
     out.gaussians.validate()  # finite, positive scales, opacities in [0, 1]
@@ -109,9 +109,9 @@ def test_switches_validate_with_clear_errors():
     for field, bad in [("color", "rgb"), ("placement", "everywhere"), ("scale_transform", "log"),
                        ("image_query", "half")]:
         with pytest.raises(ValueError, match=f"volume.{field}"):
-            get_config("tiny", **{f"volume.{field}": bad})
+            get_config("tiny_paper", **{f"volume.{field}": bad})
     with pytest.raises(ValueError, match="central.*shared"):
-        get_config("tiny", **{"volume.placement": "central", "volume.init": "isolated"})
+        get_config("tiny_paper", **{"volume.placement": "central", "volume.init": "isolated"})
 
 
 def test_switches_are_experiment_overrides():
@@ -137,7 +137,7 @@ def _volume_inputs(views=2, seed=0):
 @pytest.mark.parametrize("color", ["retrieval", "decoded"])
 def test_decoded_colour_does_not_read_the_images(color):
     torch.manual_seed(0)
-    branch = from_config("tiny", **{"volume.color": color}).volume_branch
+    branch = from_config("tiny_paper", **{"volume.color": color}).volume_branch
     images, depth, c2w, features, points, point_features = _volume_inputs()
     other_images, other_depth = torch.rand_like(images), depth + 1.0
     with torch.no_grad():
@@ -153,7 +153,7 @@ def test_decoded_colour_does_not_read_the_images(color):
 # -- w/o multi triplane (central) ----------------------------------------------------------------------
 def test_central_triplane_is_centred_on_the_mean_camera():
     torch.manual_seed(0)
-    model = from_config("tiny", **{"volume.placement": "central"})
+    model = from_config("tiny_paper", **{"volume.placement": "central"})
     last = model.volume_branch.head.mlp[-1]
     with torch.no_grad():  # zero offsets: every Gaussian sits on its cell centre
         last.weight[:3].zero_()
@@ -182,7 +182,7 @@ def test_central_triplane_with_one_view_is_the_per_camera_triplane():
     outs = []
     for placement in ("per_camera", "central"):
         torch.manual_seed(0)
-        model = from_config("tiny", **{"volume.placement": placement})
+        model = from_config("tiny_paper", **{"volume.placement": placement})
         with torch.no_grad():
             outs.append(model(images, depth, c2w).volume_gaussians)
     for key, t in outs[0].tensors().items():
@@ -191,7 +191,7 @@ def test_central_triplane_with_one_view_is_the_per_camera_triplane():
 
 def test_central_depth_prune_uses_view_zero():
     torch.manual_seed(0)
-    model = from_config("tiny", **{"volume.placement": "central", "fusion.strategy": "depth_prune"})
+    model = from_config("tiny_paper", **{"volume.placement": "central", "fusion.strategy": "depth_prune"})
     images, depth, c2w, features, points, point_features = _volume_inputs()
     with torch.no_grad():
         vol = model.volume_branch(images, depth, c2w, features, points, point_features)
@@ -298,7 +298,7 @@ def test_cell_cartesian_extent_is_the_cells_bounding_box():
 
 def test_cartesian_scales_are_the_bounded_head_output():
     torch.manual_seed(0)
-    model = from_config("tiny", **{"volume.scale_transform": "cartesian"})
+    model = from_config("tiny_paper", **{"volume.scale_transform": "cartesian"})
     branch = model.volume_branch
     captured = {}
     branch.head.register_forward_hook(lambda module, args, output: captured.update(output))
@@ -314,7 +314,7 @@ def test_cartesian_scales_are_the_bounded_head_output():
     assert (scales >= cfg.min_scale_cells * extent * (1 - 1e-5)).all()
     assert (scales <= cfg.max_scale_cells * extent * (1 + 1e-5)).all()
     # rotations: the head's quaternion composed with the camera rotation only (no cell frame)
-    paper = from_config("tiny", **{"volume.scale_transform": "paper"}).volume_branch
+    paper = from_config("tiny_paper", **{"volume.scale_transform": "paper"}).volume_branch
     paper.load_state_dict(branch.state_dict())
     with torch.no_grad():
         ref = paper(images, depth, c2w, features, points, point_features).gaussians
@@ -350,7 +350,7 @@ def test_full_queries_equal_coarse_queries_when_image_grid_is_grid():
     outs = []
     for query in ("coarse", "full"):
         torch.manual_seed(0)
-        model = from_config("tiny", **{"volume.image_grid": (4, 16, 8), "volume.image_query": query})
+        model = from_config("tiny_paper", **{"volume.image_grid": (4, 16, 8), "volume.image_query": query})
         with torch.no_grad():
             outs.append(model(images, depth, c2w).gaussians)
     for key, t in outs[0].tensors().items():

@@ -70,7 +70,7 @@ def test_backbone_is_equivariant_to_panorama_rotation():
     """Circular padding along the width: rolling the input by a multiple of the stride rolls the
     features (zero padding would break this at the seam)."""
     torch.manual_seed(3)
-    cfg = get_config("tiny").backbone
+    cfg = get_config("tiny_paper").backbone
     net = ResNetBackbone(cfg).eval()
     x = torch.randn(1, cfg.in_channels, 32, 64)
     shift = cfg.token_stride

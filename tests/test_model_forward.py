@@ -67,7 +67,7 @@ def test_pixel_gaussians_lie_on_refined_depth(tiny_model):
 @pytest.mark.parametrize("stage", [1, 2, 3])
 def test_gradients_reach_every_trainable_parameter(stage):
     torch.manual_seed(1)
-    model = from_config("tiny").configure_stage(stage)
+    model = from_config("tiny_paper").configure_stage(stage)
     images, depth, c2w = make_inputs(2, seed=stage)
     out = model(images, depth, c2w)
     g = torch.Generator().manual_seed(5)
@@ -89,7 +89,7 @@ def test_gradients_reach_every_trainable_parameter(stage):
 @pytest.mark.parametrize("kind", ["spherical", "cartesian"])
 def test_coordinate_variants(kind):
     torch.manual_seed(2)
-    model = from_config("tiny", **{"volume.coordinates": kind, "volume.scale_transform": "exact"})
+    model = from_config("tiny_paper", **{"volume.coordinates": kind, "volume.scale_transform": "exact"})
     assert model.volume_branch.coords.name == kind
     images, depth, c2w = make_inputs(2)
     with torch.no_grad():
@@ -100,7 +100,7 @@ def test_coordinate_variants(kind):
 
 def test_depth_prune_fusion_runs_and_marks_pruned():
     torch.manual_seed(3)
-    model = from_config("tiny", **{"fusion.strategy": "depth_prune", "fusion.prune_threshold": 0.3})
+    model = from_config("tiny_paper", **{"fusion.strategy": "depth_prune", "fusion.prune_threshold": 0.3})
     images, depth, c2w = make_inputs(2)
     with torch.no_grad():
         out = model(images, depth, c2w)
@@ -123,7 +123,7 @@ def test_paper_parameter_count():
 
 def test_save_load_roundtrip(tmp_path):
     torch.manual_seed(4)
-    model = from_config("tiny", **{"volume.init": "isolated"})
+    model = from_config("tiny_paper", **{"volume.init": "isolated"})
     path = tmp_path / "model.safetensors"
     save_model(model, path)
     loaded = load_model(path)
@@ -149,7 +149,7 @@ def test_end_to_end_render_backpropagates_to_every_parameter():
     """Model -> render_equirect -> loss: the whole network is trainable through the renderer."""
     from cylindersplat.render import render_equirect as render
     torch.manual_seed(6)
-    model = from_config("tiny")
+    model = from_config("tiny_paper")
     images, depth, c2w = make_inputs(1)
     out = model(images, depth, c2w)
     rendered = render(out.gaussians, c2w, 16, 32)

@@ -20,7 +20,7 @@ from cylindersplat.training.data import build_dataset
 from cylindersplat.training.trainer import batch_to_device
 from test_data_priors_cli import FIXTURE, expected_depth, export_torchscript
 
-SMALL = ["model.preset=tiny", "data.resolution=[32,64]", "data.num_workers=0", "train.epochs_per_stage=null",
+SMALL = ["model.preset=tiny_paper", "data.resolution=[32,64]", "data.num_workers=0", "train.epochs_per_stage=null",
          "train.steps_per_stage=[1]", "loss.use_lpips=off", "train.progress=false", "train.tensorboard=false",
          "train.image_every=0", "train.log_every=1"]
 

@@ -99,7 +99,7 @@ def test_seeded_forward_is_pinned(preset):
 
     with _one_thread(), torch.no_grad():
         torch.manual_seed(0)
-        model = from_config("tiny") if preset == "model_preset_tiny" else CylinderSplat(load_config("tiny").model)
+        model = from_config("tiny_paper") if preset == "model_preset_tiny" else CylinderSplat(load_config("tiny").model)
         images, depth, c2w = make_inputs(views=2, height=32, width=64)
         out = model.eval()(images, depth, c2w)
     tensors = {**_gaussian_tensors(out.gaussians, "fused"), **_gaussian_tensors(out.pixel_gaussians, "pixel"),

@@ -47,8 +47,8 @@ def test_edge_sigma_scales_pixel_opacity_by_the_confidence():
     prior[..., 10:20, 20:30] = 1.0  # a box in front of the wall
     c2w = torch.eye(4).repeat(1, 2, 1, 1)
     c2w[0, 1, 0, 3] = 0.5
-    plain = from_config("tiny", mode="pixel").eval()
-    faded = from_config("tiny", mode="pixel", **{"pixel.edge_sigma": 0.1}).eval()
+    plain = from_config("tiny_paper", mode="pixel").eval()
+    faded = from_config("tiny_paper", mode="pixel", **{"pixel.edge_sigma": 0.1}).eval()
     faded.load_state_dict(plain.state_dict())
     with torch.no_grad():
         a, b = plain(images, prior, c2w), faded(images, prior, c2w)

@@ -78,8 +78,8 @@ def test_model_applies_the_scales_before_both_branches(wide_sample):
     images, c2w = wide_sample.context_images[None], wide_sample.context_poses[None]
     prior = wide_sample.context_gt_depths[None] * torch.tensor([0.8, 1.25])[:, None, None]
     torch.manual_seed(0)
-    aligned = from_config("tiny", prior_alignment="photometric").eval()
-    plain = from_config("tiny").eval()
+    aligned = from_config("tiny_paper", prior_alignment="photometric").eval()
+    plain = from_config("tiny_paper").eval()
     plain.load_state_dict(aligned.state_dict())
     with torch.no_grad():
         out = aligned(images, prior, c2w)
@@ -93,7 +93,7 @@ def test_model_applies_the_scales_before_both_branches(wide_sample):
 
 def test_unknown_alignment_is_rejected():
     with pytest.raises(ValueError, match="prior_alignment must be one of none, photometric"):
-        from_config("tiny", prior_alignment="median")
+        from_config("tiny_paper", prior_alignment="median")
 
 
 def test_export_cli_rescales_a_half_scale_depth(wide_sample, tiny_checkpoint, tmp_path, capsys):

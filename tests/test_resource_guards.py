@@ -22,7 +22,7 @@ GiB = 2**30
 
 def test_forward_memory_estimate_is_conservative_but_not_absurd():
     # Measured peaks (CPU, float32, see inference/memory.py): tiny 1 view 512x1024 309 MiB, paper 964 MiB.
-    tiny, paper = get_config("tiny"), get_config("paper")
+    tiny, paper = get_config("tiny_paper"), get_config("paper")
     assert 309 * 2**20 <= forward_memory(tiny, 1, 512, 1024) <= 3 * 309 * 2**20
     assert 964 * 2**20 <= forward_memory(paper, 1, 512, 1024) <= 3 * 964 * 2**20
     # Grows with views and pixels; the pixel branch alone needs less than both branches.
@@ -85,7 +85,7 @@ def test_weights_survive_a_full_disk(tmp_path, monkeypatch, tiny_model):
     before = path.read_bytes()
     _fill_disk_after(monkeypatch, 1000)
     with pytest.raises(OSError) as info:
-        save_model(from_config("tiny", mode="pixel"), path)
+        save_model(from_config("tiny_paper", mode="pixel"), path)
     assert info.value.filename == str(path)  # the file being written, not its temporary name
     assert expected_failure(info.value) == f"disk full while writing {path}: free space or choose another --out"
     monkeypatch.undo()

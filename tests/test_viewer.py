@@ -202,7 +202,7 @@ def test_view_reconstructs_like_export(tmp_path):
     folder = write_panorama_folder(tmp_path / "scene", torch.rand(2, 3, 16, 32),
                                    torch.stack([_yaw(0.0, (0, 0, 0)), _yaw(0.3, (0.5, 0, 0.2))]),
                                    torch.rand(2, 16, 32) * 3 + 0.5)
-    save_model(from_config("tiny"), tmp_path / "tiny.safetensors")
+    save_model(from_config("tiny_paper"), tmp_path / "tiny.safetensors")
     common = ["--input", str(folder), "--checkpoint", str(tmp_path / "tiny.safetensors"), "--resolution", "16x32",
               "--min-opacity", "0", "--device", "cpu"]
     gaussians, cameras = load_scene(build_parser().parse_args(["view", *common]))

@@ -58,7 +58,7 @@ def test_tap_features_are_the_3x3_neighbourhood_and_the_depth_difference():
 
 
 def test_released_mlp_rejects_more_views_than_it_was_built_for():
-    model = from_config("tiny", **{"volume.color": "released_mlp", "volume.color_views": 2})
+    model = from_config("tiny_paper", **{"volume.color": "released_mlp", "volume.color_views": 2})
     images, depth = torch.rand(1, 3, 3, 16, 32), torch.ones(1, 3, 16, 32)
     c2w = torch.eye(4).repeat(1, 3, 1, 1)
     with pytest.raises(ValueError, match="at most volume.color_views=2 input views, got 3"):
@@ -67,8 +67,8 @@ def test_released_mlp_rejects_more_views_than_it_was_built_for():
 
 def test_pixel_clearing_fades_pixel_gaussians_in_space_another_view_saw_empty():
     torch.manual_seed(0)
-    model = from_config("tiny", **{"fusion.strategy": "depth_prune", "fusion.side": "hidden",
-                                   "fusion.pixel_clearing": "seen_through"}).eval()
+    model = from_config("tiny_paper", **{"fusion.strategy": "depth_prune", "fusion.side": "hidden",
+                                         "fusion.pixel_clearing": "seen_through"}).eval()
     images, depth = torch.rand(1, 2, 3, 64, 128), torch.full((1, 2, 64, 128), 3.0)
     c2w = torch.stack((make_c2w(), make_c2w(translation=torch.tensor([1.0, 0.0, 0.0]))))[None]
     with torch.no_grad():
@@ -97,7 +97,8 @@ def test_pixel_clearing_keeps_surfaces_and_fades_a_flying_pixel():
 def test_k_gaussians_per_cell_stay_inside_their_cell():
     torch.manual_seed(0)
     k = 3
-    model = from_config("tiny", **{"volume.gaussians_per_cell": k, "fusion.strategy": "concat"}).set_mode("volume")
+    changes = {"volume.gaussians_per_cell": k, "fusion.strategy": "concat"}
+    model = from_config("tiny_paper", **changes).set_mode("volume")
     images, depth = torch.rand(1, 1, 3, 64, 128), torch.full((1, 1, 64, 128), 2.0)
     with torch.no_grad():
         out = model(images, depth, torch.eye(4)[None, None])
@@ -117,8 +118,8 @@ def test_k_gaussians_per_cell_stay_inside_their_cell():
 
 def test_all_view_attention_with_one_view_equals_own_view_attention():
     torch.manual_seed(0)
-    own = from_config("tiny").eval()
-    every = from_config("tiny", **{"volume.image_views": "all"}).eval()
+    own = from_config("tiny_paper").eval()
+    every = from_config("tiny_paper", **{"volume.image_views": "all"}).eval()
     every.load_state_dict(own.state_dict())
     images, depth = torch.rand(1, 1, 3, 64, 128), torch.rand(1, 1, 64, 128) + 1.0
     c2w = make_c2w(translation=torch.tensor([0.3, -0.2, 0.5]))[None, None]
@@ -136,7 +137,7 @@ def test_all_view_attention_with_one_view_equals_own_view_attention():
 
 
 def test_stored_configs_with_a_retrieval_window_load_as_the_surface_rule():
-    stored = config_to_dict(get_config("tiny"))
+    stored = config_to_dict(get_config("tiny_paper"))
     stored["volume"] = {k: v for k, v in stored["volume"].items()
                         if k not in ("surface_window", "surface_temperature", "learn_temperature", "color_views",
                                      "image_views", "gaussians_per_cell")}
@@ -160,10 +161,10 @@ def test_every_string_choice_is_defined_once():
         hints = typing.get_type_hints(cls)
         assert typing.get_args(hints[name]) == allowed, key
         with pytest.raises(ValueError, match=f"{key} must be one of"):
-            get_config("tiny", **{key: "nonsense"})
+            get_config("tiny_paper", **{key: "nonsense"})
     assert tuple(COLOR_RULES) == CHOICES["volume.color"]
     for color in COLOR_RULES:  # every registered rule builds and runs
-        model = from_config("tiny", **{"volume.color": color})
+        model = from_config("tiny_paper", **{"volume.color": color})
         out = model(torch.rand(1, 2, 3, 64, 128), torch.ones(1, 2, 64, 128), torch.eye(4).repeat(1, 2, 1, 1))
         assert torch.isfinite(out.gaussians.rgb).all()
 

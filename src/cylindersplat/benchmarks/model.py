@@ -101,7 +101,7 @@ def describe_device(device: str) -> str:
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineErrorParser(prog="cylindersplat bench model", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default="tiny", help="model preset (tiny, paper)")
+    parser.add_argument("--config", default="tiny_paper", help="model preset (tiny_paper, paper, ...)")
     parser.add_argument("--height", type=positive_int, default=None, help="input panorama height (width = 2 x height)")
     parser.add_argument("--views", type=positive_int, nargs="+", default=[1, 2, 3, 4])
     parser.add_argument("--mode", default="both", choices=["pixel", "volume", "both"])

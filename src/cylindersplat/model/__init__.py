@@ -3,7 +3,7 @@
 Typical use::
 
     from cylindersplat.model import from_config
-    model = from_config("paper")               # or "tiny", or a ModelConfig
+    model = from_config("paper")               # or "tiny_paper", or a ModelConfig
     model.configure_stage(3)                   # curriculum: 1 pixel, 2 volume, 3 both
     out = model(images, depth_prior, c2w)      # (B, V, 3, H, W), (B, V, H, W), (B, V, 4, 4)
     out.gaussians                              # batched Gaussians (B, N, ...)

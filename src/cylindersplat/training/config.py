@@ -5,7 +5,7 @@ a nested dict, each ``dotted.key=value`` override is written into that dict (val
 so ``train.lr=3e-4``, ``train.stages=[3]``, ``model.volume.init=isolated`` all work), and the
 result is turned into :class:`ExperimentConfig`. Unknown keys are errors (typos must not be
 silently ignored). The model section names a preset of :mod:`cylindersplat.model.config` plus
-field changes: ``model: {preset: tiny, attention: {depth: 4}}``.
+field changes: ``model: {preset: tiny_paper, attention: {depth: 4}}``.
 """
 
 from __future__ import annotations
@@ -100,7 +100,7 @@ class EvalConfig:
 class ExperimentConfig:
     name: str = "experiment"
     output_dir: str = "outputs/train"
-    model: ModelConfig = field(default_factory=lambda: get_config("tiny"))
+    model: ModelConfig = field(default_factory=lambda: get_config("tiny_paper"))
     data: DataConfig = field(default_factory=DataConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
     loss: LossConfig = field(default_factory=LossConfig)
@@ -267,7 +267,7 @@ def _unknown_key(where: str, names: set[str]) -> str:
 def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     data = dict(data)
     model_data = dict(data.pop("model", None) or {})
-    cfg = ExperimentConfig(model=get_config(model_data.pop("preset", "tiny")))
+    cfg = ExperimentConfig(model=get_config(model_data.pop("preset", "tiny_paper")))
     _update(cfg.model, model_data, "model.")
     _update(cfg, data, "")
     if cfg.data.resolution is not None:
