@@ -160,3 +160,16 @@ def test_the_old_model_preset_name_still_works_with_a_warning():
     assert caught[0].filename == __file__  # it points at the caller's line
     with pytest.warns(FutureWarning, match="'tiny_paper'"):
         assert load_config(None, ["model.preset=tiny"]).model == get_config("tiny_paper")
+
+
+def test_no_other_module_splits_dotted_keys():
+    """The one writer stays one: no module under src/ but model/config.py splits keys on dots (metrics/lpips.py
+    reads a checkpoint's parameter names, not settings)."""
+    from pathlib import Path
+
+    import cylindersplat
+
+    package = Path(cylindersplat.__file__).parent
+    found = sorted(str(path.relative_to(package)) for path in package.rglob("*.py")
+                   if '.split(".")' in path.read_text())
+    assert found == ["metrics/lpips.py", "model/config.py"]
