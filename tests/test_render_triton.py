@@ -87,7 +87,8 @@ def test_smaller_tiles_and_opaque_stacks_match_reference():
 
 
 
-@pytest.mark.parametrize("binning,backward", [("fused", "sums"), ("depth_tile", "joined")])
+@pytest.mark.parametrize("binning,backward", [("fused", "sums"), ("depth_tile", "joined"), ("key64", "chunked4"),
+                                              ("key64", "chunked8")])
 def test_binning_and_backward_variants_match_reference(monkeypatch, binning, backward):
     # Each variant (issue 35) against the reference: seam-crossing footprints, two cameras, opaque and faint.
     from cylindersplat.render import triton_backend, triton_binning

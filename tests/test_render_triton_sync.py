@@ -58,7 +58,7 @@ def _calls_during(fn) -> set:
     return found
 
 
-@pytest.mark.parametrize("binning,backward", [("key64", "sums"), ("depth_tile", "sums"), ("fused", "joined")])
+@pytest.mark.parametrize("binning,backward", [("key64", "sums"), ("depth_tile", "joined"), ("fused", "chunked8")])
 def test_the_triton_render_path_makes_no_host_copies_and_no_new_synchronisation(monkeypatch, binning, backward):
     from cylindersplat.render import triton_backend, triton_binning
 

@@ -25,11 +25,13 @@ from .triton_binning import bin_to_tiles_by_key
 
 __all__ = ["triton_available", "triton_backend", "composite_triton", "BACKWARDS", "BACKWARD"]
 
-# How the compositing backward sums a pair's gradients over a tile's pixels before its atomics
-# (:func:`.triton_kernels.composite_backward_kernel`): "sums" (ten block-wide sums, ten scalar atomics per
-# pair) or "joined" (one block-wide sum of the ten joined, one vector atomic). The same gradients (to float32
-# rounding); the default until both are measured on a GPU. Module-level: the benchmark switches it.
-BACKWARDS = ("sums", "joined")
+# The compositing backward's variant: "sums" (:func:`.triton_kernels.composite_backward_kernel`, one pair at a
+# time: ten block-wide sums and ten scalar atomics per pair), "joined" (the same with one block-wide sum of the
+# ten joined and one vector atomic) or "chunked4" / "chunked8" (:func:`.triton_kernels.
+# composite_backward_chunked_kernel`: 4 or 8 pairs at a time, scans along the pairs; 137 / 224 registers a thread
+# for sm_90, no spills - 16 would spill). The same gradients (to float32 rounding); "sums" is the default until
+# they are measured on a GPU. Module-level: the benchmark switches it.
+BACKWARDS = ("sums", "joined", "chunked4", "chunked8")
 BACKWARD = "sums"
 
 
@@ -64,10 +66,14 @@ class _TritonComposite(torch.autograd.Function):
         packed, pair_gaussian, rows, cols, tile_start, out = ctx.saved_tensors
         grad_packed = torch.zeros_like(packed)
         grid = (len(tile_start) - 1,)
-        if grid[0] > 0:
-            kernels.composite_backward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out,
-                                                    grad_out.float().contiguous(), grad_packed, *ctx.args,
-                                                    TILE=ctx.tile, WRAP_U=ctx.wrap_u, JOINED=BACKWARD == "joined")
+        args = (packed, pair_gaussian, rows, cols, tile_start, out, grad_out.float().contiguous(), grad_packed,
+                *ctx.args)
+        if grid[0] > 0 and BACKWARD.startswith("chunked"):
+            kernels.composite_backward_chunked_kernel[grid](*args, TILE=ctx.tile, WRAP_U=ctx.wrap_u,
+                                                            CHUNK=int(BACKWARD[len("chunked"):]))
+        elif grid[0] > 0:
+            kernels.composite_backward_kernel[grid](*args, TILE=ctx.tile, WRAP_U=ctx.wrap_u,
+                                                    JOINED=BACKWARD == "joined")
         return (grad_packed,) + (None,) * 11
 
 
