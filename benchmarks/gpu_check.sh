@@ -14,7 +14,7 @@
 #   train           one training step of each curriculum stage at 512x1024, batch 1, bf16 autocast;
 #   run             a short training run of the paper config on procedural 256x512 data (loss must fall).
 # Not in the default run (name them): binning (the Triton binning and backward variants side by side, with stages,
-# at 0.1 and 1.3 M Gaussians, 512x1024: `bench render --binning ... --backward ...`, under a minute),
+# at 0.1 and 1.3 M Gaussians, 512x1024: `bench render --variants ...`, under a minute),
 # model_compiled (the model through torch.compile) and base (the `base`
 # preset trained for at most CHECK_BASE_MINUTES (20) in all, resumed by later calls from $CHECK_BASE_DIR,
 # default outputs/gpu_check_base; at its budget the trainer is interrupted cleanly - a checkpoint - and the
@@ -101,7 +101,9 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
 }
 
 # Item sizes: full (the issue's) or smoke (seconds on a CPU).
-binning_variants="--binning key64 depth_tile fused --backward sums joined"  # every combination, one row each
+# Binning variants beside today's (key64,sums), then the backward variants on the fused binning (--stages shows
+# each in its own stage).
+binning_variants="--variants key64,sums depth_tile,sums fused,sums fused,joined fused,chunked4 fused,chunked8"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
   render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)

@@ -11,16 +11,15 @@ binning, fragment expansion + sort, compositing, backward for the PyTorch refere
 compositing kernels). ``--ply-view N`` also times what a user waits for to see a scene: a PLY of ``N``
 Gaussians loaded and one 512x1024 view rendered (no gradients), per backend. A backend that runs out
 of memory is reported as such in the rows and the closing table (the others are still timed).
-``--binning`` and ``--backward`` time the Triton backend's variants side by side (issue 35): one
-``triton[binning,backward]`` row per combination, e.g. ``--backend triton --stages --binning key64
-depth_tile fused --backward sums joined``.
+``--variants BINNING,BACKWARD ...`` times the Triton backend's variants side by side (issue 35): one
+``triton[binning,backward]`` row each, e.g. ``--backend triton --stages --variants key64,sums fused,sums
+fused,joined`` (with ``--stages`` the binning variant shows in ``bin``, the backward one in ``backward``).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import itertools
 import os
 import platform
 import resource
@@ -217,6 +216,16 @@ def ply_view(num: int, device: torch.device, backends: list[str], folder: str, h
     return rows
 
 
+def triton_variant_name(text: str) -> tuple[str, str]:
+    """``"BINNING,BACKWARD"`` (argparse type): the pair, each checked against the Triton backend's variants."""
+    binning, _, backward = text.partition(",")
+    if binning not in triton_binning.BINNINGS or backward not in triton_backend.BACKWARDS:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not BINNING,BACKWARD with BINNING one of {', '.join(triton_binning.BINNINGS)} and BACKWARD "
+            f"one of {', '.join(triton_backend.BACKWARDS)}")
+    return binning, backward
+
+
 @contextlib.contextmanager
 def triton_variant(binning: str | None, backward: str | None):
     """The Triton backend with the given binning and backward variants (None: the default) while inside."""
@@ -280,11 +289,10 @@ def main(argv: list[str] | None = None) -> None:
                         help="print torch.profiler's top kernels of one forward+backward")
     parser.add_argument("--compile", action="store_true", help="projection through torch.compile "
                                                                "(render.projection.compile_projection)")
-    parser.add_argument("--binning", nargs="+", default=[None], choices=triton_binning.BINNINGS,
-                        help="Triton binning variants, timed side by side (default: "
-                             f"{triton_binning.BINNING})")
-    parser.add_argument("--backward", nargs="+", default=[None], choices=triton_backend.BACKWARDS,
-                        help=f"Triton backward variants, timed side by side (default: {triton_backend.BACKWARD})")
+    parser.add_argument("--variants", nargs="+", type=triton_variant_name, default=[], metavar="BINNING,BACKWARD",
+                        help="Triton variants timed side by side, one row each: binning "
+                             f"{'|'.join(triton_binning.BINNINGS)} (default {triton_binning.BINNING}), backward "
+                             f"{'|'.join(triton_backend.BACKWARDS)} (default {triton_backend.BACKWARD})")
     parser.add_argument("--ply-view", type=positive_int, nargs="+", default=[], metavar="N",
                         help="also time loading a PLY of N Gaussians and rendering one 512x1024 view, per backend")
     args = parser.parse_args(argv)
@@ -310,13 +318,12 @@ def main(argv: list[str] | None = None) -> None:
                 if backend == "triton" and torch.device(dev).type != "cuda" and not interpreted:
                     print(f"# skipping triton on {dev}: needs CUDA (or TRITON_INTERPRET=1, very slow)")
                     continue
-                named = args.binning != [None] or args.backward != [None]
-                variants = itertools.product(args.binning, args.backward) if backend == "triton" else [(None, None)]
+                variants = args.variants if backend == "triton" and args.variants else [(None, None)]
                 for binning, backward in variants:
                     with triton_variant(binning, backward):
                         rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, args.cubemap,
                                           args.stages))
-                        if backend == "triton" and named:
+                        if binning is not None:
                             rows[-1]["backend"] = f"triton[{triton_binning.BINNING},{triton_backend.BACKWARD}]"
                         print(rows[-1])
                         if args.profile:
