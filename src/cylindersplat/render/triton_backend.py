@@ -6,7 +6,9 @@ float32 kernel with an analytic backward (:mod:`.triton_projection`, registered 
 :mod:`.api`) for the equirect and pinhole camera models; other camera models are projected by the
 reference. Tile binning is the reference's by counts, prefix sum, key emission and one sort
 (:mod:`.triton_binning`). Compositing follows the reference's rules; gradients reach the projected Gaussians
-through the compositing kernels' backward.
+through the compositing kernels' backward. The binning and the backward come in variants that give the same
+results (:data:`.triton_binning.BINNINGS`, :data:`BACKWARDS`), timed side by side by ``bench render
+--variants`` until one is made the default.
 
 On a CPU, ``TRITON_INTERPRET=1`` (set before the first render) runs the same kernels in Triton's
 interpreter; that is how the test suite checks them on machines without a GPU.
