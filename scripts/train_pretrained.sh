@@ -21,8 +21,9 @@ cylindersplat train --config recipes/tiny_synth_stages12 --data "$OUT/data" --ou
   "${COMMON[@]}"
 cylindersplat train --config recipes/tiny_synth_stage3 --data "$OUT/data" --out "$OUT/stage3" --overwrite \
   --init "$OUT/stages12/model.safetensors" "${COMMON[@]}"
-# Issue 34: the same weights, drawn as configs/recipes/tiny_sharp.yaml says (four switches that change no parameter:
-# no dilation, pixel Gaussians flat on their pixel's surface patch, opaque, a valid prior's depth kept)
+# Issue 34: the same weights, drawn as configs/recipes/tiny_sharp.yaml says (switches that change no parameter:
+# no dilation, pixel Gaussians flat on their pixel's surface patch, opaque, a valid prior's depth kept, pixel
+# clearing only at depth edges)
 "$PYTHON" - "$OUT/stage3/model.safetensors" src/cylindersplat/weights/tiny_synth.safetensors <<'PY'
 import sys
 

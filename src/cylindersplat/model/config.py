@@ -78,7 +78,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "volume.image_views": ("own", "all"),
     "fusion.strategy": ("concat", "depth_prune"),
     "fusion.side": ("both", "front", "hidden"),
-    "fusion.pixel_clearing": ("none", "seen_through"),
+    "fusion.pixel_clearing": ("none", "seen_through", "at_depth_edges"),
     "prior_alignment": ("none", "photometric"),
     "pixel.footprint": ("learned", "pixel", "surface"),
     "pixel.opacity": ("learned", "opaque"),
@@ -255,7 +255,12 @@ class FusionConfig:
     side: Literal["both", "front", "hidden"] = "both"
     # "seen_through": pixel Gaussians in front of another input view's refined surface (space that view saw
     # empty: flying pixels strung across depth edges) fade by the same rule, so the volume Gaussians behind show
-    pixel_clearing: Literal["none", "seen_through"] = "none"
+    pixel_clearing: Literal["none", "seen_through", "at_depth_edges"] = "none"
+    # "at_depth_edges" (issue 34): the same rule, weighted by how much the pixel sits on a depth edge of its own view
+    # (1 - exp(-g^2 / (2 s^2)), g the largest |log depth| step to a neighbour, s = clearing_edge_step): flying
+    # pixels only exist there, and on smooth depth (a constant or badly scaled prior) the views' disagreement is
+    # the prior's error, which clearing would turn into holes in both views
+    clearing_edge_step: float = 0.05
     # > 0 (with side="hidden"; issue 34): volume Gaussians also fade just *behind* every view's refined surface, by
     # 1 - exp(-e^2 / (2 clearance^2)) for a relative depth e behind it: inside a seen surface they can only leak
     # through the pixel Gaussians' partial coverage; far behind it (hidden space) they stay. 0 = off (the paper)

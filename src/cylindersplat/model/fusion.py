@@ -34,9 +34,10 @@ from torch import Tensor
 from ..gaussians import Gaussians
 from ..geometry import project_equirect, world_to_camera
 from .config import FusionConfig
+from .pixel_branch import depth_edge_confidence
 from .sampling import sample_panorama
 
-__all__ = ["depth_confidence", "hidden_confidence", "fuse", "fuse_gaussians"]
+__all__ = ["depth_confidence", "depth_edginess", "hidden_confidence", "fuse", "fuse_gaussians"]
 
 
 def depth_confidence(
@@ -75,6 +76,13 @@ def hidden_confidence(
     fades, and only space no input view observed keeps full opacity."""
     points = world_to_camera(means_world[:, None], c2w)  # (B, V, N, 3): every point in every view
     return depth_confidence(points, refined_depth, sigma, "front", clearance).prod(dim=1)
+
+
+def depth_edginess(depth: Float[Tensor, "B V H W"], step: float) -> Float[Tensor, "B VHW"]:
+    """Per pixel Gaussian (view-major, row-major pixels), how much its pixel lies on a depth edge of its own view:
+    ``1 - exp(-g^2 / (2 step^2))``, ``g`` the largest ``|log depth|`` step to one of its 8 neighbours."""
+    b, v, h, w = depth.shape
+    return 1 - depth_edge_confidence(depth.reshape(b * v, h, w), step).reshape(b, v * h * w)
 
 
 def fuse_gaussians(
@@ -117,16 +125,19 @@ def fuse(
 ) -> tuple[Gaussians, Float[Tensor, "B N"]]:
     """The model's output Gaussians ``(B, N, ...)`` (pixel then volume) and keep mask from the branches' outputs
     (either may be ``None``: curriculum stages 1 and 2) and every input view's refined depth."""
-    if cfg.pixel_clearing not in ("none", "seen_through"):
-        raise ValueError(f"unknown fusion.pixel_clearing {cfg.pixel_clearing!r}; expected 'none' or 'seen_through'")
+    if cfg.pixel_clearing not in ("none", "seen_through", "at_depth_edges"):
+        raise ValueError(f"unknown fusion.pixel_clearing {cfg.pixel_clearing!r}; "
+                         "expected 'none', 'seen_through' or 'at_depth_edges'")
     volume_gaussians = points = check_depth = None
     if volume is not None:
         volume_gaussians, points, check_depth = volume.gaussians, volume.points_cam, refined_depth
         # side="hidden" checks every Gaussian against every view's depth; a central triplane's only against one view
         if cfg.side != "hidden" and volume.depth_view is not None:
             check_depth = refined_depth[:, volume.depth_view : volume.depth_view + 1]
-        if pixel is not None and cfg.pixel_clearing == "seen_through":
+        if pixel is not None and cfg.pixel_clearing != "none":
             confidence = hidden_confidence(pixel.means, c2w, refined_depth, cfg.sigma)
+            if cfg.pixel_clearing == "at_depth_edges":
+                confidence = 1 - depth_edginess(refined_depth, cfg.clearing_edge_step) * (1 - confidence)
             pixel = replace(pixel, opacities=pixel.opacities * confidence)
     return fuse_gaussians(pixel, volume_gaussians, cfg, points, check_depth, c2w)
 
