@@ -14,7 +14,8 @@
 #   train           one training step of each curriculum stage at 512x1024, batch 1, bf16 autocast;
 #   run             a short training run of the paper config on procedural 256x512 data (loss must fall).
 # Not in the default run (name them): binning (the Triton binning and backward variants side by side, with stages,
-# at 0.1 and 1.3 M Gaussians, 512x1024: `bench render --variants ...`, under a minute),
+# at 0.1 and 1.3 M Gaussians, 512x1024: `bench render --variants ...`, under a minute; then a profile of two
+# of them at 1.3 M, kernel by kernel),
 # model_compiled (the model through torch.compile) and base (the `base`
 # preset trained for at most CHECK_BASE_MINUTES (20) in all, resumed by later calls from $CHECK_BASE_DIR,
 # default outputs/gpu_check_base; at its budget the trainer is interrupted cleanly - a checkpoint - and the
@@ -104,11 +105,13 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
 # Binning variants beside today's (key64,sums), then the backward variants on the fused binning (--stages shows
 # each in its own stage).
 binning_variants="--variants key64,sums depth_tile,sums fused,sums fused,joined fused,chunked4 fused,chunked8"
+profile_variants="--variants key64,sums fused,chunked8"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
   render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
   stages_args=(--num 300 --height 8 --device "$device" --backend triton --stages --repeats 1)
   binning_args=(--num 40 --height 8 --device "$device" --backend triton --stages --repeats 1 $binning_variants)
+  profile_args=(--num 40 --height 8 --device "$device" --backend triton --repeats 1 --profile $profile_variants)
   gsplat_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
   model_args=(--config tiny_paper --height 64 --render --views 1 2 --repeats 1 --device "$device")
   train_args=(--config tiny --height 64 --steps 1 --warmup 0 --lpips off --device "$device")
@@ -127,6 +130,7 @@ else
   render_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --repeats 3)
   stages_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3)
   binning_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3 $binning_variants)
+  profile_args=(--num 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile $profile_variants)
   gsplat_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 3)
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
   train_args=(--config paper --height 512 --steps 3)
@@ -205,7 +209,10 @@ for item in $items; do
       excerpt '^[{#]' "$out/stages.log" ;;
     binning)
       run_item binning "${CHECK_LIMIT_BINNING:-90}" $py -m cylindersplat bench render "${binning_args[@]}"
-      excerpt '^[{#|]' "$out/binning.log" ;;
+      excerpt '^[{#|]' "$out/binning.log"
+      # Where the time goes, kernel by kernel (torch.profiler, device time): today's path and the fused one.
+      run_item binning_profile "${CHECK_LIMIT_BINNING_PROFILE:-45}" $py -m cylindersplat bench render "${profile_args[@]}"
+      excerpt '^[#]\|Self CUDA\|Self CPU\|^ *[a-zA-Z_].*%' "$out/binning_profile.log" ;;
     gsplat)
       if [ -n "$gsplat_build" ]; then  # its background build, within what is left of the budget
         while kill -0 "$gsplat_build" 2>/dev/null && [ "$(left_s)" -gt 15 ]; do sleep 2; done

@@ -169,7 +169,7 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
     return out
 
 
-def profile(num: int, height: int, device: torch.device, backend: str, rows: int = 20) -> None:
+def profile(num: int, height: int, device: torch.device, backend: str, rows: int = 20, label: str | None = None) -> None:
     """Top operators (by device time) of one forward + backward."""
     g = random_indoor(num).to(device)
     for t in g.tensors().values():
@@ -188,7 +188,7 @@ def profile(num: int, height: int, device: torch.device, backend: str, rows: int
         step()
         _sync(device)
     key = "self_device_time_total" if device.type == "cuda" else "self_cpu_time_total"
-    print(f"# profile: {backend}, {num} Gaussians, {height}x{2 * height}, one forward + backward")
+    print(f"# profile: {label or backend}, {num} Gaussians, {height}x{2 * height}, one forward + backward")
     print(prof.key_averages().table(sort_by=key, row_limit=rows, max_name_column_width=60))
 
 
@@ -327,7 +327,7 @@ def main(argv: list[str] | None = None) -> None:
                             rows[-1]["backend"] = f"triton[{triton_binning.BINNING},{triton_backend.BACKWARD}]"
                         print(rows[-1])
                         if args.profile:
-                            profile(num, args.height, torch.device(dev), backend)
+                            profile(num, args.height, torch.device(dev), backend, label=rows[-1]["backend"])
             for row in rows[1:]:
                 print(ratio_line(rows[0], row, dev))
             timed += rows
