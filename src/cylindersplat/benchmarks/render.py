@@ -169,7 +169,8 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
     return out
 
 
-def profile(num: int, height: int, device: torch.device, backend: str, rows: int = 20, label: str | None = None) -> None:
+def profile(num: int, height: int, device: torch.device, backend: str, rows: int = 20,
+            label: str | None = None) -> None:
     """Top operators (by device time) of one forward + backward."""
     g = random_indoor(num).to(device)
     for t in g.tensors().values():
