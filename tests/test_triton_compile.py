@@ -80,6 +80,8 @@ KERNELS = [
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True}),
     (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, "JOINED": False}),
     (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, "JOINED": True}),
+    (triton_kernels.composite_forward_chunked_kernel, {"TILE": 16, "WRAP_U": True, "CHUNK": 8}),
+    (triton_kernels.composite_forward_chunked_kernel, {"TILE": 16, "WRAP_U": False, "CHUNK": 4}),
     (triton_kernels.composite_backward_chunked_kernel, {"TILE": 16, "WRAP_U": True, "CHUNK": 4}),
     (triton_kernels.composite_backward_chunked_kernel, {"TILE": 16, "WRAP_U": False, "CHUNK": 8}),
 ]

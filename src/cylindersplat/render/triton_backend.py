@@ -29,10 +29,10 @@ __all__ = ["triton_available", "triton_backend", "composite_triton", "BACKWARDS"
 
 # The compositing backward's variant: "sums" (:func:`.triton_kernels.composite_backward_kernel`, one pair at a
 # time: ten block-wide sums and ten scalar atomics per pair), "joined" (the same with one block-wide sum of the
-# ten joined and one vector atomic) or "chunked4" / "chunked8" (:func:`.triton_kernels.
-# composite_backward_chunked_kernel`: 4 or 8 pairs at a time, scans along the pairs; 137 / 224 registers a thread
-# for sm_90, no spills - 16 would spill). The same gradients (to float32 rounding); "sums" is the default until
-# they are measured on a GPU. Module-level: the benchmark switches it.
+# ten joined and one vector atomic) or "chunked4" / "chunked8" (the forward and the backward compositing 4 or 8
+# pairs at a time, scans along the pairs: :func:`.triton_kernels.composite_forward_chunked_kernel` and
+# :func:`.triton_kernels.composite_backward_chunked_kernel`). The same images and gradients (to float32
+# rounding); "sums" is the default until they are measured on a GPU. Module-level: the benchmark switches it.
 BACKWARDS = ("sums", "joined", "chunked4", "chunked8")
 BACKWARD = "sums"
 
@@ -52,7 +52,11 @@ class _TritonComposite(torch.autograd.Function):
         grid = (len(tile_start) - 1,)
         args = (height, width, tiles_x, tiles_x * tiles_y, settings.sigma_extent**2, settings.alpha_max,
                 settings.alpha_min, settings.transmittance_min)
-        if grid[0] > 0:
+        if grid[0] > 0 and BACKWARD.startswith("chunked"):  # forward and backward judge termination alike
+            kernels.composite_forward_chunked_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out, *args,
+                                                           TILE=settings.tile_size, WRAP_U=bool(wrap_u),
+                                                           CHUNK=int(BACKWARD[len("chunked"):]))
+        elif grid[0] > 0:
             kernels.composite_forward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out, *args,
                                                    TILE=settings.tile_size, WRAP_U=bool(wrap_u))
         ctx.save_for_backward(packed, pair_gaussian, rows, cols, tile_start, out)

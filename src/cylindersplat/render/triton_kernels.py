@@ -216,21 +216,106 @@ def composite_backward_kernel(
 
 
 @triton.jit
+def _chunk(packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, p0, end, row, col, width, trans, alive,
+           sigma2, alpha_max, alpha_min, t_min, WRAP_U: tl.constexpr, CHUNK: tl.constexpr):
+    """Pairs ``p0 .. p0 + CHUNK - 1`` (those before ``end``) at the tile's pixels: pairs along axis 0,
+    pixels along axis 1, :func:`_fragment`'s arithmetic, and the transmittance by a product scan along
+    the pairs.
+
+    The termination rule is :func:`_transmittance_step`'s: the transmittance only falls along the pairs,
+    so the fragment that brings it below ``t_min`` and every later one fail ``T_after >= t_min``. The
+    products are associated differently from a running product (float32 rounding: a fragment within an
+    ulp of ``t_min`` may be judged differently; the chunked forward and backward judge alike).
+    Returns the pairs' Gaussians and parameters, the fragments' offsets, alpha and weights, and the
+    pixels' transmittance and liveness after the chunk."""
+    p = p0 + tl.arange(0, CHUNK)
+    valid = p < end
+    g = tl.load(pair_gaussian_ptr + p, mask=valid, other=0)
+    base = packed_ptr + g * 11
+    u = tl.load(base + 0, mask=valid, other=0.0)[:, None]
+    v = tl.load(base + 1, mask=valid, other=0.0)[:, None]
+    a = tl.load(base + 2, mask=valid, other=0.0)[:, None]
+    b = tl.load(base + 3, mask=valid, other=0.0)[:, None]
+    c = tl.load(base + 4, mask=valid, other=0.0)[:, None]
+    o = tl.load(base + 5, mask=valid, other=0.0)
+    r0 = tl.load(rows_ptr + 2 * p, mask=valid, other=1)[:, None]  # (1, 0): an empty range past the end
+    r1 = tl.load(rows_ptr + 2 * p + 1, mask=valid, other=0)[:, None]
+    c0 = tl.load(cols_ptr + 2 * p, mask=valid, other=0)[:, None]
+    c1 = tl.load(cols_ptr + 2 * p + 1, mask=valid, other=0)[:, None]
+    du = col[None, :].to(tl.float32) + 0.5 - u
+    if WRAP_U:
+        half = width * 0.5
+        du = du + half
+        du = du - width * tl.floor(du / width) - half
+    dv = row[None, :].to(tl.float32) + 0.5 - v
+    mahal = a * du * du + 2.0 * b * du * dv + c * dv * dv
+    raw = o[:, None] * tl.exp(-0.5 * mahal)
+    alpha = tl.minimum(raw, alpha_max)
+    frag = ((row[None, :] >= r0) & (row[None, :] <= r1) & (col[None, :] >= c0) & (col[None, :] <= c1)
+            & (mahal <= sigma2) & (alpha >= alpha_min) & alive[None, :])
+    keep = tl.where(frag, 1.0 - alpha, 1.0)
+    after = trans[None, :] * tl.cumprod(keep, axis=0)  # T after pair k, inclusive
+    before = after / keep  # keep >= 1 - alpha_max > 0
+    use = frag & (after >= t_min)
+    w = tl.where(use, alpha * before, 0.0)
+    # After the chunk: T after the last used fragment; alive unless a fragment was dropped.
+    trans_next = tl.min(tl.where(use, after, trans[None, :]), axis=0)
+    alive_next = alive & (tl.max((frag & (after < t_min)).to(tl.int32), axis=0) == 0)
+    return g, valid, a, b, c, o, du, dv, alpha, raw, before, use, w, trans_next, alive_next
+
+
+@triton.jit
+def composite_forward_chunked_kernel(
+    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr,
+    height, width, tiles_x, tiles_per_camera,
+    sigma2, alpha_max, alpha_min, t_min,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, CHUNK: tl.constexpr,
+):
+    """:func:`composite_forward_kernel` over ``CHUNK`` pairs at a time (:func:`_chunk`)."""
+    tile = tl.program_id(0)
+    row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
+    start = tl.load(tile_start_ptr + tile)
+    end = tl.load(tile_start_ptr + tile + 1)
+    trans = tl.where(inside, 1.0, 0.0)
+    alive = inside
+    acc_r = tl.zeros([TILE * TILE], dtype=tl.float32)
+    acc_g = tl.zeros([TILE * TILE], dtype=tl.float32)
+    acc_b = tl.zeros([TILE * TILE], dtype=tl.float32)
+    acc_d = tl.zeros([TILE * TILE], dtype=tl.float32)
+    acc_a = tl.zeros([TILE * TILE], dtype=tl.float32)
+    p0 = start
+    n_alive = tl.sum(alive.to(tl.int32), axis=0)
+    while (p0 < end) & (n_alive > 0):
+        g, valid, a, b, c, o, du, dv, alpha, raw, before, use, w, trans, alive = _chunk(
+            packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, p0, end, row, col, width, trans, alive,
+            sigma2, alpha_max, alpha_min, t_min, WRAP_U, CHUNK)
+        base = packed_ptr + g * 11
+        acc_r += tl.sum(w * tl.load(base + 6, mask=valid, other=0.0)[:, None], axis=0)
+        acc_g += tl.sum(w * tl.load(base + 7, mask=valid, other=0.0)[:, None], axis=0)
+        acc_b += tl.sum(w * tl.load(base + 8, mask=valid, other=0.0)[:, None], axis=0)
+        acc_d += tl.sum(w * tl.load(base + 9, mask=valid, other=0.0)[:, None], axis=0)
+        acc_a += tl.sum(w, axis=0)
+        n_alive = tl.sum(alive.to(tl.int32), axis=0)
+        p0 += CHUNK
+    optr = out_ptr + pixel * 5
+    tl.store(optr + 0, acc_r, mask=inside)
+    tl.store(optr + 1, acc_g, mask=inside)
+    tl.store(optr + 2, acc_b, mask=inside)
+    tl.store(optr + 3, acc_d, mask=inside)
+    tl.store(optr + 4, acc_a, mask=inside)
+
+
+@triton.jit
 def composite_backward_chunked_kernel(
     packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr, grad_out_ptr, grad_packed_ptr,
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, CHUNK: tl.constexpr,
 ):
-    """:func:`composite_backward_kernel` over ``CHUNK`` pairs at a time: a ``(CHUNK, pixels)`` block of
-    fragments, the transmittance by a product scan and the running sum ``P`` by a sum scan along the
-    pairs, the per-pair gradients by sums over the pixels and ``CHUNK``-wide atomics - a tile's serial
-    steps (each with its block-wide sums and memory round trips) fall ``CHUNK``-fold.
-
-    The termination rule is the same: the transmittance only falls along the pairs, so the fragment
-    that brings it below ``t_min`` and every later one fail ``T_after >= t_min``. The products and sums
-    are associated differently from the forward's running ones (float32 rounding: a fragment within an
-    ulp of ``t_min`` may be judged differently, as with any backward that recomputes ``T``)."""
+    """:func:`composite_backward_kernel` over ``CHUNK`` pairs at a time (:func:`_chunk`): the running sum
+    ``P`` by a sum scan along the pairs, the per-pair gradients by sums over the pixels and ``CHUNK``-wide
+    atomics - a tile's serial steps (each with its block-wide sums and memory round trips) fall
+    ``CHUNK``-fold."""
     tile = tl.program_id(0)
     row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
@@ -251,47 +336,19 @@ def composite_backward_chunked_kernel(
     p0 = start
     n_alive = tl.sum(alive.to(tl.int32), axis=0)
     while (p0 < end) & (n_alive > 0):
-        p = p0 + tl.arange(0, CHUNK)
-        valid = p < end
-        g = tl.load(pair_gaussian_ptr + p, mask=valid, other=0)
+        g, valid, a, b, c, o, du, dv, alpha, raw, before, use, w, trans, alive = _chunk(
+            packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, p0, end, row, col, width, trans, alive,
+            sigma2, alpha_max, alpha_min, t_min, WRAP_U, CHUNK)
         base = packed_ptr + g * 11
-        u = tl.load(base + 0, mask=valid, other=0.0)[:, None]
-        v = tl.load(base + 1, mask=valid, other=0.0)[:, None]
-        a = tl.load(base + 2, mask=valid, other=0.0)[:, None]
-        b = tl.load(base + 3, mask=valid, other=0.0)[:, None]
-        c = tl.load(base + 4, mask=valid, other=0.0)[:, None]
-        o = tl.load(base + 5, mask=valid, other=0.0)
-        cr = tl.load(base + 6, mask=valid, other=0.0)[:, None]
-        cg = tl.load(base + 7, mask=valid, other=0.0)[:, None]
-        cb = tl.load(base + 8, mask=valid, other=0.0)[:, None]
-        cd = tl.load(base + 9, mask=valid, other=0.0)[:, None]
-        r0 = tl.load(rows_ptr + 2 * p, mask=valid, other=1)[:, None]  # (1, 0): an empty range past the end
-        r1 = tl.load(rows_ptr + 2 * p + 1, mask=valid, other=0)[:, None]
-        c0 = tl.load(cols_ptr + 2 * p, mask=valid, other=0)[:, None]
-        c1 = tl.load(cols_ptr + 2 * p + 1, mask=valid, other=0)[:, None]
-        # The fragments (_fragment's arithmetic), pairs along axis 0 and pixels along axis 1.
-        du = col[None, :].to(tl.float32) + 0.5 - u
-        if WRAP_U:
-            half = width * 0.5
-            du = du + half
-            du = du - width * tl.floor(du / width) - half
-        dv = row[None, :].to(tl.float32) + 0.5 - v
-        mahal = a * du * du + 2.0 * b * du * dv + c * dv * dv
-        raw = o[:, None] * tl.exp(-0.5 * mahal)
-        alpha = tl.minimum(raw, alpha_max)
-        frag = ((row[None, :] >= r0) & (row[None, :] <= r1) & (col[None, :] >= c0) & (col[None, :] <= c1)
-                & (mahal <= sigma2) & (alpha >= alpha_min) & alive[None, :])
-        keep = tl.where(frag, 1.0 - alpha, 1.0)
-        kept = tl.cumprod(keep, axis=0)  # through pair k, inclusive
-        after = trans[None, :] * kept
-        before = after / keep  # keep >= 1 - alpha_max > 0
-        use = frag & (after >= t_min)
-        w = tl.where(use, alpha * before, 0.0)
-        s = g_r[None, :] * cr + g_g[None, :] * cg + g_b[None, :] * cb + g_d[None, :] * cd + g_a[None, :]
+        s = (g_r[None, :] * tl.load(base + 6, mask=valid, other=0.0)[:, None]
+             + g_g[None, :] * tl.load(base + 7, mask=valid, other=0.0)[:, None]
+             + g_b[None, :] * tl.load(base + 8, mask=valid, other=0.0)[:, None]
+             + g_d[None, :] * tl.load(base + 9, mask=valid, other=0.0)[:, None] + g_a[None, :])
         sw = s * w
         running = prefix[None, :] + tl.cumsum(sw, axis=0)  # P through pair k, inclusive
         d_alpha = before * s - (total[None, :] - running) / (1.0 - alpha)
         on = use & (raw < alpha_max)
+        # where(), not a product with 0: alpha, du, dv are garbage (even NaN) outside the support.
         d_mahal = tl.where(on, -0.5 * alpha * d_alpha, 0.0)
         du = tl.where(on, du, 0.0)
         dv = tl.where(on, dv, 0.0)
@@ -307,9 +364,6 @@ def composite_backward_chunked_kernel(
         tl.atomic_add(gp + 7, tl.sum(g_g[None, :] * w, axis=1), mask=used)
         tl.atomic_add(gp + 8, tl.sum(g_b[None, :] * w, axis=1), mask=used)
         tl.atomic_add(gp + 9, tl.sum(g_d[None, :] * w, axis=1), mask=used)
-        # The state after the chunk: T after the last used fragment, alive unless one was dropped.
-        trans = tl.min(tl.where(use, after, trans[None, :]), axis=0)
-        alive = alive & (tl.max((frag & (after < t_min)).to(tl.int32), axis=0) == 0)
         prefix += tl.sum(sw, axis=0)
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
         p0 += CHUNK
