@@ -80,10 +80,12 @@ def _load_spans(g, mask, camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_
 def _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE: tl.constexpr):
     """Tile row, tile column, second-interval flag and global tile id of a Gaussian's ``k``-th pair."""
     nx = nx0 + nx1
-    nx_safe = tl.where(nx > 0, nx, 1)
-    # Every value divided below is >= 0 (Triton's // truncates, torch's floors: they agree there).
-    ty = k // nx_safe + i0 // TILE
-    col = k % nx_safe
+    nx_safe = tl.where(nx > 0, nx, 1).to(tl.int32)
+    # Every value divided below is >= 0 (Triton's // truncates, torch's floors: they agree there). k and nx are
+    # below 2**31 (a pair count): int32, whose division is far cheaper than int64's.
+    k32 = (k + tl.zeros_like(nx_safe)).to(tl.int32)  # (k: a Python int in the interpreter's loops)
+    ty = (k32 // nx_safe).to(tl.int64) + i0 // TILE
+    col = (k32 % nx_safe).to(tl.int64)
     second = col >= nx0
     tx = tl.where(second, a1 // TILE + col - nx0, a0 // TILE + col)
     return ty, tx, second, camera * tiles_per_camera + ty * tiles_x + tx
