@@ -3,7 +3,7 @@
 The arrangement gsplat uses: :func:`.rasterize.tile_spans` counts each Gaussian's tiles, an exclusive
 prefix sum gives every Gaussian its place, a Triton kernel (:mod:`.triton_binning_kernels`) writes
 each pair's key, and one stable sort of the keys (a radix sort on CUDA) orders the pairs by (tile,
-depth) - no depth ranking, no second sort. Two variants (:data:`BINNINGS`), both equal to
+depth) - no depth ranking, no second sort. Three variants (:data:`BINNINGS`), all equal to
 :func:`.rasterize.bin_to_tiles` field by field wherever the depths are float32 (the Triton projection's
 are):
 
@@ -23,7 +23,7 @@ are):
   sum, the emission, the tile sort and the writing kernel.
 
 :data:`BINNING` is the default (``"key64"`` until the variants are measured on a GPU); ``binning=`` picks
-one per call. Both make one host synchronisation: the pair count that sizes the buffers.
+one per call. Each makes one host synchronisation: the pair count that sizes the buffers.
 """
 
 from __future__ import annotations
@@ -125,7 +125,9 @@ def _key_buffers(proj, total, num_tiles):
 
 
 def _centres_and_extents(proj):
-    return proj.uv.detach().contiguous(), proj.extent.detach().to(proj.uv.dtype).contiguous()
+    """``uv`` and ``extent`` in the float type :func:`.rasterize.tile_spans` computes in (their promotion)."""
+    dtype = torch.promote_types(proj.uv.dtype, proj.extent.dtype)
+    return proj.uv.detach().to(dtype).contiguous(), proj.extent.detach().to(dtype).contiguous()
 
 
 def _fused_counts(proj, by_depth, tile_size):
