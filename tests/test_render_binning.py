@@ -137,3 +137,13 @@ def test_unknown_binning_is_refused_by_name():
     proj = _project(Equirect(8, 16), shell_scene(5, seed=37, dtype=F32), torch.eye(4))
     with pytest.raises(ValueError, match="unknown Triton binning 'radix9'.*key64"):
         bin_to_tiles_by_key(proj, 4, binning="radix9")
+
+
+def test_float64_projections_give_the_same_bins():
+    # The fused variant recomputes the spans from uv and extent in their own float type, as tile_spans does.
+    g = shell_scene(60, seed=38, scale=(0.05, 0.5), dtype=torch.float64)
+    k = torch.tensor([[14.0, 0.0, 12.3], [0.0, 15.0, 9.6], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    for camera in (Equirect(16, 32), Pinhole(k, 20, 24)):
+        proj = _project(camera, g, yaw_pose(0.4, dtype=torch.float64))
+        assert proj.uv.dtype == torch.float64
+        _assert_same(proj, 4)
