@@ -69,7 +69,8 @@ KERNELS = [
     (triton_binning_kernels.write_sorted_pairs_kernel, {"TILE": 16, "BLOCK": 128}, {"rank_ptr": "*i32"}),
     # the fused binning, panorama (wrapped columns) and pinhole
     (triton_binning_kernels.count_pairs_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128}),
-    (triton_binning_kernels.count_pairs_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128}),
+    (triton_binning_kernels.count_pairs_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},
+     {"uv_ptr": "*fp64", "ext_ptr": "*fp64"}),  # float64 projections (the reference's, of float64 Gaussians)
     (triton_binning_kernels.emit_fused_keys_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128},
      {"key_ptr": "*i16", "rank_ptr": "*i32"}),
     (triton_binning_kernels.emit_fused_keys_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},
