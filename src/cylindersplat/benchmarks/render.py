@@ -12,7 +12,8 @@ compositing kernels). ``--ply-view N`` also times what a user waits for to see a
 Gaussians loaded and one 512x1024 view rendered (no gradients), per backend. A backend that runs out
 of memory is reported as such in the rows and the closing table (the others are still timed).
 ``--variants BINNING,BACKWARD ...`` times the Triton backend's variants side by side (issue 35): one
-``triton[binning,backward]`` row each, e.g. ``--backend triton --stages --variants key64,sums fused,sums
+``triton[binning,backward]`` row each, then ``# agreement`` lines (each variant's image and gradients against the
+first's, at the timed size), e.g. ``--backend triton --stages --variants key64,sums fused,sums
 fused,joined`` (with ``--stages`` the binning variant shows in ``bin``, the backward one in ``backward``).
 """
 
@@ -227,6 +228,39 @@ def triton_variant_name(text: str) -> tuple[str, str]:
     return binning, backward
 
 
+def variant_agreement(num: int, height: int, device: torch.device, variants: list[tuple[str, str]]) -> list[str]:
+    """``# agreement`` lines: each Triton variant's image and gradients against the first variant's, on the
+    benchmark's scene (the tests check them on small scenes; this, at the timed size)."""
+    g = random_indoor(num).to(device)
+    c2w = torch.eye(4, device=device)
+    results = []
+    for binning, backward in variants:
+        params = {k: v.detach().clone().requires_grad_() for k, v in g.tensors().items()}
+        with triton_variant(binning, backward):
+            try:
+                out = render_equirect(type(g)(**params), c2w, height, 2 * height, backend="triton")
+                weights = torch.linspace(-1.0, 1.0, out.rgb.numel(), device=device).view_as(out.rgb)
+                grads = torch.autograd.grad((weights * out.rgb).sum() + out.depth.sum(), list(params.values()),
+                                            allow_unused=True)
+            except (torch.OutOfMemoryError, MemoryError):
+                results.append(None)
+                continue
+        results.append((out.rgb.detach(), dict(zip(params, grads))))
+        del out
+    lines = []
+    base, name0 = results[0], f"triton[{','.join(variants[0])}]"
+    for (binning, backward), res in zip(variants[1:], results[1:]):
+        head = f"# agreement triton[{binning},{backward}] vs {name0} ({num} Gaussians): "
+        if base is None or res is None:
+            lines.append(head + "out of memory")
+            continue
+        rel = {k: float((res[1][k] - v).abs().max() / v.abs().max().clamp_min(1e-12))
+               for k, v in base[1].items() if v is not None and res[1][k] is not None}
+        lines.append(head + f"rgb max |diff| {float((res[0] - base[0]).abs().max()):.2e}, gradients max |diff| / "
+                     "max |grad|: " + ", ".join(f"{k} {v:.1e}" for k, v in rel.items()))
+    return lines
+
+
 @contextlib.contextmanager
 def triton_variant(binning: str | None, backward: str | None):
     """The Triton backend with the given binning and backward variants (None: the default) while inside."""
@@ -331,6 +365,9 @@ def main(argv: list[str] | None = None) -> None:
                             profile(num, args.height, torch.device(dev), backend, label=rows[-1]["backend"])
             for row in rows[1:]:
                 print(ratio_line(rows[0], row, dev))
+            if "triton" in args.backend and len(args.variants) > 1:
+                for line in variant_agreement(num, args.height, torch.device(dev), args.variants):
+                    print(line)
             timed += rows
         if args.ply_view:
             with tempfile.TemporaryDirectory(prefix="cylindersplat_bench_") as folder:
