@@ -93,8 +93,9 @@ def _say_resized(folder: Path, names: list[str], size: tuple[int, int]) -> None:
         print(f"the panoramas ({stored[0]}x{stored[1]}) are resized to {size[0]}x{size[1]} for the model")
 
 
-def reconstruct_from_args(args: argparse.Namespace):
-    """-> (inputs, gaussians, model) for the parsed options; prints what it did."""
+def reconstruct_from_args(args: argparse.Namespace, layers: bool = False):
+    """-> (inputs, gaussians, model) for the parsed options, with ``front`` (the model's front layer, see
+    :func:`~cylindersplat.inference.pipeline.reconstruct_gaussians`) last when ``layers``; prints what it did."""
     from ..data.depth_prior import parse_depth_prior
     from ..inference import load_panorama_folder, reconstruct_gaussians
     from ..model.pretrained import DEFAULT_PRETRAINED, from_pretrained
@@ -129,9 +130,9 @@ def reconstruct_from_args(args: argparse.Namespace):
     model.config.prior_alignment = "none"
     start = time.perf_counter()
     # the folder's depths were checked just above, by file name: no second, nameless round of the same checks
-    gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, args.min_opacity,
-                                      check_plausibility=False)
+    gaussians, front = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device,
+                                             args.min_opacity, check_plausibility=False, layers=True)
     views = f"{len(inputs.names)} panorama{'s' if len(inputs.names) != 1 else ''}"
     print(f"reconstructed {len(gaussians):,} Gaussians from {views} at "
           f"{size[0]}x{size[1]} in {time.perf_counter() - start:.2f} s on {args.device}")
-    return inputs, gaussians, model
+    return (inputs, gaussians, model, front) if layers else (inputs, gaussians, model)

@@ -229,10 +229,11 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
                                        sample.context_priors, names=["left", "right"])
     inputs = load_panorama_folder(folder, args.resolution)
     model = load_model(checkpoint, map_location=args.device)
-    gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device, min_opacity=0.005)
+    gaussians, front = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device,
+                                             min_opacity=0.005, layers=True)
     h, w = args.resolution
     settings = raster_settings(model.config)  # the model's own drawing (its render_dilation)
-    ours = render_views(gaussians, sample.target_poses, h, w, settings=settings)
+    ours = render_views(gaussians, sample.target_poses, h, w, settings=settings, front=front)
     warp = forward_warp(sample.context_images, sample.context_priors, sample.context_poses, sample.target_poses, h, w,
                         background=(0.0, 0.0, 0.0))
     near, far = depth_limits(sample.target_depths)
@@ -250,7 +251,8 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
           f"RGB | depth) -> {args.out / 'comparison.png'}")
     if args.frames:
         video = write_flythrough(args.out / "flythrough.gif", gaussians, inputs.c2w, h, w, frames=args.frames, fps=8,
-                                 near=near, far=far, settings=settings)
+                                 near=near, far=far, settings=settings,
+                                 front=front)
         print(f"  fly-through -> {video}")
 
 

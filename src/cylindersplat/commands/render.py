@@ -149,10 +149,10 @@ def run(args: argparse.Namespace) -> int:
         gaussians = load_gaussians(args.ply, device=args.device)  # the loader of `view`: every splat format
         print(f"loaded {len(gaussians):,} Gaussians from {args.ply}")
         check_splats_near_origin(gaussians.means, str(args.ply))
-        inputs, settings = None, None  # a splat file is drawn as 3DGS draws it
+        inputs, settings, front = None, None, None  # a splat file is drawn as 3DGS draws it
     else:
-        inputs, gaussians, model = reconstruct_from_args(args)
-        settings = raster_settings(model.config)  # the model's own drawing (its render_dilation)
+        inputs, gaussians, model, front = reconstruct_from_args(args, layers=True)
+        settings = raster_settings(model.config)  # the model's own drawing (its render_dilation and layering)
     h, w = _size(args, inputs.size[0] if inputs is not None else PLY_DEFAULT_HEIGHT)
     camera = _camera(args, h, w)
     record = camera_record(camera, args.fov if args.camera == "pinhole" else None)
@@ -176,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
             view_dir.mkdir(exist_ok=True)
             records, index, covered = [], 0, 0
             for out in iter_views(gaussians, view_poses, h, w, background, args.view_batch, progress=True,
-                                  desc="novel views", camera=camera, settings=settings):
+                                  desc="novel views", camera=camera, settings=settings, front=front):
                 covered += int((out.alpha > 0.5).sum())
                 for k in range(len(out.rgb)):  # written as rendered: memory holds one chunk of views
                     stem = f"view_{index:03d}"
@@ -208,7 +208,7 @@ def run(args: argparse.Namespace) -> int:
                 frames = flythrough_path(keys, args.frames) @ turn
             written = write_flythrough(video, gaussians, None, h, w, fps=args.fps, near=near, far=far,
                                        background=background, camera=camera, poses=frames, chunk=args.view_batch,
-                                       settings=settings)
+                                       settings=settings, front=front)
             poses_file = write_poses_json(args.out / "flythrough_poses.json", [PoseRecord(None, p) for p in frames],
                                           fps=args.fps, camera=record)
             said.append(f"wrote {written} ({len(frames)} frames, RGB above depth) and {poses_file.name}")

@@ -59,9 +59,10 @@ def model_method(model, name: str = "CylinderSplat", device: torch.device | str 
     settings = raster_settings(model.config)
 
     def run(sample: Sample) -> RenderOutput:
-        gaussians = reconstruct(model, sample, device)
+        gaussians, front = reconstruct_gaussians(model, sample.context_images, sample.context_priors,
+                                                 sample.context_poses, device, layers=True)
         h, w = sample.target_images.shape[-2:]
-        return render_views(gaussians, sample.target_poses, h, w, background, settings=settings)
+        return render_views(gaussians, sample.target_poses, h, w, background, settings=settings, front=front)
 
     return Method(name, run)
 

@@ -18,6 +18,7 @@ from ..gaussians import Gaussians
 from ..render import Equirect, RasterSettings, render
 from ..render.api import RenderOutput
 from ..render.cameras import CameraModel
+from ..render.layered import render_layered
 from ..render.rasterize import RenderMemoryError
 from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
@@ -50,7 +51,8 @@ def reconstruct_gaussians(
     min_opacity: float = 0.0,
     amp: str = "auto",
     check_plausibility: bool = True,
-) -> Gaussians:
+    layers: bool = False,
+) -> Gaussians | tuple[Gaussians, int | None]:
     """World-frame Gaussians (unbatched, float32, on ``device``) of one scene; drops those with opacity <=
     ``min_opacity``. ``amp``: ``"auto"`` runs the network under bf16 autocast on CUDA (as training
     does; the Gaussians come out in float32), ``"off"`` in float32 everywhere. A resolution whose
@@ -63,7 +65,12 @@ def reconstruct_gaussians(
     poses (no reflection) within 10 km of the origin; ``min_opacity`` in [0, 1). With ``check_plausibility``
     each view's median positive depth must lie in 1 cm to 1 km (a unit mistake otherwise), and a scene whose
     size suggests one (:func:`~cylindersplat.validation.check_scene_scale`) is warned about. A ``min_opacity``
-    that leaves no Gaussian is an error naming it."""
+    that leaves no Gaussian is an error naming it.
+
+    ``layers``: also return the number of leading Gaussians to draw as a front layer
+    (:func:`~cylindersplat.render.layered.render_layered`; pass it on as ``front=`` to :func:`render_views`,
+    :func:`iter_views` or :func:`write_flythrough`): the pixel Gaussians when the model's ``render_layering`` is
+    ``"pixel_over_volume"`` and it outputs both branches, else ``None`` (one pass)."""
     if amp not in ("auto", "off"):
         raise InputError(f"amp must be 'auto' or 'off', got {amp!r}")
     check_opacity_threshold(min_opacity)
@@ -81,13 +88,19 @@ def reconstruct_gaussians(
     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_bf16):
         out = model(images[None].to(device), depths[None].to(device), c2w[None].to(device))
     gaussians = out.gaussians.detach().to(torch.float32).batch(0)
+    layered = getattr(model.config, "render_layering", "one_pass") == "pixel_over_volume"
+    both = out.pixel_gaussians is not None and out.volume_gaussians is not None
+    front = out.pixel_gaussians.num_gaussians if layered and both else None  # fused: pixel Gaussians first
     if min_opacity > 0:
-        kept = gaussians[gaussians.opacities > min_opacity]
+        keep = gaussians.opacities > min_opacity
+        kept = gaussians[keep]
         if len(kept) == 0 and len(gaussians):  # an empty scene is never what was asked for
             raise InputError(f"min_opacity (--min-opacity) {min_opacity:g} leaves 0 of {len(gaussians):,} Gaussians "
                              f"(the most opaque has {float(gaussians.opacities.max()):.3g}); choose a lower value")
         gaussians = kept
-    return gaussians
+        if front is not None:
+            front = int(keep[:front].sum())
+    return (gaussians, front) if layers else gaussians
 
 
 def raster_settings(model_config) -> RasterSettings:
@@ -111,11 +124,14 @@ def iter_views(
     camera: CameraModel | None = None,
     unit: str = "view",
     settings: RasterSettings | None = None,
+    front: int | None = None,
 ) -> Iterator[RenderOutput]:
     """Render ``K`` views ``chunk`` cameras at a time, yielding each chunk (on the CPU) as soon as it is
     done: a caller that writes and drops them holds at most ``chunk`` views. ``camera``: any camera
     model (default ``Equirect(height, width)``; e.g. ``Pinhole(K, height, width)``); ``settings``: the rasterizer's
-    constants (a model's Gaussians are drawn with :func:`raster_settings` of its config).
+    constants (a model's Gaussians are drawn with :func:`raster_settings` of its config); ``front``: the first
+    ``front`` Gaussians are drawn as a layer over the others (:func:`~cylindersplat.render.layered.render_layered`;
+    :func:`reconstruct_gaussians` with ``layers=True`` gives it), None: one depth-sorted pass.
 
     ``chunk=None`` batches automatically: :data:`AUTO_VIEWS_AT_ONCE` views at a time, halved (down to one, with
     a :class:`~cylindersplat.utils.notices.Notice`) whenever the renderer refuses a batch for memory
@@ -132,8 +148,12 @@ def iter_views(
     try:
         while start < len(c2w):
             try:
-                out = render(gaussians, c2w[start:start + at_once].to(device), camera, background=background,
-                             settings=settings)
+                poses = c2w[start:start + at_once].to(device)
+                if front is None:
+                    out = render(gaussians, poses, camera, background=background, settings=settings)
+                else:
+                    out = render_layered(gaussians[:front], gaussians[front:], poses, camera, background=background,
+                                         settings=settings)
             except RenderMemoryError:
                 if chunk is not None or at_once == 1 or len(c2w) - start == 1:
                     raise
@@ -158,11 +178,13 @@ def render_views(
     desc: str = "render",
     camera: CameraModel | None = None,
     settings: RasterSettings | None = None,
+    front: int | None = None,
 ) -> RenderOutput:
     """Render ``K`` views (default panoramas; ``camera`` any camera model) in chunks of ``chunk`` cameras
-    (bounded render memory; None: automatic, see :func:`iter_views`); all results on the CPU, stacked."""
+    (bounded render memory; None: automatic, see :func:`iter_views`; ``front``: as there); all results on the
+    CPU, stacked."""
     parts = list(iter_views(gaussians, c2w, height, width, background, chunk, progress, desc, camera,
-                            settings=settings))
+                            settings=settings, front=front))
     return RenderOutput(*(torch.cat([getattr(p, k) for p in parts]) for k in ("rgb", "depth", "alpha")))
 
 
@@ -245,18 +267,20 @@ def write_flythrough(
     chunk: int | None = 2,
     progress: bool = True,
     settings: RasterSettings | None = None,
+    front: int | None = None,
 ) -> Path:
     """Render a looped path of ``frames`` poses through the cameras ``c2w`` (or exactly the poses ``poses``,
     one frame each) as RGB above depth and stream the frames into a video (``.gif``, or ``.mp4``/``.webm``
     with ffmpeg): ``chunk`` frames are rendered at a time (None: automatic, see :func:`iter_views`) and written
     at once, so memory never holds the whole video. ``camera``: default panoramas, or e.g.
     ``Pinhole(K, height, width)`` for a perspective fly-through; ``settings``: the rasterizer's constants (a model's
-    :func:`raster_settings`). Returns the video's path; nothing is left at ``path`` if rendering or writing fails."""
+    :func:`raster_settings`; ``front``: as :func:`iter_views`). Returns the video's path; nothing is left at ``path``
+    if rendering or writing fails."""
     if poses is None:
         poses = flythrough_path(c2w, frames, loop=True)
     with VideoWriter(path, fps) as video:
         for out in iter_views(gaussians, poses, height, width, background, chunk, progress, "fly-through", camera,
-                              "frame", settings):
+                              "frame", settings, front):
             for i in range(len(out.rgb)):
                 video.append(view_picture(out.rgb[i], out.depth[i], out.alpha[i], near, far))
     return video.path

@@ -79,6 +79,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "fusion.strategy": ("concat", "depth_prune"),
     "fusion.side": ("both", "front", "hidden"),
     "fusion.pixel_clearing": ("none", "seen_through", "at_depth_edges"),
+    "render_layering": ("one_pass", "pixel_over_volume"),
     "prior_alignment": ("none", "photometric"),
     "pixel.footprint": ("learned", "pixel", "surface"),
     "pixel.opacity": ("learned", "opaque"),
@@ -285,6 +286,11 @@ class ModelConfig:
     # evaluation and rendering; 0.3 is 3DGS's low-pass (the paper). Issue 34: it blurs pixel-sized splats below the
     # sharpness of a forward warp (docs/model.md, "Sharp pixel Gaussians"). Viewers of an exported PLY use their own.
     render_dilation: float = 0.3
+    # "one_pass" (the paper): all Gaussians drawn in one depth-sorted pass. "pixel_over_volume" (issue 34): the pixel
+    # Gaussians (seen surfaces) drawn as a layer over the volume Gaussians, opaque where they cover a pixel
+    # (cylindersplat.render.layered): the volume fills what they leave uncovered instead of showing through their
+    # partial coverage. Used by eval, render and the demo; training and exported splat files draw one pass
+    render_layering: Literal["one_pass", "pixel_over_volume"] = "one_pass"
 
     def validate(self) -> "ModelConfig":
         """Raise ``ValueError`` naming the first inconsistent field; return ``self``."""
