@@ -151,6 +151,7 @@ def clearing_probe(weights: Path, data: Path) -> dict[str, dict[str, float]]:
 
     from cylindersplat.evaluation.masked import masked_ws_psnr
     from cylindersplat.model import load_model
+    from cylindersplat.model.config import set_dotted
     from cylindersplat.model.fusion import hidden_confidence
     from cylindersplat.render import render_equirect
 
@@ -163,8 +164,7 @@ def clearing_probe(weights: Path, data: Path) -> dict[str, dict[str, float]]:
         model = load_model(weights).eval()
         for key, value in changes.items():
             if key != "oracle":
-                section, field = key.split(".")
-                setattr(getattr(model.config, section), field, value)
+                set_dotted(model.config, key, value)
         for sample, mask, weight in hidden_targets(data):
             h, w = mask.shape
             c2w = sample.context_poses[None]
