@@ -90,12 +90,12 @@ def test_a_field_below_a_value_is_refused_on_a_config():
 
 # -- the one choice table --------------------------------------------------------------------------------------
 
-TRAINING_CHOICES = [key for key in CHOICES if key.split(".")[0] in ("train", "loss")]
+TRAINING_CHOICES = [key for key in CHOICES if key.split(".")[0] in ("train", "loss", "data")]
 
 
 def test_the_training_choices_are_in_the_table():
     assert set(TRAINING_CHOICES) == {"train.amp", "train.stage2_render", "loss.use_lpips", "loss.volume_loss",
-                                     "loss.pixel_stage_hidden"}
+                                     "loss.pixel_stage_hidden", "data.augment"}
 
 
 @pytest.mark.parametrize("key", TRAINING_CHOICES)

@@ -92,6 +92,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "loss.use_lpips": ("auto", "on", "off"),
     "loss.volume_loss": ("scaled", "released"),
     "loss.pixel_stage_hidden": ("fill", "leave"),
+    "data.augment": ("none", "captures"),  # training/config.py's DataConfig (cylindersplat.data.augment)
 }
 
 

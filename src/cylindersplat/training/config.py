@@ -19,6 +19,7 @@ from typing import Any, Literal
 
 import yaml
 
+from ..data.augment import CaptureAugment
 from ..data.datasets import check_reference_spec
 from ..dataset_layouts import DATASET_SPECS
 from ..model.config import CHOICES, ModelConfig, config_to_dict, get_config, set_dotted
@@ -57,6 +58,11 @@ class DataConfig:
     check_plausibility: bool = True
     batch_size: int = 1  # per process
     num_workers: int = 0
+    # Training samples that look like captures (cylindersplat.data.augment; never applied to evaluation): "captures"
+    # gives each context view its own exposure, white balance, sensor noise, JPEG and a small pose error (the targets
+    # stay clean); data.captures.* sets the magnitudes (docs/training.md, "Capture-like training data")
+    augment: Literal["none", "captures"] = "none"
+    captures: CaptureAugment = field(default_factory=CaptureAugment)
 
 
 @dataclass
@@ -285,6 +291,7 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
         raise ValueError(f"loss.volume_weight must be >= 0, got {cfg.loss.volume_weight}")
     if not cfg.train.volume_lr_scale > 0:
         raise ValueError(f"train.volume_lr_scale must be > 0, got {cfg.train.volume_lr_scale}")
+    cfg.data.captures.validate()
     if cfg.train.max_nonfinite_steps < 0:
         raise ValueError("train.max_nonfinite_steps must be >= 0 (0 = never give up), got "
                          f"{cfg.train.max_nonfinite_steps}")

@@ -14,6 +14,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Sampler
 
 from ..data import collate_samples
+from ..data.augment import CaptureAugmentedDataset
 from ..data.datasets import make_dataset
 from .config import DataConfig
 from .losses import LossConfig
@@ -23,14 +24,18 @@ __all__ = ["build_dataset", "ResumableBatchSampler", "build_loader"]
 
 def build_dataset(cfg: DataConfig, loss: LossConfig | None = None) -> Dataset:
     """The dataset of ``data.*`` (layouts: :data:`cylindersplat.data.DATASETS`), delivering the depth loss's
-    reference (``loss.depth_reference``) when ``loss`` is given and its depth term is on. Missing priors,
+    reference (``loss.depth_reference``) when ``loss`` is given and its depth term is on, its context views changed as
+    a capture's (:mod:`cylindersplat.data.augment`) when ``data.augment=captures``. Missing priors,
     prior files or reference depths fail here, before any step."""
     if not cfg.root:
         raise ValueError("data.root is not set: give a dataset folder (e.g. from `cylindersplat data synth`)")
     reference = loss.depth_reference if loss is not None and loss.depth_l1 > 0 else "none"
-    return make_dataset(cfg.format, cfg.root, views=cfg.views, split=cfg.split, resolution=cfg.resolution,
-                        depth_prior=cfg.depth_prior, reference=reference, check_plausibility=cfg.check_plausibility,
-                        **cfg.options)
+    dataset = make_dataset(cfg.format, cfg.root, views=cfg.views, split=cfg.split, resolution=cfg.resolution,
+                           depth_prior=cfg.depth_prior, reference=reference, check_plausibility=cfg.check_plausibility,
+                           **cfg.options)
+    if cfg.augment == "captures":  # training samples only: evaluation opens its datasets with make_dataset
+        return CaptureAugmentedDataset(dataset, cfg.captures)
+    return dataset
 
 
 class ResumableBatchSampler(Sampler[list[int]]):
