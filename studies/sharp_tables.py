@@ -35,6 +35,9 @@ ROWS = (
     ("its pixel branch + best fill", lambda b: best_fill(b, SHIPPED)),
     ("same weights, the paper's drawing", lambda b: b.get(PAPER)),
     ("that pixel branch + best fill", lambda b: best_fill(b, PAPER)),
+    ("shipped, drawn as layers (option `render_layering=pixel_over_volume`)", lambda b: b.get(f"{SHIPPED} + layers")),
+    ("shipped, pixel clearing everywhere (`fusion.pixel_clearing=seen_through`, the drawing before)",
+     lambda b: b.get(f"{SHIPPED} + clearing seen_through")),
 )
 
 

@@ -26,7 +26,8 @@ from cylindersplat.model.pretrained import from_pretrained
 SHARP = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5, "pixel.opacity": "opaque"}
 # the shipped weights' drawing: configs/recipes/tiny_sharp.yaml
 RECIPE = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5, "pixel.opacity": "opaque",
-          "pixel.refine_depth": "where_missing", "fusion.surface_clearance": 0.2}
+          "pixel.refine_depth": "where_missing", "fusion.surface_clearance": 0.2,
+          "fusion.pixel_clearing": "at_depth_edges"}
 VARIANTS = {
     "shipped": {},
     "dilation 0": {"render_dilation": 0.0},
@@ -45,6 +46,9 @@ VARIANTS = {
     "tiny_sharp": RECIPE,
     "tiny (the paper's drawing)": "paper",
     **{f"tiny_sharp + clearance {c:g}": {**RECIPE, "fusion.surface_clearance": c} for c in (0.0, 0.05, 0.1, 0.4)},
+    "tiny_sharp + layers": {**RECIPE, "render_layering": "pixel_over_volume"},
+    "tiny_sharp + clearing seen_through": {**RECIPE, "fusion.pixel_clearing": "seen_through"},
+    "tiny_sharp + no clearing": {**RECIPE, "fusion.pixel_clearing": "none"},
     **{f"tiny_sharp + fusion sigma {v:g}": {**RECIPE, "fusion.sigma": v} for v in (0.02, 0.05)},
     **{f"tiny_sharp + footprint {f:g}": {**RECIPE, "pixel.footprint_px": f} for f in (0.4, 0.6, 0.7)},
     **{f"tiny_sharp + refinement within {m:g}": {**RECIPE, "pixel.refine_depth": "everywhere",
@@ -67,7 +71,8 @@ def main() -> None:
     args = p.parse_args()
     base = from_pretrained(args.checkpoint)
     paper = {"render_dilation": 0.3, "pixel.footprint": "learned", "pixel.opacity": "learned",
-             "pixel.refine_depth": "everywhere", "fusion.surface_clearance": 0.0}
+             "pixel.refine_depth": "everywhere", "fusion.surface_clearance": 0.0,
+             "fusion.pixel_clearing": "seen_through", "render_layering": "one_pass"}
     models = {name: base.with_config(**(paper if VARIANTS[name] == "paper" else VARIANTS[name]))
               for name in args.variants.split(",")}
     results = {}
