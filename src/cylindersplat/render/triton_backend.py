@@ -25,7 +25,7 @@ from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings
 from .rasterize import TileBins, pack_projected, unpack_composited
 from .triton_binning import bin_to_tiles_by_key
 
-__all__ = ["triton_available", "triton_backend", "composite_triton", "BACKWARDS", "BACKWARD"]
+__all__ = ["triton_available", "triton_backend", "composite_triton", "BACKWARDS", "BACKWARD", "FORWARDS", "FORWARD"]
 
 # The compositing backward's variant: "sums" (:func:`.triton_kernels.composite_backward_kernel`, one pair at a
 # time: ten block-wide sums and ten scalar atomics per pair), "joined" (the same with one block-wide sum of the
@@ -37,6 +37,14 @@ __all__ = ["triton_available", "triton_backend", "composite_triton", "BACKWARDS"
 # benchmark switches it.
 BACKWARDS = ("sums", "joined", "chunked4", "chunked8")
 BACKWARD = "joined"
+
+# The forward path's variant: "default" (the binning of :data:`.triton_binning.BINNING`, which reads the pair count
+# on the host before sizing its buffers, then compositing) or "lean" (:func:`_lean_backend`: the fused binning's
+# kernels in buffers of a cached, growing capacity, no host synchronisation before the compositing is queued; the
+# pair count is read once after it, and the binning and compositing rerun with a larger capacity where the pairs
+# did not fit). The same images and gradients. Module-level: the benchmark switches it.
+FORWARDS = ("default", "lean")
+FORWARD = "default"
 
 
 def triton_available() -> bool:
@@ -111,5 +119,30 @@ def triton_backend(proj: ProjectedGaussians, settings: RasterSettings, backgroun
     any camera model -> ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
     if settings.tile_size & (settings.tile_size - 1):
         raise UnsupportedSettings(f"the Triton backend needs a power-of-two tile size, got {settings.tile_size}")
+    if FORWARD not in FORWARDS:
+        raise ValueError(f"unknown Triton forward {FORWARD!r}: choose one of {', '.join(FORWARDS)}")
+    if FORWARD == "lean":
+        return _lean_backend(proj, settings, background)
     bins = bin_to_tiles_by_key(proj, settings.tile_size)
     return composite_triton(proj, bins, settings, background)
+
+
+def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background: Tensor | None):
+    """The ``"lean"`` forward: :func:`.triton_binning.bin_lean` into the cached capacity of this kind of render,
+    compositing, then one read of the pair count (the GPU has the whole forward queued by then); where the pairs
+    did not fit, the capacity grows to hold them and the binning and compositing run again: no pair is dropped."""
+    from .triton_binning import bin_lean, grow_capacity, lean_capacity
+
+    key, capacity = lean_capacity(proj, settings.tile_size)
+    packed = pack_projected(proj)
+    h, w, c = proj.height, proj.width, proj.num_cameras
+    while True:
+        bins = bin_lean(proj, settings.tile_size, capacity)
+        out = _TritonComposite.apply(packed.float().contiguous(), bins.gaussian, bins.rows, bins.cols,
+                                     bins.tile_start, c * h * w, h, w, bins.tiles_x, bins.tiles_y, proj.wrap_u,
+                                     settings)
+        needed = int(bins.total)  # the one host synchronisation, after the compositing is queued
+        if needed <= capacity:
+            break
+        capacity = grow_capacity(key, needed)
+    return unpack_composited(out.to(packed.dtype), proj, background)

@@ -30,13 +30,14 @@ bins; ``binning=`` picks one per call. Each makes one host synchronisation: the 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 
 from .projection import ProjectedGaussians
 from .rasterize import TileBins, tile_spans
 
-__all__ = ["BINNINGS", "BINNING", "bin_to_tiles_by_key"]
+__all__ = ["BINNINGS", "BINNING", "bin_to_tiles_by_key", "bin_lean", "LeanBins"]
 
 BINNINGS = ("key64", "depth_tile", "fused")
 BINNING = "fused"  # the default variant (module-level: the benchmark switches it)
@@ -166,3 +167,94 @@ def _bin_fused(proj, by_depth, ends, total, tile_size) -> TileBins:
         *head, order, rank, gaussian, tile, rows, cols, shift, total, proj.height, proj.width, tiles_x,
         tiles_per_camera, **constants)
     return TileBins(gaussian, tile, rows, cols, shift, tiles_x, tiles_y)
+
+
+# The lean binning's pair capacity per (device, cameras, height, width, tile size): it grows (with headroom) when
+# a render needs more, so that after the first renders of a kind the buffers are sized without reading the pair
+# count on the host (:func:`bin_lean`).
+_CAPACITY: dict = {}
+CAPACITY_HEADROOM = 1.25
+
+
+@dataclass
+class LeanBins:
+    """The lean binning's pairs, sorted by (tile, depth) in buffers of ``capacity`` places.
+
+    gaussian: (capacity,) int32 row of the ProjectedGaussians; rows/cols: (capacity, 2) int32 inclusive pixel
+    ranges (:class:`.rasterize.TileBins`); tile_start: (num_tiles + 1,) int64 first place of each tile (the
+    last: the number of places used); total: (1,) int64 on the device, the pair count, which may exceed
+    ``capacity`` (then the bins are incomplete: :func:`bin_lean` with a larger capacity)."""
+
+    gaussian: torch.Tensor
+    rows: torch.Tensor
+    cols: torch.Tensor
+    tile_start: torch.Tensor
+    total: torch.Tensor
+    capacity: int
+    tiles_x: int
+    tiles_y: int
+
+
+def lean_capacity(proj: ProjectedGaussians, tile_size: int) -> tuple[tuple, int]:
+    """The cache key of ``proj``'s kind of render and its current pair capacity (first guess: 4 per Gaussian)."""
+    key = (str(proj.camera.device), proj.num_cameras, proj.height, proj.width, tile_size)
+    return key, _CAPACITY.get(key, 4 * len(proj.depth) + 1024)
+
+
+def grow_capacity(key: tuple, needed: int) -> int:
+    """Record that ``needed`` pairs did not fit: the new capacity for ``key`` (with headroom)."""
+    _CAPACITY[key] = max(_CAPACITY.get(key, 0), int(needed * CAPACITY_HEADROOM) + 1024)
+    return _CAPACITY[key]
+
+
+def _strided_rows(x: torch.Tensor) -> tuple[torch.Tensor, int]:
+    """``x (M, k)`` float with unit column stride, and its row stride (a copy only where the columns are apart)."""
+    if x.stride(-1) != 1 or x.dtype not in (torch.float32, torch.float64):
+        x = x.float().contiguous()
+    return x, (x.stride(0) if len(x) > 1 else x.shape[1])
+
+
+def bin_lean(proj: ProjectedGaussians, tile_size: int, capacity: int) -> LeanBins:
+    """The ``"fused"`` binning without a host synchronisation: the centres and extents read in place, buffers of
+    ``capacity`` pairs (the padding sorts last), int32 pair fields and the tiles' first places written by the last
+    kernel. Six launches and a sort: depth sort, count, prefix sum, key fill, emission, tile sort, writing."""
+    from . import triton_binning_kernels as kernels
+
+    device = proj.camera.device
+    num = len(proj.depth)
+    tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
+    tiles_per_camera = tiles_x * tiles_y
+    num_tiles = proj.num_cameras * tiles_per_camera
+    uv, uv_stride = _strided_rows(proj.uv.detach())
+    ext, ext_stride = _strided_rows(proj.extent.detach())
+    if ext.dtype != uv.dtype:  # tile_spans computes in the promoted type
+        uv, ext = uv.to(torch.float64).contiguous(), ext.to(torch.float64).contiguous()
+        uv_stride = ext_stride = 2
+    constants = dict(TILE=tile_size, WRAP_U=bool(proj.wrap_u), BLOCK=_BLOCK)
+    if num:
+        by_depth = torch.sort(proj.depth.detach().float(), stable=True).indices
+        counts = torch.empty(num, dtype=torch.int64, device=device)
+        kernels.count_lean_kernel[((num + _BLOCK - 1) // _BLOCK,)](
+            uv, ext, by_depth, counts, num, proj.height, proj.width, uv_stride, ext_stride, **constants)
+        ends = torch.cumsum(counts, 0)
+        total = ends[-1:]
+    else:
+        by_depth = ends = torch.zeros(1, dtype=torch.int64, device=device)
+        total = ends
+    key_dtype = tile_key_dtype(num_tiles)
+    keys = torch.full((capacity,), torch.iinfo(key_dtype).max, dtype=key_dtype, device=device)  # padding: last
+    rank = torch.empty(capacity, dtype=torch.int32, device=device)
+    head = (uv, ext, proj.camera, by_depth, ends)
+    if num:
+        kernels.emit_lean_keys_kernel[((num + _BLOCK - 1) // _BLOCK,)](
+            *head, keys, rank, num, capacity, proj.height, proj.width, uv_stride, ext_stride, tiles_x,
+            tiles_per_camera, **constants)
+    sorted_keys, order = torch.sort(keys, stable=True)  # by tile; within a tile, emission (= depth) order
+    gaussian = torch.empty(capacity, dtype=torch.int32, device=device)
+    rows = torch.empty(capacity, 2, dtype=torch.int32, device=device)
+    cols = torch.empty(capacity, 2, dtype=torch.int32, device=device)
+    tile_start = torch.empty(num_tiles + 1, dtype=torch.int64, device=device)
+    kernels.write_lean_pairs_kernel[(capacity // _BLOCK + 1,)](
+        *head, total, order, sorted_keys, rank, gaussian, rows, cols, tile_start, capacity, num_tiles, proj.height,
+        proj.width, uv_stride, ext_stride, tiles_x, tiles_per_camera, **constants)
+    return LeanBins(gaussian, rows, cols, tile_start, total, capacity, tiles_x, tiles_y)

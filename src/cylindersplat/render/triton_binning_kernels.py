@@ -147,10 +147,18 @@ def write_sorted_pairs_kernel(
 def _spans_of(uv_ptr, ext_ptr, g, mask, height, width, TILE: tl.constexpr, WRAP_U: tl.constexpr):
     """:func:`.rasterize.tile_spans` of Gaussians ``g``, computed from their centres and extents, the same
     arithmetic in the same float type: ``(i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1)``."""
-    u = tl.load(uv_ptr + 2 * g, mask=mask, other=0.0)
-    v = tl.load(uv_ptr + 2 * g + 1, mask=mask, other=0.0)
-    eu = tl.load(ext_ptr + 2 * g, mask=mask, other=0.0)
-    ev = tl.load(ext_ptr + 2 * g + 1, mask=mask, other=0.0)
+    return _spans_strided(uv_ptr, ext_ptr, 2, 2, g, mask, height, width, TILE, WRAP_U)
+
+
+@triton.jit
+def _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask, height, width, TILE: tl.constexpr,
+                   WRAP_U: tl.constexpr):
+    """:func:`_spans_of` with the centres and extents ``uv_stride`` / ``ext_stride`` elements apart (rows of a
+    wider tensor, e.g. the projection's ``(M, 8)`` rows, read in place)."""
+    u = tl.load(uv_ptr + uv_stride * g, mask=mask, other=0.0)
+    v = tl.load(uv_ptr + uv_stride * g + 1, mask=mask, other=0.0)
+    eu = tl.load(ext_ptr + ext_stride * g, mask=mask, other=0.0)
+    ev = tl.load(ext_ptr + ext_stride * g + 1, mask=mask, other=0.0)
     i0 = tl.maximum(tl.ceil(v - ev - 0.5), 0.0).to(tl.int64)
     i1 = tl.minimum(tl.floor(v + ev - 0.5), height - 1.0).to(tl.int64)
     j0 = tl.ceil(u - eu - 0.5).to(tl.int64)
@@ -241,3 +249,88 @@ def write_fused_pairs_kernel(
     tl.store(cols_ptr + 2 * q, tl.maximum(lo, tx * TILE), mask=mask)
     tl.store(cols_ptr + 2 * q + 1, tl.minimum(hi, tx * TILE + TILE - 1), mask=mask)
     tl.store(shift_ptr + q, a0 - j0 - tl.where(second, width, 0), mask=mask)
+
+
+# The lean binning (:func:`.triton_binning.bin_lean`): the fused binning's three kernels reading the centres and
+# extents in place (strided), into buffers of a cached capacity that the device-side pair count may exceed
+# (nothing is written past it: the caller reruns with a larger one), with int32 pair fields and the tiles'
+# first places written by the last kernel (no tile ids, no column shifts, no searchsorted).
+
+
+@triton.jit
+def count_lean_kernel(
+    uv_ptr, ext_ptr, by_depth_ptr, count_ptr, num_gaussians, height, width, uv_stride, ext_stride,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
+):
+    """:func:`count_pairs_kernel` on strided centres and extents."""
+    i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    mask = i < num_gaussians
+    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
+    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
+                                                              height, width, TILE, WRAP_U)
+    tl.store(count_ptr + i, ny * (nx0 + nx1), mask=mask)
+
+
+@triton.jit
+def emit_lean_keys_kernel(
+    uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, key_ptr, rank_ptr,
+    num_gaussians, capacity, height, width, uv_stride, ext_stride, tiles_x, tiles_per_camera,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
+):
+    """:func:`emit_fused_keys_kernel` on strided centres and extents; places at or past ``capacity`` are not
+    written (the pair count, ``end[-1]``, tells the caller to rerun with more)."""
+    i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    mask = i < num_gaussians
+    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
+    camera = tl.load(camera_ptr + g, mask=mask, other=0)
+    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
+                                                              height, width, TILE, WRAP_U)
+    count = ny * (nx0 + nx1)
+    start = tl.load(end_ptr + i, mask=mask, other=0) - count
+    for k in range(0, tl.max(count, axis=0)):
+        on = mask & (k < count) & (start + k < capacity)
+        ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
+        tl.store(key_ptr + start + k, tile.to(key_ptr.dtype.element_ty), mask=on)
+        tl.store(rank_ptr + start + k, i.to(tl.int32), mask=on)
+
+
+@triton.jit
+def write_lean_pairs_kernel(
+    uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, total_ptr, order_ptr, sorted_key_ptr, rank_ptr,
+    gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr,
+    capacity, num_tiles, height, width, uv_stride, ext_stride, tiles_x, tiles_per_camera,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
+):
+    """:func:`write_fused_pairs_kernel` on strided centres and extents, int32 fields (Gaussian row, pixel rows
+    and columns) for the ``used = min(total, capacity)`` sorted places, and the tiles' first places: lane
+    ``q <= used`` writes ``tile_start[t] = q`` for the tiles ``t`` after the previous place's and up to its own
+    (a place ``>= used`` counts as past every tile, so ``tile_start[num_tiles] = used``). Launch with at least
+    ``capacity + 1`` lanes."""
+    q = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    used = tl.minimum(tl.load(total_ptr), capacity)
+    mask = q < used
+    at = tl.load(order_ptr + q, mask=mask, other=0)
+    i = tl.load(rank_ptr + at, mask=mask, other=0)
+    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
+    camera = tl.load(camera_ptr + g, mask=mask, other=0)
+    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
+                                                              height, width, TILE, WRAP_U)
+    k = at - (tl.load(end_ptr + i, mask=mask, other=0) - ny * (nx0 + nx1))
+    ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
+    lo = tl.where(second, a1, a0)
+    hi = tl.where(second, b1, b0)
+    tl.store(gaussian_ptr + q, g.to(tl.int32), mask=mask)
+    tl.store(rows_ptr + 2 * q, tl.maximum(i0, ty * TILE).to(tl.int32), mask=mask)
+    tl.store(rows_ptr + 2 * q + 1, tl.minimum(i1, ty * TILE + TILE - 1).to(tl.int32), mask=mask)
+    tl.store(cols_ptr + 2 * q, tl.maximum(lo, tx * TILE).to(tl.int32), mask=mask)
+    tl.store(cols_ptr + 2 * q + 1, tl.minimum(hi, tx * TILE + TILE - 1).to(tl.int32), mask=mask)
+    # The tiles' first places, from the sorted keys (every key < num_tiles).
+    key = tl.load(sorted_key_ptr + q, mask=mask, other=0).to(tl.int32)
+    key = tl.where(mask, key, num_tiles)
+    before = (q > 0) & (q <= used)  # lanes with a previous place
+    prev = tl.load(sorted_key_ptr + q - 1, mask=before, other=0).to(tl.int32)
+    prev = tl.where(before, prev, -1)
+    active = q <= used
+    gap = tl.where(active, key - prev, 0)
+    for t in range(1, tl.max(gap, axis=0) + 1):
+        tl.store(tile_start_ptr + prev + t, q.to(tl.int64), mask=active & (t <= gap))
