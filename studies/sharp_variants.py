@@ -49,6 +49,7 @@ VARIANTS = {
     "tiny_sharp + layers": {**RECIPE, "render_layering": "pixel_over_volume"},
     "tiny_sharp + clearing seen_through": {**RECIPE, "fusion.pixel_clearing": "seen_through"},
     "tiny_sharp + no clearing": {**RECIPE, "fusion.pixel_clearing": "none"},
+    **{f"tiny_sharp + edge step {e:g}": {**RECIPE, "fusion.clearing_edge_step": e} for e in (0.02, 0.1)},
     **{f"tiny_sharp + fusion sigma {v:g}": {**RECIPE, "fusion.sigma": v} for v in (0.02, 0.05)},
     **{f"tiny_sharp + footprint {f:g}": {**RECIPE, "pixel.footprint_px": f} for f in (0.4, 0.6, 0.7)},
     **{f"tiny_sharp + refinement within {m:g}": {**RECIPE, "pixel.refine_depth": "everywhere",

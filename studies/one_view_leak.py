@@ -1,0 +1,153 @@
+"""Issue 34: why the volume branch costs the shipped weights 1.2-1.6 dB with one view in, and the drawings tried
+against it (benchmarks/RESULTS.md, "Sharp as a warp", items 2, 3 and 5).
+
+    python studies/one_view_leak.py --data <pano_grf fixture> --out studies/results/one_view_leak_fixture.json
+    python studies/one_view_leak.py --data SYNTH --format synthetic --scenes 00000020,...,00000027 \\
+        --priors default,gt --out studies/results/one_view_leak_synthetic.json
+
+Every row draws the same forward pass of the shipped weights (with the inpaint fill behind, as FW + inpaint has):
+
+* ``one pass``: the shipped drawing; ``pixel branch``: its pixel Gaussians alone;
+* ``layers, over``: pixel Gaussians over volume Gaussians with the plain over operator (only the order changes);
+* ``layers, cover LOW-HIGH``: the layered drawing, the front layer opaque from coverage HIGH (render.layered);
+* ``layers, front opacity >= T``: only pixel Gaussians of opacity >= T in the front layer (edge-faded ones behind);
+* ``volume near edges, R``: volume Gaussians kept only within R x H pixels of a depth edge of some input view;
+* ``pixel opacity x K``: pixel Gaussians' opacities scaled by K (alpha capped at 0.99 as ever; not a valid 3DGS
+  scene, an experiment only).
+
+Per protocol and prior: WS-PSNR on all and hidden pixels, SSIM. Results are appended to ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+from cylindersplat.data.datasets import make_dataset
+from cylindersplat.evaluation.evaluate import evaluate
+from cylindersplat.evaluation.methods import Method, model_method, with_fill
+from cylindersplat.geometry import project_equirect, world_to_camera
+from cylindersplat.inference.pipeline import raster_settings, render_views
+from cylindersplat.model.fusion import depth_edginess
+from cylindersplat.model.pretrained import from_pretrained
+from cylindersplat.model.sampling import sample_panorama
+from cylindersplat.render import Equirect
+from cylindersplat.render.layered import composite_layers, render_layered
+
+
+def _forward(model, sample):
+    out = model(sample.context_images[None], sample.context_priors[None], sample.context_poses[None])
+    return out, out.gaussians.batch(0), out.pixel_gaussians.num_gaussians
+
+
+def drawings(model) -> dict:
+    """name -> sample -> RenderOutput of the targets."""
+    settings = raster_settings(model.config)
+
+    def size(sample):
+        return sample.target_images.shape[-2:]
+
+    def layers(cover):
+        def run(sample):
+            _, g, n = _forward(model, sample)
+            h, w = size(sample)
+            if cover is None:  # the plain over operator: front alpha never counts as opaque
+                front = render_views(g[:n], sample.target_poses, h, w, settings=settings)
+                back = render_views(g[n:], sample.target_poses, h, w, settings=settings)
+                return composite_layers(front, back, cover=(0.999998, 0.999999))
+            return render_layered(g[:n], g[n:], sample.target_poses, Equirect(h, w), settings=settings, cover=cover)
+        return run
+
+    def front_opacity(threshold):
+        def run(sample):
+            _, g, n = _forward(model, sample)
+            index = torch.arange(g.num_gaussians)
+            front = (index < n) & (g.opacities >= threshold)
+            order = torch.cat([index[front], index[~front]])
+            h, w = size(sample)
+            return render_views(g[order], sample.target_poses, h, w, settings=settings, front=int(front.sum()))
+        return run
+
+    def near_edges(radius):
+        def run(sample):
+            out, g, n = _forward(model, sample)
+            _, v, h, w = out.refined_depth.shape
+            edge = (depth_edginess(out.refined_depth, 0.05) > 0.5).float().view(v, 1, h, w)
+            r = max(1, round(radius * h))
+            near = F.max_pool2d(F.pad(edge, (r, r, 0, 0), mode="circular"), 2 * r + 1, stride=1, padding=(r, 0))
+            points = world_to_camera(g.means[n:][None, None].expand(1, v, -1, 3), sample.context_poses[None])
+            uv, _ = project_equirect(points, h, w)
+            keep = sample_panorama(near, uv.view(v, -1, 2)).view(v, -1).amax(0).clamp(0, 1)
+            opacities = g.opacities.clone()
+            opacities[n:] = opacities[n:] * keep
+            th, tw = size(sample)
+            return render_views(replace(g, opacities=opacities), sample.target_poses, th, tw, settings=settings)
+        return run
+
+    def opacity_gain(k):
+        def run(sample):
+            _, g, n = _forward(model, sample)
+            opacities = g.opacities.clone()
+            opacities[:n] = opacities[:n] * k
+            h, w = size(sample)
+            scaled = replace(g, opacities=opacities)
+            scaled.validate = lambda: None  # opacities above 1: outside the container's contract, on purpose
+            return render_views(scaled, sample.target_poses, h, w, settings=settings)
+        return run
+
+    runs = {"layers, over": layers(None)}
+    runs.update({f"layers, cover {lo:g}-{hi:g}": layers((lo, hi)) for lo, hi in ((0.3, 0.6), (0.6, 0.9), (0.8, 0.97))})
+    runs.update({f"layers, front opacity >= {t:g}": front_opacity(t) for t in (0.5, 0.9, 0.99)})
+    runs.update({f"volume near edges, {r:g}": near_edges(r) for r in (0.03, 0.06, 0.12)})
+    runs.update({f"pixel opacity x {k:g}": opacity_gain(k) for k in (1.5, 2.0)})
+    return runs
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", required=True)
+    p.add_argument("--format", default="pano_grf")
+    p.add_argument("--size", type=int, default=64, help="panorama height (width = 2 x height)")
+    p.add_argument("--protocols", default="two_view,one_view")
+    p.add_argument("--priors", default="gt,degraded:mono")
+    p.add_argument("--scenes", default=None, help="synthetic data: comma list of scene ids")
+    p.add_argument("--checkpoint", default="tiny-synth")
+    p.add_argument("--out", required=True)
+    args = p.parse_args()
+    model = from_pretrained(args.checkpoint).eval()
+    out = Path(args.out)
+    results = json.loads(out.read_text()) if out.exists() else {}
+    for prior in args.priors.split(","):
+        for protocol in args.protocols.split(","):
+            key = f"{protocol} {args.size}x{2 * args.size} {prior}"
+            if key in results:
+                continue
+            start = time.time()
+            options = {"scenes": args.scenes.split(",")} if args.scenes else {}
+            dataset = make_dataset(args.format, args.data, views=protocol, resolution=(args.size, 2 * args.size),
+                                   depth_prior=prior, **options)
+            methods = [with_fill(model_method(model, "one pass"), "inpaint", "one pass"),
+                       with_fill(model_method(model.with_config().set_mode("pixel"), "pixel branch"), "inpaint",
+                                 "pixel branch")]
+            methods += [with_fill(Method(name, run), "inpaint", name) for name, run in drawings(model).items()]
+            res = evaluate(dataset, methods, progress=False)
+            results[key] = {m: {k: res.means[m].get(k) for k in ("ws_psnr", "ws_psnr_occluded", "ssim")}
+                            for m in res.means}
+            print(key, f"{time.time() - start:.0f}s", flush=True)
+            for m, v in results[key].items():
+                hidden = v["ws_psnr_occluded"]
+                print(f"   {m:32s} {v['ws_psnr']:.2f} / {'-' if hidden is None else f'{hidden:.2f}'} / {v['ssim']:.3f}",
+                      flush=True)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    torch.set_grad_enabled(False)
+    main()
