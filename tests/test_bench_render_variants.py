@@ -25,3 +25,23 @@ def test_a_variant_holds_inside_and_the_defaults_come_back_even_after_an_error()
     with bench_render.triton_variant(None, "chunked4"):
         assert (triton_binning.BINNING, triton_backend.BACKWARD) == (before[0], "chunked4")
     assert (triton_binning.BINNING, triton_backend.BACKWARD) == before
+
+
+def test_a_third_field_picks_the_forward_and_default_is_the_pair():
+    assert bench_render.triton_variant_name("fused,joined,lean") == ("fused", "joined", "lean")
+    assert bench_render.triton_variant_name("fused,joined,default") == ("fused", "joined")
+    with pytest.raises(argparse.ArgumentTypeError, match="FORWARD one of default, lean"):
+        bench_render.triton_variant_name("fused,joined,thin")
+    before = triton_backend.FORWARD
+    with bench_render.triton_variant("fused", "joined", "lean"):
+        assert triton_backend.FORWARD == "lean"
+    assert triton_backend.FORWARD == before
+
+
+def test_the_lean_variant_is_timed_beside_the_default_with_its_agreement(capsys):
+    bench_render.main(["--num", "30", "--height", "8", "--device", "cpu", "--backend", "triton", "--repeats", "1",
+                       "--stages", "--variants", "fused,joined", "fused,joined,lean"])
+    out = capsys.readouterr().out
+    assert "'backend': 'triton[fused,joined,lean]'" in out and "'num_pairs'" in out
+    line = next(x for x in out.splitlines() if x.startswith("# agreement triton[fused,joined,lean] vs"))
+    assert "rgb max |diff| 0.00e+00" in line, line

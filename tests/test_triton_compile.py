@@ -35,7 +35,11 @@ POINTER_TYPES = {"valid_ptr": "*i8", "uv_ptr": "*fp32", "ext_ptr": "*fp32", "dep
 # Every pointer of the binning kernels is int64 but the depth bits, the tile keys and the depth ranks
 # (and the centres and extents the fused binning reads).
 INT64_POINTER_KERNELS = {"emit_pairs_kernel", "emit_tile_keys_kernel", "write_sorted_pairs_kernel",
-                         "count_pairs_kernel", "emit_fused_keys_kernel", "write_fused_pairs_kernel"}
+                         "count_pairs_kernel", "emit_fused_keys_kernel", "write_fused_pairs_kernel",
+                         "count_lean_kernel", "emit_lean_keys_kernel", "write_lean_pairs_kernel"}
+# The lean forward's int32 pair fields (triton_backend.FORWARD = "lean"), as the lean binning writes them and the
+# compositing kernels read them.
+LEAN_PAIRS = {"pair_gaussian_ptr": "*i32", "rows_ptr": "*i32", "cols_ptr": "*i32"}
 
 
 def _signature(kernel, constexprs, pointers=None):
@@ -78,6 +82,20 @@ KERNELS = [
     (triton_binning_kernels.write_fused_pairs_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128}, {"rank_ptr": "*i32"}),
     (triton_binning_kernels.write_fused_pairs_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},
      {"rank_ptr": "*i32"}),
+    # the lean binning (strided centres and extents, int32 pair fields, tile starts)
+    (triton_binning_kernels.count_lean_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128}),
+    (triton_binning_kernels.emit_lean_keys_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128},
+     {"key_ptr": "*i16", "rank_ptr": "*i32"}),
+    (triton_binning_kernels.emit_lean_keys_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},
+     {"key_ptr": "*i32", "rank_ptr": "*i32"}),
+    (triton_binning_kernels.write_lean_pairs_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128},
+     {"sorted_key_ptr": "*i16", "rank_ptr": "*i32", "gaussian_ptr": "*i32", "rows_ptr": "*i32", "cols_ptr": "*i32"}),
+    (triton_binning_kernels.write_lean_pairs_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},
+     {"sorted_key_ptr": "*i32", "rank_ptr": "*i32", "gaussian_ptr": "*i32", "rows_ptr": "*i32", "cols_ptr": "*i32"}),
+    (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True}, LEAN_PAIRS),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, "JOINED": True}, LEAN_PAIRS),
+    (triton_kernels.composite_forward_chunked_kernel, {"TILE": 16, "WRAP_U": False, "CHUNK": 8}, LEAN_PAIRS),
+    (triton_kernels.composite_backward_chunked_kernel, {"TILE": 16, "WRAP_U": True, "CHUNK": 8}, LEAN_PAIRS),
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True}),
     (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, "JOINED": False}),
     (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, "JOINED": True}),

@@ -11,10 +11,12 @@ binning, fragment expansion + sort, compositing, backward for the PyTorch refere
 compositing kernels). ``--ply-view N`` also times what a user waits for to see a scene: a PLY of ``N``
 Gaussians loaded and one 512x1024 view rendered (no gradients), per backend. A backend that runs out
 of memory is reported as such in the rows and the closing table (the others are still timed).
-``--variants BINNING,BACKWARD ...`` times the Triton backend's variants side by side (issue 35): one
-``triton[binning,backward]`` row each, then ``# agreement`` lines (each variant's image and gradients against the
+``--variants BINNING,BACKWARD[,FORWARD] ...`` times the Triton backend's variants side by side (issue 35): one
+``triton[binning,backward]`` row each (``triton[binning,backward,lean]`` with the lean forward, whose binning is
+always the fused one's), then ``# agreement`` lines (each variant's image and gradients against the
 first's, at the timed size), e.g. ``--backend triton --stages --variants key64,sums fused,sums
-fused,joined`` (with ``--stages`` the binning variant shows in ``bin``, the backward one in ``backward``).
+fused,joined fused,joined,lean`` (with ``--stages`` the binning variant shows in ``bin``, the backward one in
+``backward``).
 """
 
 from __future__ import annotations
@@ -133,22 +135,29 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
 
         if fast:  # the Triton backend's own stages: fused projection kernel, key binning
             from cylindersplat.render.projection import flatten_cameras, project_gaussians
-            from cylindersplat.render.triton_binning import bin_to_tiles_by_key
+            from cylindersplat.render.triton_binning import bin_lean, bin_to_tiles_by_key, grow_capacity, lean_capacity
             from cylindersplat.render.triton_projection import project_dense_triton
 
             proj = project_gaussians(*flatten_cameras(g, c2w)[:2], Equirect(height, width), settings,
                                      project_dense_triton)
             mark()
-            bins = bin_to_tiles_by_key(proj, settings.tile_size)
+            lean = triton_backend.FORWARD == "lean"
+            if lean:  # the capacity grows in the warm-up iteration
+                key, capacity = lean_capacity(proj, settings.tile_size)
+                bins = bin_lean(proj, settings.tile_size, capacity)
+                while int(bins.total) > bins.capacity:
+                    bins = bin_lean(proj, settings.tile_size, grow_capacity(key, int(bins.total)))
+            else:
+                bins = bin_to_tiles_by_key(proj, settings.tile_size)
         else:
             proj = Equirect(height, width).project(g, c2w, settings)
             mark()
             bins = bin_to_tiles(proj, settings.tile_size)
         mark()
         if fast:
-            from cylindersplat.render.triton_backend import composite_triton
+            from cylindersplat.render.triton_backend import composite_lean, composite_triton
 
-            rgb, depth, _ = composite_triton(proj, bins, settings)
+            rgb, depth, _ = (composite_lean if lean else composite_triton)(proj, bins, settings)
             num_fragments = None
         else:
             fg, fp = expand_fragments(proj, bins, settings.sigma_extent)
@@ -164,7 +173,7 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
             for k, (a, b) in zip(acc, zip(marks[:-1], marks[1:])):
                 acc[k].append((b - a) * 1000)
     out = {k: round(statistics.median(v), 2) for k, v in acc.items()}
-    out["num_pairs"] = len(bins.tile)
+    out["num_pairs"] = int(bins.total) if fast and lean else len(bins.tile)
     if num_fragments is not None:
         out["num_fragments"] = num_fragments
     return out
@@ -218,25 +227,28 @@ def ply_view(num: int, device: torch.device, backends: list[str], folder: str, h
     return rows
 
 
-def triton_variant_name(text: str) -> tuple[str, str]:
-    """``"BINNING,BACKWARD"`` (argparse type): the pair, each checked against the Triton backend's variants."""
-    binning, _, backward = text.partition(",")
-    if binning not in triton_binning.BINNINGS or backward not in triton_backend.BACKWARDS:
+def triton_variant_name(text: str) -> tuple[str, ...]:
+    """``"BINNING,BACKWARD[,FORWARD]"`` (argparse type): the pair (or triple), each checked against the Triton
+    backend's variants; FORWARD ``default`` is left out (the pair)."""
+    binning, backward, *forward = text.split(",") + [""] * (text.count(",") < 1)
+    ok = binning in triton_binning.BINNINGS and backward in triton_backend.BACKWARDS and len(forward) <= 1
+    if not ok or forward and forward[0] not in triton_backend.FORWARDS:
         raise argparse.ArgumentTypeError(
-            f"{text!r} is not BINNING,BACKWARD with BINNING one of {', '.join(triton_binning.BINNINGS)} and BACKWARD "
-            f"one of {', '.join(triton_backend.BACKWARDS)}")
-    return binning, backward
+            f"{text!r} is not BINNING,BACKWARD[,FORWARD] with BINNING one of {', '.join(triton_binning.BINNINGS)}, "
+            f"BACKWARD one of {', '.join(triton_backend.BACKWARDS)} and FORWARD one of "
+            f"{', '.join(triton_backend.FORWARDS)}")
+    return (binning, backward) if forward in ([], ["default"]) else (binning, backward, forward[0])
 
 
-def variant_agreement(num: int, height: int, device: torch.device, variants: list[tuple[str, str]]) -> list[str]:
+def variant_agreement(num: int, height: int, device: torch.device, variants: list[tuple[str, ...]]) -> list[str]:
     """``# agreement`` lines: each Triton variant's image and gradients against the first variant's, on the
     benchmark's scene (the tests check them on small scenes; this, at the timed size)."""
     g = random_indoor(num).to(device)
     c2w = torch.eye(4, device=device)
     results = []
-    for binning, backward in variants:
+    for variant in variants:
         params = {k: v.detach().clone().requires_grad_() for k, v in g.tensors().items()}
-        with triton_variant(binning, backward):
+        with triton_variant(*variant):
             try:
                 out = render_equirect(type(g)(**params), c2w, height, 2 * height, backend="triton")
                 weights = torch.linspace(-1.0, 1.0, out.rgb.numel(), device=device).view_as(out.rgb)
@@ -249,8 +261,8 @@ def variant_agreement(num: int, height: int, device: torch.device, variants: lis
         del out
     lines = []
     base, name0 = results[0], f"triton[{','.join(variants[0])}]"
-    for (binning, backward), res in zip(variants[1:], results[1:]):
-        head = f"# agreement triton[{binning},{backward}] vs {name0} ({num} Gaussians): "
+    for variant, res in zip(variants[1:], results[1:]):
+        head = f"# agreement triton[{','.join(variant)}] vs {name0} ({num} Gaussians): "
         if base is None or res is None:
             lines.append(head + "out of memory")
             continue
@@ -262,15 +274,16 @@ def variant_agreement(num: int, height: int, device: torch.device, variants: lis
 
 
 @contextlib.contextmanager
-def triton_variant(binning: str | None, backward: str | None):
-    """The Triton backend with the given binning and backward variants (None: the default) while inside."""
-    saved = triton_binning.BINNING, triton_backend.BACKWARD
+def triton_variant(binning: str | None, backward: str | None, forward: str | None = None):
+    """The Triton backend with the given binning, backward and forward variants (None: the default) while inside."""
+    saved = triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD
     triton_binning.BINNING = binning or saved[0]
     triton_backend.BACKWARD = backward or saved[1]
+    triton_backend.FORWARD = forward or saved[2]
     try:
         yield
     finally:
-        triton_binning.BINNING, triton_backend.BACKWARD = saved
+        triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD = saved
 
 
 def ratio_line(base: dict, row: dict, dev: str) -> str:
@@ -324,10 +337,13 @@ def main(argv: list[str] | None = None) -> None:
                         help="print torch.profiler's top kernels of one forward+backward")
     parser.add_argument("--compile", action="store_true", help="projection through torch.compile "
                                                                "(render.projection.compile_projection)")
-    parser.add_argument("--variants", nargs="+", type=triton_variant_name, default=[], metavar="BINNING,BACKWARD",
+    parser.add_argument("--variants", nargs="+", type=triton_variant_name, default=[],
+                        metavar="BINNING,BACKWARD[,FORWARD]",
                         help="Triton variants timed side by side, one row each: binning "
                              f"{'|'.join(triton_binning.BINNINGS)} (default {triton_binning.BINNING}), backward "
-                             f"{'|'.join(triton_backend.BACKWARDS)} (default {triton_backend.BACKWARD})")
+                             f"{'|'.join(triton_backend.BACKWARDS)} (default {triton_backend.BACKWARD}), forward "
+                             f"{'|'.join(triton_backend.FORWARDS)} (default {triton_backend.FORWARD}; lean: the fused "
+                             "binning without the host sync before compositing)")
     parser.add_argument("--ply-view", type=positive_int, nargs="+", default=[], metavar="N",
                         help="also time loading a PLY of N Gaussians and rendering one 512x1024 view, per backend")
     args = parser.parse_args(argv)
@@ -354,12 +370,12 @@ def main(argv: list[str] | None = None) -> None:
                     print(f"# skipping triton on {dev}: needs CUDA (or TRITON_INTERPRET=1, very slow)")
                     continue
                 variants = args.variants if backend == "triton" and args.variants else [(None, None)]
-                for binning, backward in variants:
-                    with triton_variant(binning, backward):
+                for variant in variants:
+                    with triton_variant(*variant):
                         rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, args.cubemap,
                                           args.stages))
-                        if binning is not None:
-                            rows[-1]["backend"] = f"triton[{triton_binning.BINNING},{triton_backend.BACKWARD}]"
+                        if variant[0] is not None:
+                            rows[-1]["backend"] = f"triton[{','.join(variant)}]"
                         print(rows[-1])
                         if args.profile:
                             profile(num, args.height, torch.device(dev), backend, label=rows[-1]["backend"])

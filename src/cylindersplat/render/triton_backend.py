@@ -134,15 +134,20 @@ def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background
     from .triton_binning import bin_lean, grow_capacity, lean_capacity
 
     key, capacity = lean_capacity(proj, settings.tile_size)
-    packed = pack_projected(proj)
-    h, w, c = proj.height, proj.width, proj.num_cameras
     while True:
         bins = bin_lean(proj, settings.tile_size, capacity)
-        out = _TritonComposite.apply(packed.float().contiguous(), bins.gaussian, bins.rows, bins.cols,
-                                     bins.tile_start, c * h * w, h, w, bins.tiles_x, bins.tiles_y, proj.wrap_u,
-                                     settings)
+        out = composite_lean(proj, bins, settings, background)
         needed = int(bins.total)  # the one host synchronisation, after the compositing is queued
         if needed <= capacity:
-            break
+            return out
         capacity = grow_capacity(key, needed)
+
+
+def composite_lean(proj: ProjectedGaussians, bins, settings: RasterSettings, background: Tensor | None = None):
+    """Stage 4 of the ``"lean"`` forward on :class:`.triton_binning.LeanBins` (complete only where their pair
+    count fits their capacity). Returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
+    packed = pack_projected(proj)
+    h, w, c = proj.height, proj.width, proj.num_cameras
+    out = _TritonComposite.apply(packed.float().contiguous(), bins.gaussian, bins.rows, bins.cols, bins.tile_start,
+                                 c * h * w, h, w, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings)
     return unpack_composited(out.to(packed.dtype), proj, background)
