@@ -102,10 +102,11 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
 }
 
 # Item sizes: full (the issue's) or smoke (seconds on a CPU).
-# Binning variants beside today's (key64,sums), then the backward variants on the fused binning (--stages shows
-# each in its own stage).
-binning_variants="--variants key64,sums depth_tile,sums fused,sums fused,joined fused,chunked4 fused,chunked8"
-profile_variants="--variants key64,sums fused,chunked8"
+# The default (fused,joined) beside the lean forward (no host sync before compositing: triton_backend.FORWARD),
+# with the joined and the chunked8 backward (--stages shows each in its own stage). The variants measured on
+# 2026-11-26 (key64 / depth_tile binning, sums / chunked4 backward): benchmarks/RESULTS.md.
+binning_variants="--variants fused,joined fused,joined,lean fused,chunked8,lean"
+profile_variants="--variants fused,joined fused,joined,lean"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
   render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
@@ -126,7 +127,7 @@ if [ $smoke = 1 ]; then
 else
   # The GPU kernels' tests only (slow-marked ones included: seconds on a GPU), not the reference's CPU tests.
   test_args=(tests/test_render_triton.py tests/test_render_triton_projection.py tests/test_render_binning.py
-             tests/test_render_triton_sync.py tests/test_triton_compile.py)
+             tests/test_render_triton_sync.py tests/test_render_triton_lean.py tests/test_triton_compile.py)
   render_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --repeats 3)
   stages_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3)
   binning_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3 $binning_variants)
