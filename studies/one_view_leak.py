@@ -11,6 +11,8 @@ Every row draws the same forward pass of the shipped weights (with the inpaint f
 * ``layers, over``: pixel Gaussians over volume Gaussians with the plain over operator (only the order changes);
 * ``layers, cover LOW-HIGH``: the layered drawing, the front layer opaque from coverage HIGH (render.layered);
 * ``layers, front opacity >= T``: only pixel Gaussians of opacity >= T in the front layer (edge-faded ones behind);
+* ``layers, gaps only (LO-HI)``: the front layer normalised only where its partial coverage is a gap between opaque
+  splats, not coverage lost to edge fading (its coverage against that of the same splats drawn opaque, LO-HI);
 * ``volume near edges, R``: volume Gaussians kept only within R x H pixels of a depth edge of some input view;
 * ``pixel opacity x K``: pixel Gaussians' opacities scaled by K (alpha capped at 0.99 as ever; not a valid 3DGS
   scene, an experiment only).
@@ -38,6 +40,7 @@ from cylindersplat.model.fusion import depth_edginess
 from cylindersplat.model.pretrained import from_pretrained
 from cylindersplat.model.sampling import sample_panorama
 from cylindersplat.render import Equirect
+from cylindersplat.render.api import RenderOutput
 from cylindersplat.render.layered import composite_layers, render_layered
 
 
@@ -74,6 +77,27 @@ def drawings(model) -> dict:
             return render_views(g[order], sample.target_poses, h, w, settings=settings, front=int(front.sum()))
         return run
 
+    def smoothstep(x, low, high):
+        t = ((x - low) / (high - low)).clamp(0, 1)
+        return t * t * (3 - 2 * t)
+
+    def gaps_only(low, high):  # normalise coverage gaps between opaque splats, not coverage lost to edge fading
+        def run(sample):
+            _, g, n = _forward(model, sample)
+            h, w = size(sample)
+            front = render_views(g[:n], sample.target_poses, h, w, settings=settings)
+            unfaded = render_views(replace(g[:n], opacities=torch.ones_like(g.opacities[:n])), sample.target_poses,
+                                   h, w, settings=settings)
+            back = render_views(g[n:], sample.target_poses, h, w, settings=settings)
+            a = front.alpha
+            s = smoothstep(a, 0.3, 0.6) * smoothstep(a / unfaded.alpha.clamp_min(1e-6), low, high)
+            own = a.clamp_min(1e-6)
+            over = RenderOutput(front.rgb + (1 - a)[:, None] * back.rgb, front.depth + (1 - a) * back.depth,
+                                a + (1 - a) * back.alpha)
+            return RenderOutput(s[:, None] * front.rgb / own[:, None] + (1 - s)[:, None] * over.rgb,
+                                s * front.depth / own + (1 - s) * over.depth, s + (1 - s) * over.alpha)
+        return run
+
     def near_edges(radius):
         def run(sample):
             out, g, n = _forward(model, sample)
@@ -104,6 +128,7 @@ def drawings(model) -> dict:
     runs = {"layers, over": layers(None)}
     runs.update({f"layers, cover {lo:g}-{hi:g}": layers((lo, hi)) for lo, hi in ((0.3, 0.6), (0.6, 0.9), (0.8, 0.97))})
     runs.update({f"layers, front opacity >= {t:g}": front_opacity(t) for t in (0.5, 0.9, 0.99)})
+    runs.update({f"layers, gaps only ({lo:g}-{hi:g})": gaps_only(lo, hi) for lo, hi in ((0.5, 0.9), (0.8, 0.97))})
     runs.update({f"volume near edges, {r:g}": near_edges(r) for r in (0.03, 0.06, 0.12)})
     runs.update({f"pixel opacity x {k:g}": opacity_gain(k) for k in (1.5, 2.0)})
     return runs
