@@ -101,6 +101,13 @@ def test_lean_forward_gives_the_default_images_and_gradients_equirect_seam_and_p
     _assert_same_as_default(shell_scene(30, seed=33, scale=(0.05, 0.4), dtype=F32), poses, Pinhole(K, 20, 24))
 
 
+@pytest.mark.parametrize("backward", ["sums", "chunked4"])
+def test_lean_forward_with_the_other_backwards(monkeypatch, backward):
+    monkeypatch.setattr(triton_backend, "BACKWARD", backward)
+    g = shell_scene(12, seed=36, scale=(0.3, 0.8), radius=(0.4, 1.0), dtype=F32)
+    _assert_same_as_default(g, yaw_pose(0.3, dtype=F32), Equirect(16, 32), settings=RasterSettings(tile_size=8))
+
+
 def test_lean_forward_of_an_empty_scene_is_the_background():
     out, _ = _render(Gaussians.empty(), torch.eye(4), Pinhole(K, 20, 24), "lean", background=(0.2, 0.3, 0.4))
     assert torch.equal(out.alpha, torch.zeros_like(out.alpha))
@@ -131,3 +138,24 @@ def test_unknown_forward_is_refused_by_name(monkeypatch):
     with pytest.raises(ValueError, match="unknown Triton forward 'skinny'.*lean"):
         render(shell_scene(5, seed=9, dtype=F32).to(DEVICE), torch.eye(4, device=DEVICE), Equirect(8, 16),
                backend="triton")
+
+
+def test_the_lean_compositing_reads_the_projection_rows_in_place_and_falls_back_elsewhere():
+    from dataclasses import replace
+
+    from cylindersplat.render.projection import flatten_cameras, project_gaussians
+    from cylindersplat.render.rasterize import pack_projected
+    from cylindersplat.render.triton_projection import project_dense_triton
+
+    g = shell_scene(10, seed=35, dtype=F32).to(DEVICE)
+    camera, settings = Equirect(8, 16), RasterSettings()
+    proj = project_gaussians(*flatten_cameras(g, torch.eye(4, device=DEVICE))[:2], camera, settings,
+                             project_dense_triton)
+    packed, lean, dtype = triton_backend._lean_packed(proj)
+    reference = pack_projected(proj)
+    assert lean == 1 and packed.shape == (len(proj.depth), 12) and dtype == F32
+    columns = [0, 1, 2, 3, 4, 8, 9, 10, 11, 7]  # u v A B C opacity r g b depth: pack_projected's columns 0-9
+    assert torch.equal(packed[:, columns], reference[:, :10])
+    copied = replace(proj, uv=proj.uv.clone())  # not a view of the projection's rows: the 11-column layout
+    packed, lean, dtype = triton_backend._lean_packed(copied)
+    assert lean == 0 and torch.equal(packed, reference)

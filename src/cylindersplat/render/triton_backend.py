@@ -54,7 +54,7 @@ def triton_available() -> bool:
 class _TritonComposite(torch.autograd.Function):
     @staticmethod
     def forward(ctx, packed, pair_gaussian, rows, cols, tile_start, num_pixels, height, width, tiles_x, tiles_y, wrap_u,
-                settings):
+                settings, lean=0):
         from . import triton_kernels as kernels
 
         # Every pixel is written: one program per tile of every camera, empty tiles included.
@@ -65,12 +65,12 @@ class _TritonComposite(torch.autograd.Function):
         if grid[0] > 0 and BACKWARD.startswith("chunked"):  # forward and backward judge termination alike
             kernels.composite_forward_chunked_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out, *args,
                                                            TILE=settings.tile_size, WRAP_U=bool(wrap_u),
-                                                           CHUNK=int(BACKWARD[len("chunked"):]))
+                                                           CHUNK=int(BACKWARD[len("chunked"):]), LEAN=lean)
         elif grid[0] > 0:
             kernels.composite_forward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out, *args,
-                                                   TILE=settings.tile_size, WRAP_U=bool(wrap_u))
+                                                   TILE=settings.tile_size, WRAP_U=bool(wrap_u), LEAN=lean)
         ctx.save_for_backward(packed, pair_gaussian, rows, cols, tile_start, out)
-        ctx.args, ctx.tile, ctx.wrap_u = args, settings.tile_size, bool(wrap_u)
+        ctx.args, ctx.tile, ctx.wrap_u, ctx.lean = args, settings.tile_size, bool(wrap_u), lean
         return out
 
     @staticmethod
@@ -86,11 +86,11 @@ class _TritonComposite(torch.autograd.Function):
                 *ctx.args)
         if grid[0] > 0 and BACKWARD.startswith("chunked"):
             kernels.composite_backward_chunked_kernel[grid](*args, TILE=ctx.tile, WRAP_U=ctx.wrap_u,
-                                                            CHUNK=int(BACKWARD[len("chunked"):]))
+                                                            CHUNK=int(BACKWARD[len("chunked"):]), LEAN=ctx.lean)
         elif grid[0] > 0:
             kernels.composite_backward_kernel[grid](*args, TILE=ctx.tile, WRAP_U=ctx.wrap_u,
-                                                    JOINED=BACKWARD == "joined")
-        return (grad_packed,) + (None,) * 11
+                                                    JOINED=BACKWARD == "joined", LEAN=ctx.lean)
+        return (grad_packed,) + (None,) * 12
 
 
 def composite_triton(
@@ -146,8 +146,26 @@ def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background
 def composite_lean(proj: ProjectedGaussians, bins, settings: RasterSettings, background: Tensor | None = None):
     """Stage 4 of the ``"lean"`` forward on :class:`.triton_binning.LeanBins` (complete only where their pair
     count fits their capacity). Returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
-    packed = pack_projected(proj)
+    packed, lean, dtype = _lean_packed(proj)
     h, w, c = proj.height, proj.width, proj.num_cameras
-    out = _TritonComposite.apply(packed.float().contiguous(), bins.gaussian, bins.rows, bins.cols, bins.tile_start,
-                                 c * h * w, h, w, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings)
-    return unpack_composited(out.to(packed.dtype), proj, background)
+    out = _TritonComposite.apply(packed, bins.gaussian, bins.rows, bins.cols, bins.tile_start, c * h * w, h, w,
+                                 bins.tiles_x, bins.tiles_y, proj.wrap_u, settings, lean)
+    return unpack_composited(out.to(dtype), proj, background)
+
+
+def _lean_packed(proj: ProjectedGaussians) -> tuple[Tensor, int, torch.dtype]:
+    """The compositing kernels' rows, their layout (:mod:`.triton_kernels`, ``LEAN``) and the outputs' dtype:
+    where ``uv``, ``conic`` and ``depth`` are columns 0-1, 2-4 and 7 of one float32 ``(M, 8)`` tensor (the
+    projection's rows, as :func:`.projection._compact` makes them), that tensor with opacity and colour appended
+    (``M x 12``, one concatenation; the gradient reaches the projection's rows whole, not column by column); else
+    :func:`.rasterize.pack_projected`'s rows (``M x 11``)."""
+    base = proj.uv._base
+    f32 = torch.float32
+    if (base is not None and base.dtype == f32 and base.ndim == 2 and base.shape[1] == 8 and base.is_contiguous()
+            and proj.conic._base is base and proj.depth._base is base and proj.opacity.dtype == f32
+            and proj.color.dtype == f32
+            and [t.storage_offset() - base.storage_offset() for t in (proj.uv, proj.conic, proj.depth)] == [0, 2, 7]
+            and proj.uv.stride() == (8, 1) and proj.conic.stride() == (8, 1) and proj.depth.stride() == (8,)):
+        return torch.cat((base, proj.opacity[:, None], proj.color), -1), 1, f32
+    packed = pack_projected(proj)
+    return packed.float().contiguous(), 0, packed.dtype

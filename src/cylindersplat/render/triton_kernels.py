@@ -10,7 +10,11 @@ depth order. The rules are the reference's (:mod:`.rasterize`): a pixel gets a f
 ``alpha_min``; the fragment that would bring the transmittance below ``transmittance_min`` and
 all later ones are dropped. A tile stops early once all its pixels have terminated.
 
-Packed Gaussian rows (``M x 11``, float32): ``[u, v, A, B, C, opacity, r, g, b, depth, 1]``.
+Packed Gaussian rows (``M x 11``, float32): ``[u, v, A, B, C, opacity, r, g, b, depth, 1]``; with the
+constant ``LEAN=1`` (the lean forward, :data:`.triton_backend.FORWARD`) ``M x 12``: the projection's rows
+``[u, v, A, B, C, extent u, extent v, depth]`` followed by ``[opacity, r, g, b]`` - one concatenation of the
+projection's output, whose gradient goes back to it whole. :func:`_column` maps the ten parameters to their
+columns.
 """
 
 from __future__ import annotations
@@ -34,16 +38,22 @@ def _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE: tl.conste
 
 
 @triton.jit
+def _column(j, LEAN: tl.constexpr):
+    """The packed column of parameter ``j`` (0-4: u, v, A, B, C; 5: opacity; 6-8: r, g, b; 9: depth)."""
+    return tl.where(j < 5, j, tl.where(j == 9, 9 - 2 * LEAN, j + 3 * LEAN))
+
+
+@triton.jit
 def _fragment(packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min,
-              WRAP_U: tl.constexpr):
+              WRAP_U: tl.constexpr, LEAN: tl.constexpr):
     """Offsets, alpha and the support mask of pair ``p`` (Gaussian ``g``) at the tile's pixels."""
-    base = packed_ptr + g * 11
+    base = packed_ptr + g * (11 + LEAN)
     u = tl.load(base + 0)
     v = tl.load(base + 1)
     a = tl.load(base + 2)
     b = tl.load(base + 3)
     c = tl.load(base + 4)
-    o = tl.load(base + 5)
+    o = tl.load(base + 5 + 3 * LEAN)
     r0 = tl.load(rows_ptr + 2 * p)
     r1 = tl.load(rows_ptr + 2 * p + 1)
     c0 = tl.load(cols_ptr + 2 * p)
@@ -62,10 +72,11 @@ def _fragment(packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alp
 
 
 @triton.jit
-def _colour(packed_ptr, g):
-    """Colour and radial depth of Gaussian ``g`` (columns 6-9 of its packed row)."""
-    base = packed_ptr + g * 11
-    return tl.load(base + 6), tl.load(base + 7), tl.load(base + 8), tl.load(base + 9)
+def _colour(packed_ptr, g, LEAN: tl.constexpr):
+    """Colour and radial depth of Gaussian ``g`` (columns 6-9 of its packed row; 9-11 and 7 with ``LEAN``)."""
+    base = packed_ptr + g * (11 + LEAN)
+    return (tl.load(base + 6 + 3 * LEAN), tl.load(base + 7 + 3 * LEAN), tl.load(base + 8 + 3 * LEAN),
+            tl.load(base + 9 - 2 * LEAN))
 
 
 @triton.jit
@@ -82,14 +93,15 @@ def _transmittance_step(trans, alpha, support, alive, t_min):
 
 
 @triton.jit
-def _add_gradients(gp, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, o, JOINED: tl.constexpr):
+def _add_gradients(gp, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, o, JOINED: tl.constexpr, LEAN: tl.constexpr):
     """``gp[j] += sum(x_j)`` over the tile's pixels (``/ max(o, 1e-30)`` for ``j = 5``, the opacity), for the
     ten packed parameters of one Gaussian.
 
     ``JOINED=False``: ten block-wide sums and ten scalar atomics. ``JOINED=True``: the ten per-pixel
     values joined into one ``(pixels, 2, 2, 2, 2)`` tensor (registers, no data movement), one block-wide
     sum of it (one pass through shared memory instead of ten, each with its barriers) and one vector
-    atomic of the ten sums (six padding lanes masked off)."""
+    atomic of the ten sums (six padding lanes masked off). ``gp``: the Gaussian's packed gradient row (columns by
+    :func:`_column`)."""
     if JOINED:
         z = tl.zeros_like(x0)
         low = tl.join(tl.join(tl.join(x0, x1), tl.join(x2, x3)), tl.join(tl.join(x4, x5), tl.join(x6, x7)))
@@ -98,18 +110,18 @@ def _add_gradients(gp, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, o, JOINED: tl.con
         bit = tl.arange(0, 2)
         j = (bit[:, None, None, None] + 2 * bit[None, :, None, None] + 4 * bit[None, None, :, None]
              + 8 * bit[None, None, None, :])
-        tl.atomic_add(gp + j, sums / tl.where(j == 5, tl.maximum(o, 1e-30), 1.0), mask=j < 10)
+        tl.atomic_add(gp + _column(j, LEAN), sums / tl.where(j == 5, tl.maximum(o, 1e-30), 1.0), mask=j < 10)
     else:
         tl.atomic_add(gp + 0, tl.sum(x0, axis=0))
         tl.atomic_add(gp + 1, tl.sum(x1, axis=0))
         tl.atomic_add(gp + 2, tl.sum(x2, axis=0))
         tl.atomic_add(gp + 3, tl.sum(x3, axis=0))
         tl.atomic_add(gp + 4, tl.sum(x4, axis=0))
-        tl.atomic_add(gp + 5, tl.sum(x5, axis=0) / tl.maximum(o, 1e-30))
-        tl.atomic_add(gp + 6, tl.sum(x6, axis=0))
-        tl.atomic_add(gp + 7, tl.sum(x7, axis=0))
-        tl.atomic_add(gp + 8, tl.sum(x8, axis=0))
-        tl.atomic_add(gp + 9, tl.sum(x9, axis=0))
+        tl.atomic_add(gp + 5 + 3 * LEAN, tl.sum(x5, axis=0) / tl.maximum(o, 1e-30))
+        tl.atomic_add(gp + 6 + 3 * LEAN, tl.sum(x6, axis=0))
+        tl.atomic_add(gp + 7 + 3 * LEAN, tl.sum(x7, axis=0))
+        tl.atomic_add(gp + 8 + 3 * LEAN, tl.sum(x8, axis=0))
+        tl.atomic_add(gp + 9 - 2 * LEAN, tl.sum(x9, axis=0))
 
 
 @triton.jit
@@ -117,7 +129,7 @@ def composite_forward_kernel(
     packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr,
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, LEAN: tl.constexpr,
 ):
     tile = tl.program_id(0)
     row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
@@ -135,9 +147,9 @@ def composite_forward_kernel(
     while (p < end) & (n_alive > 0):
         g = tl.load(pair_gaussian_ptr + p)
         du, dv, alpha, raw, support, a, b, c, o = _fragment(
-            packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U)
+            packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U, LEAN)
         use, w, trans, alive = _transmittance_step(trans, alpha, support, alive, t_min)
-        cr, cg, cb, cd = _colour(packed_ptr, g)
+        cr, cg, cb, cd = _colour(packed_ptr, g, LEAN)
         acc_r += w * cr
         acc_g += w * cg
         acc_b += w * cb
@@ -158,7 +170,7 @@ def composite_backward_kernel(
     packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr, grad_out_ptr, grad_packed_ptr,
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, JOINED: tl.constexpr,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, JOINED: tl.constexpr, LEAN: tl.constexpr,
 ):
     """Front to back again: ``dL/dalpha_i = T_i s_i - (S - P_i) / (1 - alpha_i)`` with ``s_i = g . f_i``,
     ``S = g . out`` (all contributions) and ``P_i`` the running sum of ``s_k w_k`` up to ``i``.
@@ -187,9 +199,9 @@ def composite_backward_kernel(
     while (p < end) & (n_alive > 0):
         g = tl.load(pair_gaussian_ptr + p)
         du, dv, alpha, raw, support, a, b, c, o = _fragment(
-            packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U)
+            packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U, LEAN)
         use, w, next_trans, next_alive = _transmittance_step(trans, alpha, support, alive, t_min)
-        cr, cg, cb, cd = _colour(packed_ptr, g)
+        cr, cg, cb, cd = _colour(packed_ptr, g, LEAN)
         s = g_r * cr + g_g * cg + g_b * cb + g_d * cd + g_a
         prefix += s * w
         if JOINED:  # both counts from one block-wide sum
@@ -205,10 +217,10 @@ def composite_backward_kernel(
             d_mahal = tl.where(on, -0.5 * alpha * d_alpha, 0.0)
             du = tl.where(on, du, 0.0)
             dv = tl.where(on, dv, 0.0)
-            _add_gradients(grad_packed_ptr + g * 11,
+            _add_gradients(grad_packed_ptr + g * (11 + LEAN),
                            -2.0 * d_mahal * (a * du + b * dv), -2.0 * d_mahal * (b * du + c * dv),
                            d_mahal * du * du, 2.0 * d_mahal * du * dv, d_mahal * dv * dv,
-                           tl.where(on, d_alpha * alpha, 0.0), g_r * w, g_g * w, g_b * w, g_d * w, o, JOINED)
+                           tl.where(on, d_alpha * alpha, 0.0), g_r * w, g_g * w, g_b * w, g_d * w, o, JOINED, LEAN)
         trans = next_trans
         alive = next_alive
         n_alive = n_alive_next
@@ -217,7 +229,7 @@ def composite_backward_kernel(
 
 @triton.jit
 def _chunk(packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, p0, end, row, col, width, trans, alive,
-           sigma2, alpha_max, alpha_min, t_min, WRAP_U: tl.constexpr, CHUNK: tl.constexpr):
+           sigma2, alpha_max, alpha_min, t_min, WRAP_U: tl.constexpr, CHUNK: tl.constexpr, LEAN: tl.constexpr):
     """Pairs ``p0 .. p0 + CHUNK - 1`` (those before ``end``) at the tile's pixels: pairs along axis 0,
     pixels along axis 1, :func:`_fragment`'s arithmetic, and the transmittance by a product scan along
     the pairs.
@@ -231,13 +243,13 @@ def _chunk(packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, p0, end, row, col,
     p = p0 + tl.arange(0, CHUNK)
     valid = p < end
     g = tl.load(pair_gaussian_ptr + p, mask=valid, other=0)
-    base = packed_ptr + g * 11
+    base = packed_ptr + g * (11 + LEAN)
     u = tl.load(base + 0, mask=valid, other=0.0)[:, None]
     v = tl.load(base + 1, mask=valid, other=0.0)[:, None]
     a = tl.load(base + 2, mask=valid, other=0.0)[:, None]
     b = tl.load(base + 3, mask=valid, other=0.0)[:, None]
     c = tl.load(base + 4, mask=valid, other=0.0)[:, None]
-    o = tl.load(base + 5, mask=valid, other=0.0)
+    o = tl.load(base + 5 + 3 * LEAN, mask=valid, other=0.0)
     r0 = tl.load(rows_ptr + 2 * p, mask=valid, other=1)[:, None]  # (1, 0): an empty range past the end
     r1 = tl.load(rows_ptr + 2 * p + 1, mask=valid, other=0)[:, None]
     c0 = tl.load(cols_ptr + 2 * p, mask=valid, other=0)[:, None]
@@ -269,7 +281,7 @@ def composite_forward_chunked_kernel(
     packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr,
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, CHUNK: tl.constexpr,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, CHUNK: tl.constexpr, LEAN: tl.constexpr,
 ):
     """:func:`composite_forward_kernel` over ``CHUNK`` pairs at a time (:func:`_chunk`)."""
     tile = tl.program_id(0)
@@ -288,12 +300,12 @@ def composite_forward_chunked_kernel(
     while (p0 < end) & (n_alive > 0):
         g, valid, a, b, c, o, du, dv, alpha, raw, before, use, w, trans, alive = _chunk(
             packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, p0, end, row, col, width, trans, alive,
-            sigma2, alpha_max, alpha_min, t_min, WRAP_U, CHUNK)
-        base = packed_ptr + g * 11
-        acc_r += tl.sum(w * tl.load(base + 6, mask=valid, other=0.0)[:, None], axis=0)
-        acc_g += tl.sum(w * tl.load(base + 7, mask=valid, other=0.0)[:, None], axis=0)
-        acc_b += tl.sum(w * tl.load(base + 8, mask=valid, other=0.0)[:, None], axis=0)
-        acc_d += tl.sum(w * tl.load(base + 9, mask=valid, other=0.0)[:, None], axis=0)
+            sigma2, alpha_max, alpha_min, t_min, WRAP_U, CHUNK, LEAN)
+        base = packed_ptr + g * (11 + LEAN)
+        acc_r += tl.sum(w * tl.load(base + 6 + 3 * LEAN, mask=valid, other=0.0)[:, None], axis=0)
+        acc_g += tl.sum(w * tl.load(base + 7 + 3 * LEAN, mask=valid, other=0.0)[:, None], axis=0)
+        acc_b += tl.sum(w * tl.load(base + 8 + 3 * LEAN, mask=valid, other=0.0)[:, None], axis=0)
+        acc_d += tl.sum(w * tl.load(base + 9 - 2 * LEAN, mask=valid, other=0.0)[:, None], axis=0)
         acc_a += tl.sum(w, axis=0)
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
         p0 += CHUNK
@@ -310,7 +322,7 @@ def composite_backward_chunked_kernel(
     packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr, grad_out_ptr, grad_packed_ptr,
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, CHUNK: tl.constexpr,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, CHUNK: tl.constexpr, LEAN: tl.constexpr,
 ):
     """:func:`composite_backward_kernel` over ``CHUNK`` pairs at a time (:func:`_chunk`): the running sum
     ``P`` by a sum scan along the pairs, the per-pair gradients by sums over the pixels and ``CHUNK``-wide
@@ -338,12 +350,12 @@ def composite_backward_chunked_kernel(
     while (p0 < end) & (n_alive > 0):
         g, valid, a, b, c, o, du, dv, alpha, raw, before, use, w, trans, alive = _chunk(
             packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, p0, end, row, col, width, trans, alive,
-            sigma2, alpha_max, alpha_min, t_min, WRAP_U, CHUNK)
-        base = packed_ptr + g * 11
-        s = (g_r[None, :] * tl.load(base + 6, mask=valid, other=0.0)[:, None]
-             + g_g[None, :] * tl.load(base + 7, mask=valid, other=0.0)[:, None]
-             + g_b[None, :] * tl.load(base + 8, mask=valid, other=0.0)[:, None]
-             + g_d[None, :] * tl.load(base + 9, mask=valid, other=0.0)[:, None] + g_a[None, :])
+            sigma2, alpha_max, alpha_min, t_min, WRAP_U, CHUNK, LEAN)
+        base = packed_ptr + g * (11 + LEAN)
+        s = (g_r[None, :] * tl.load(base + 6 + 3 * LEAN, mask=valid, other=0.0)[:, None]
+             + g_g[None, :] * tl.load(base + 7 + 3 * LEAN, mask=valid, other=0.0)[:, None]
+             + g_b[None, :] * tl.load(base + 8 + 3 * LEAN, mask=valid, other=0.0)[:, None]
+             + g_d[None, :] * tl.load(base + 9 - 2 * LEAN, mask=valid, other=0.0)[:, None] + g_a[None, :])
         sw = s * w
         running = prefix[None, :] + tl.cumsum(sw, axis=0)  # P through pair k, inclusive
         d_alpha = before * s - (total[None, :] - running) / (1.0 - alpha)
@@ -353,17 +365,18 @@ def composite_backward_chunked_kernel(
         du = tl.where(on, du, 0.0)
         dv = tl.where(on, dv, 0.0)
         used = (tl.max(use.to(tl.int32), axis=1) > 0) & valid  # pairs that touch a pixel: their atomics
-        gp = grad_packed_ptr + g * 11
+        gp = grad_packed_ptr + g * (11 + LEAN)
         tl.atomic_add(gp + 0, tl.sum(-2.0 * d_mahal * (a * du + b * dv), axis=1), mask=used)
         tl.atomic_add(gp + 1, tl.sum(-2.0 * d_mahal * (b * du + c * dv), axis=1), mask=used)
         tl.atomic_add(gp + 2, tl.sum(d_mahal * du * du, axis=1), mask=used)
         tl.atomic_add(gp + 3, tl.sum(2.0 * d_mahal * du * dv, axis=1), mask=used)
         tl.atomic_add(gp + 4, tl.sum(d_mahal * dv * dv, axis=1), mask=used)
-        tl.atomic_add(gp + 5, tl.sum(tl.where(on, d_alpha * alpha, 0.0), axis=1) / tl.maximum(o, 1e-30), mask=used)
-        tl.atomic_add(gp + 6, tl.sum(g_r[None, :] * w, axis=1), mask=used)
-        tl.atomic_add(gp + 7, tl.sum(g_g[None, :] * w, axis=1), mask=used)
-        tl.atomic_add(gp + 8, tl.sum(g_b[None, :] * w, axis=1), mask=used)
-        tl.atomic_add(gp + 9, tl.sum(g_d[None, :] * w, axis=1), mask=used)
+        tl.atomic_add(gp + 5 + 3 * LEAN, tl.sum(tl.where(on, d_alpha * alpha, 0.0), axis=1) / tl.maximum(o, 1e-30),
+                      mask=used)
+        tl.atomic_add(gp + 6 + 3 * LEAN, tl.sum(g_r[None, :] * w, axis=1), mask=used)
+        tl.atomic_add(gp + 7 + 3 * LEAN, tl.sum(g_g[None, :] * w, axis=1), mask=used)
+        tl.atomic_add(gp + 8 + 3 * LEAN, tl.sum(g_b[None, :] * w, axis=1), mask=used)
+        tl.atomic_add(gp + 9 - 2 * LEAN, tl.sum(g_d[None, :] * w, axis=1), mask=used)
         prefix += tl.sum(sw, axis=0)
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
         p0 += CHUNK
