@@ -159,3 +159,11 @@ def test_the_lean_compositing_reads_the_projection_rows_in_place_and_falls_back_
     copied = replace(proj, uv=proj.uv.clone())  # not a view of the projection's rows: the 11-column layout
     packed, lean, dtype = triton_backend._lean_packed(copied)
     assert lean == 0 and torch.equal(packed, reference)
+
+
+def test_lean_bins_with_int32_tile_keys(monkeypatch):
+    # The int32 keys of >= 32768 tiles, on a small scene: padding past every tile id sorts last there too.
+    monkeypatch.setattr(triton_binning, "tile_key_dtype", lambda num_tiles: torch.int32)
+    g = shell_scene(30, seed=37, scale=(0.05, 0.6), dtype=F32).to(DEVICE)
+    proj = Equirect(16, 32).project(g, torch.eye(4, device=DEVICE), RasterSettings())
+    _assert_lean_bins_match_the_reference(proj, 4, len(bin_to_tiles(proj, 4).gaussian) + 50)

@@ -83,7 +83,8 @@ KERNELS = [
     (triton_binning_kernels.write_fused_pairs_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},
      {"rank_ptr": "*i32"}),
     # the lean binning (strided centres and extents, int32 pair fields, tile starts)
-    (triton_binning_kernels.count_lean_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128}),
+    (triton_binning_kernels.count_lean_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128}, {"key_ptr": "*i16"}),
+    (triton_binning_kernels.count_lean_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128}, {"key_ptr": "*i32"}),
     (triton_binning_kernels.emit_lean_keys_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128},
      {"key_ptr": "*i16", "rank_ptr": "*i32"}),
     (triton_binning_kernels.emit_lean_keys_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},

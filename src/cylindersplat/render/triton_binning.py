@@ -217,7 +217,8 @@ def _strided_rows(x: torch.Tensor) -> tuple[torch.Tensor, int]:
 def bin_lean(proj: ProjectedGaussians, tile_size: int, capacity: int) -> LeanBins:
     """The ``"fused"`` binning without a host synchronisation: the centres and extents read in place, buffers of
     ``capacity`` pairs (the padding sorts last), int32 pair fields and the tiles' first places written by the last
-    kernel. Six launches and a sort: depth sort, count, prefix sum, key fill, emission, tile sort, writing."""
+    kernel. Two sorts and four launches: depth sort, count (and the key buffer's fill), prefix sum, emission, tile
+    sort, writing."""
     from . import triton_binning_kernels as kernels
 
     device = proj.camera.device
@@ -231,19 +232,18 @@ def bin_lean(proj: ProjectedGaussians, tile_size: int, capacity: int) -> LeanBin
         uv, ext = uv.to(torch.float64).contiguous(), ext.to(torch.float64).contiguous()
         uv_stride = ext_stride = 2
     constants = dict(TILE=tile_size, WRAP_U=bool(proj.wrap_u), BLOCK=_BLOCK)
-    if num:
-        by_depth = torch.sort(proj.depth.detach().float(), stable=True).indices
-        counts = torch.empty(num, dtype=torch.int64, device=device)
-        kernels.count_lean_kernel[((num + _BLOCK - 1) // _BLOCK,)](
-            uv, ext, by_depth, counts, num, proj.height, proj.width, uv_stride, ext_stride, **constants)
-        ends = torch.cumsum(counts, 0)
-        total = ends[-1:]
-    else:
-        by_depth = ends = torch.zeros(1, dtype=torch.int64, device=device)
-        total = ends
     key_dtype = tile_key_dtype(num_tiles)
-    keys = torch.full((capacity,), torch.iinfo(key_dtype).max, dtype=key_dtype, device=device)  # padding: last
+    keys = torch.empty(capacity, dtype=key_dtype, device=device)  # filled by the count kernel: padding sorts last
     rank = torch.empty(capacity, dtype=torch.int32, device=device)
+    by_depth = (torch.sort(proj.depth.detach().float(), stable=True).indices if num
+                else torch.zeros(1, dtype=torch.int64, device=device))
+    counts = (torch.empty if num else torch.zeros)(max(num, 1), dtype=torch.int64, device=device)  # none: total 0
+    lanes = max(num, capacity, 1)
+    kernels.count_lean_kernel[((lanes + _BLOCK - 1) // _BLOCK,)](
+        uv, ext, by_depth, counts, keys, num, capacity, torch.iinfo(key_dtype).max, proj.height, proj.width,
+        uv_stride, ext_stride, **constants)
+    ends = torch.cumsum(counts, 0)
+    total = ends[-1:]
     head = (uv, ext, proj.camera, by_depth, ends)
     if num:
         kernels.emit_lean_keys_kernel[((num + _BLOCK - 1) // _BLOCK,)](

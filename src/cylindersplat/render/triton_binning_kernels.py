@@ -259,11 +259,14 @@ def write_fused_pairs_kernel(
 
 @triton.jit
 def count_lean_kernel(
-    uv_ptr, ext_ptr, by_depth_ptr, count_ptr, num_gaussians, height, width, uv_stride, ext_stride,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
+    uv_ptr, ext_ptr, by_depth_ptr, count_ptr, key_ptr, num_gaussians, capacity, pad, height, width, uv_stride,
+    ext_stride, TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
 ):
-    """:func:`count_pairs_kernel` on strided centres and extents."""
+    """:func:`count_pairs_kernel` on strided centres and extents, and the key buffer's fill: ``pad`` (past every
+    tile id: places the emission leaves unwritten sort last) at its ``capacity`` places. Launch with at least
+    ``max(num_gaussians, capacity)`` lanes."""
     i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    tl.store(key_ptr + i, tl.full([BLOCK], pad, tl.int32).to(key_ptr.dtype.element_ty), mask=i < capacity)
     mask = i < num_gaussians
     g = tl.load(by_depth_ptr + i, mask=mask, other=0)
     i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
