@@ -167,3 +167,16 @@ def test_lean_bins_with_int32_tile_keys(monkeypatch):
     g = shell_scene(30, seed=37, scale=(0.05, 0.6), dtype=F32).to(DEVICE)
     proj = Equirect(16, 32).project(g, torch.eye(4, device=DEVICE), RasterSettings())
     _assert_lean_bins_match_the_reference(proj, 4, len(bin_to_tiles(proj, 4).gaussian) + 50)
+
+
+def test_scenes_of_other_sizes_keep_their_own_capacity(monkeypatch):
+    monkeypatch.setattr(triton_binning, "_CAPACITY", {})
+    camera, eye = Equirect(16, 32), torch.eye(4, device=DEVICE)
+    small, large = (camera.project(shell_scene(n, seed=38, dtype=F32).to(DEVICE), eye, RasterSettings())
+                    for n in (6, 60))
+    (key_small, first_small), (key_large, first_large) = (triton_binning.lean_capacity(p, 8) for p in (small, large))
+    assert key_small != key_large
+    assert (first_small, first_large) == (4 * len(small.depth) + 1024, 4 * len(large.depth) + 1024)
+    triton_binning.grow_capacity(key_large, 10**6)
+    assert triton_binning.lean_capacity(small, 8)[1] == first_small  # the large scene's growth is not the small's
+    assert triton_binning.lean_capacity(large, 8)[1] == int(10**6 * triton_binning.CAPACITY_HEADROOM) + 1024

@@ -169,9 +169,10 @@ def _bin_fused(proj, by_depth, ends, total, tile_size) -> TileBins:
     return TileBins(gaussian, tile, rows, cols, shift, tiles_x, tiles_y)
 
 
-# The lean binning's pair capacity per (device, cameras, height, width, tile size): it grows (with headroom) when
-# a render needs more, so that after the first renders of a kind the buffers are sized without reading the pair
-# count on the host (:func:`bin_lean`).
+# The lean binning's pair capacity per kind of render (device, cameras, height, width, tile size and the number of
+# visible Gaussians to a power of two): it grows (with headroom) when a render needs more, so that after the first
+# renders of a kind the buffers are sized without reading the pair count on the host (:func:`bin_lean`). Scenes of
+# other sizes keep their own (a small scene does not sort the padding of a large one's capacity).
 _CAPACITY: dict = {}
 CAPACITY_HEADROOM = 1.25
 
@@ -197,7 +198,7 @@ class LeanBins:
 
 def lean_capacity(proj: ProjectedGaussians, tile_size: int) -> tuple[tuple, int]:
     """The cache key of ``proj``'s kind of render and its current pair capacity (first guess: 4 per Gaussian)."""
-    key = (str(proj.camera.device), proj.num_cameras, proj.height, proj.width, tile_size)
+    key = (str(proj.camera.device), proj.num_cameras, proj.height, proj.width, tile_size, len(proj.depth).bit_length())
     return key, _CAPACITY.get(key, 4 * len(proj.depth) + 1024)
 
 
