@@ -101,6 +101,15 @@ def test_lean_forward_gives_the_default_images_and_gradients_equirect_seam_and_p
     _assert_same_as_default(shell_scene(30, seed=33, scale=(0.05, 0.4), dtype=F32), poses, Pinhole(K, 20, 24))
 
 
+def test_lean_forward_of_float64_gaussians_and_a_cubemap_face():
+    # float64 projections: the 11-column layout and float64 centres and extents read in place.
+    from cylindersplat.render import cubemap_face
+
+    g = shell_scene(15, seed=39, scale=(0.1, 0.5), dtype=torch.float64)
+    _assert_same_as_default(g, yaw_pose(0.4, dtype=torch.float64), Equirect(8, 16), background=(0.1, 0.2, 0.3))
+    _assert_same_as_default(shell_scene(15, seed=40, dtype=F32), yaw_pose(0.2, dtype=F32), cubemap_face(12, dtype=F32))
+
+
 @pytest.mark.parametrize("backward", ["sums", "chunked4"])
 def test_lean_forward_with_the_other_backwards(monkeypatch, backward):
     monkeypatch.setattr(triton_backend, "BACKWARD", backward)
