@@ -120,14 +120,18 @@ class Gaussians:
                 raise ValueError(f"{name} must be a floating-point tensor, got {t.dtype}")
             if t.device != self.means.device:
                 raise ValueError(f"{name} is on {t.device} but means is on {self.means.device}")
-            if not torch.isfinite(t).all():
-                raise ValueError(f"{name} contains non-finite values (NaN or Inf)")
-        if (self.scales < 0).any():
-            raise ValueError("scales must be non-negative standard deviations")
-        if ((self.opacities < 0) | (self.opacities > 1)).any():
-            raise ValueError("opacities must lie in [0, 1]")
-        if n and (torch.linalg.vector_norm(self.rotations, dim=-1) == 0).any():
-            raise ValueError("rotations contain a zero quaternion")
+        # The value checks as one device-side vector, read once (one host synchronisation on a GPU, not one per
+        # check); the first failing check, in this order, names the problem.
+        problems = [f"{name} contains non-finite values (NaN or Inf)" for name in self.tensors()]
+        flags = [~torch.isfinite(t).all() for t in self.tensors().values()]
+        problems += ["scales must be non-negative standard deviations", "opacities must lie in [0, 1]"]
+        flags += [(self.scales < 0).any(), ((self.opacities < 0) | (self.opacities > 1)).any()]
+        if n:
+            problems.append("rotations contain a zero quaternion")
+            flags.append((torch.linalg.vector_norm(self.rotations, dim=-1) == 0).any())
+        flags = torch.stack(flags)
+        if flags.any():
+            raise ValueError(problems[int(flags.int().argmax())])
         return self
 
     # -- structural operations -----------------------------------------------------------

@@ -28,20 +28,25 @@ def validate_c2w(c2w: Tensor, name: str = "c2w", atol: float = 1e-3) -> Tensor:
         raise TypeError(f"{name} must be a torch.Tensor, got {type(c2w).__name__}")
     if c2w.ndim < 2 or c2w.shape[-2:] != (4, 4):
         raise ValueError(f"{name} must have shape (..., 4, 4), got {tuple(c2w.shape)}")
-    if not torch.isfinite(c2w).all():
-        raise ValueError(f"{name} contains non-finite values (NaN or Inf)")
+    if c2w.numel() == 0:
+        return c2w
+    # Every check as one device-side vector, read once (one host synchronisation on a GPU); the first failing
+    # check, in this order, names the problem.
     rot = c2w[..., :3, :3].double()
     eye = torch.eye(3, dtype=rot.dtype, device=rot.device)
-    err = (rot @ rot.transpose(-1, -2) - eye).abs().amax() if rot.numel() else torch.tensor(0.0)
-    if err > atol:
-        raise ValueError(f"{name} rotation part is not orthonormal (max |R R^T - I| = {float(err):.3g})")
-    if rot.numel() and (torch.linalg.det(rot) < 0).any():
-        raise ValueError(f"{name} rotation part is a reflection (determinant -1), not a rotation; "
-                         "check the handedness of the pose convention")
+    err = (rot @ rot.transpose(-1, -2) - eye).abs().amax()
     last = c2w[..., 3, :].double()
     expected = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=last.dtype, device=last.device)
-    if last.numel() and (last - expected).abs().amax() > atol:
-        raise ValueError(f"{name} last row must be [0, 0, 0, 1]")
+    finite = torch.isfinite(c2w).all()
+    flags = torch.stack([~finite, finite & (err > atol), finite & (torch.linalg.det(rot) < 0).any(),
+                         finite & ((last - expected).abs().amax() > atol)])
+    if flags.any():
+        problems = [f"{name} contains non-finite values (NaN or Inf)",
+                    f"{name} rotation part is not orthonormal (max |R R^T - I| = {float(err):.3g})",
+                    f"{name} rotation part is a reflection (determinant -1), not a rotation; "
+                    "check the handedness of the pose convention",
+                    f"{name} last row must be [0, 0, 0, 1]"]
+        raise ValueError(problems[int(flags.int().argmax())])
     return c2w
 
 

@@ -1,0 +1,86 @@
+"""Input validation reads the device once per check group, not once per check (issue 35: at 0.1 M Gaussians on a
+GPU, 13 host synchronisations of the render call came from validation): ``Gaussians.validate`` and ``validate_c2w``
+each wait for the device once on valid input, and still name the first problem, in the same order, on bad input."""
+
+import sys
+
+import pytest
+import torch
+
+from cylindersplat.gaussians import Gaussians
+from cylindersplat.geometry import make_c2w
+from cylindersplat.geometry.poses import validate_c2w
+
+WAITS = ("__bool__", "__int__", "__float__", "__index__", "item", "tolist", "nonzero")
+
+
+def _waits(fn) -> int:
+    """How many Tensor methods that wait for the device the validators themselves call during ``fn``."""
+    count = 0
+    originals = {name: getattr(torch.Tensor, name) for name in WAITS}
+
+    def watched(name):
+        original = originals[name]
+
+        def method(self, *args, **kwargs):
+            nonlocal count
+            if sys._getframe(1).f_code.co_name in ("validate", "validate_c2w"):
+                count += 1
+            return original(self, *args, **kwargs)
+        return method
+
+    try:
+        for name in WAITS:
+            setattr(torch.Tensor, name, watched(name))
+        fn()
+    finally:
+        for name, original in originals.items():
+            setattr(torch.Tensor, name, original)
+    return count
+
+
+def _gaussians(n=50):
+    torch.manual_seed(0)
+    return Gaussians.from_rgb(torch.randn(n, 3), torch.rand(n, 3) * 0.1, torch.randn(n, 4), torch.rand(n),
+                              torch.rand(n, 3))
+
+
+def test_valid_inputs_are_read_once():
+    g = _gaussians()
+    assert _waits(g.validate) == 1
+    poses = torch.stack([make_c2w(translation=torch.tensor([0.1 * i, 0.0, 0.0])) for i in range(3)])
+    assert _waits(lambda: validate_c2w(poses)) == 1
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda g: g.means.__setitem__((0, 0), float("nan")), "means contains non-finite"),
+    (lambda g: g.scales.__setitem__((1, 2), -0.1), "scales must be non-negative"),
+    (lambda g: g.opacities.__setitem__(3, 1.5), r"opacities must lie in \[0, 1\]"),
+    (lambda g: g.rotations.__setitem__(4, 0.0), "zero quaternion"),
+])
+def test_bad_gaussians_name_the_problem(change, message):
+    g = _gaussians()
+    change(g)
+    with pytest.raises(ValueError, match=message):
+        g.validate()
+
+
+def test_the_first_problem_wins_as_before():
+    g = _gaussians()
+    g.scales[0, 0] = float("inf")  # non-finite scales are reported before negative ones
+    g.scales[1, 0] = -1.0
+    with pytest.raises(ValueError, match="scales contains non-finite"):
+        g.validate()
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda p: p.__setitem__((0, 0, 3), float("inf")), "non-finite"),
+    (lambda p: p.__setitem__((1, 0, 0), 2.0), r"not orthonormal \(max \|R R\^T - I\| = 3"),
+    (lambda p: p.__setitem__((0, 0, 0), -1.0), "reflection"),
+    (lambda p: p.__setitem__((2, 3, 0), 0.5), r"last row must be \[0, 0, 0, 1\]"),
+])
+def test_bad_poses_name_the_problem(change, message):
+    poses = torch.stack([make_c2w() for _ in range(3)])
+    change(poses)
+    with pytest.raises(ValueError, match=message):
+        validate_c2w(poses)
