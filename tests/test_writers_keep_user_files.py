@@ -154,7 +154,8 @@ def test_view_html_and_screenshot_that_fail_keep_the_earlier_files(tmp_path, mon
     assert main(argv + ["--frustum-scale", "0.5"]) == 1
     assert _error_line(capsys) == (
         f"cylindersplat view: error: file too large while writing {out / 'room.png'} (a file-size limit: ulimit -f, "
-        f"FAT32's 4 GiB): choose another --out; nothing in {out} was changed (not written: room.html, room.png)")
+        f"FAT32's 4 GiB): choose another place for --html / --screenshot; nothing in {out} was changed (not written: "
+        "room.html, room.png)")
     assert _files(out) == before
 
 
@@ -175,7 +176,7 @@ def test_view_html_under_ulimit_f_keeps_the_earlier_page(tmp_path):
     assert proc.returncode == 1, proc.stderr
     assert proc.stderr.strip().splitlines()[-1] == (
         f"cylindersplat view: error: file too large while writing {html} (a file-size limit: ulimit -f, FAT32's "
-        "4 GiB): choose another --out")
+        "4 GiB): choose another place for --html / --screenshot")  # view has no --out
     assert html.read_text() == "<html>the page I made earlier</html>"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["room.html", "room.ply"]
 

@@ -110,6 +110,8 @@ def _run_command(argv: list[str] | None) -> int:
         message = None if args.debug else expected_failure(exc)
         if message is None:
             raise  # a bug (or --debug): the traceback is what we need
+        if args.command in OUTPUT_OPTIONS:  # a command whose outputs are not named by --out
+            message = message.replace("another --out", f"another place for {OUTPUT_OPTIONS[args.command]}")
         note = getattr(exc, "output_note", None)  # a failed set of outputs: what was kept, what was not written
         if note:
             message = f"{message.rstrip('.')}; {note}"
@@ -118,6 +120,10 @@ def _run_command(argv: list[str] | None) -> int:
         print(f"cylindersplat {args.command}: error: {message}", file=sys.stderr)
         return 1
     return int(result or 0)
+
+
+# Commands that write their outputs through options other than --out (the file-system messages name --out)
+OUTPUT_OPTIONS = {"view": "--html / --screenshot"}
 
 
 def expected_failure(exc: BaseException) -> str | None:
