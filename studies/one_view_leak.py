@@ -30,6 +30,7 @@ from pathlib import Path
 
 import torch
 import torch.nn.functional as F
+from sharp_variants import record  # studies/ is the script's folder: its sibling's writer
 
 from cylindersplat.data.datasets import make_dataset
 from cylindersplat.evaluation.evaluate import evaluate
@@ -162,15 +163,7 @@ def main() -> None:
                                  "pixel branch")]
             methods += [with_fill(Method(name, run), "inpaint", name) for name, run in drawings(model).items()]
             res = evaluate(dataset, methods, progress=False)
-            results[key] = {m: {k: res.means[m].get(k) for k in ("ws_psnr", "ws_psnr_occluded", "ssim")}
-                            for m in res.means}
-            print(key, f"{time.time() - start:.0f}s", flush=True)
-            for m, v in results[key].items():
-                hidden = v["ws_psnr_occluded"]
-                print(f"   {m:32s} {v['ws_psnr']:.2f} / {'-' if hidden is None else f'{hidden:.2f}'} / {v['ssim']:.3f}",
-                      flush=True)
-            out.parent.mkdir(parents=True, exist_ok=True)
-            out.write_text(json.dumps(results, indent=1))
+            record(results, key, res, out, start, metrics=("ws_psnr", "ws_psnr_occluded", "ssim"))
 
 
 if __name__ == "__main__":

@@ -57,6 +57,18 @@ VARIANTS = {
 }
 
 
+def record(results: dict, key: str, res, out: Path, start: float,
+           metrics=("ws_psnr", "ws_psnr_occluded", "ssim", "abs_rel")) -> None:
+    """Put one setting's mean scores (an ``evaluate`` result) into ``results[key]``, print them and write all
+    results to ``out`` (so an interrupted study keeps every setting it finished)."""
+    results[key] = {m: {k: res.means[m].get(k) for k in metrics} for m in res.means}
+    print(key, f"{time.time() - start:.0f}s", flush=True)
+    for m, v in results[key].items():
+        print(f"   {m:20s} " + "  ".join(f"{k}={v[k]:.3f}" if v[k] is not None else f"{k}=-" for k in v), flush=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(results, indent=1))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--data", required=True)
@@ -97,14 +109,7 @@ def main() -> None:
                     methods += [with_fill(pixel_only, fill, f"{name}: pixel branch + {fill}")
                                 for fill in ("inpaint", "mean")]
                 res = evaluate(dataset, methods, progress=False)
-                results[key] = {m: {k: res.means[m].get(k) for k in ("ws_psnr", "ws_psnr_occluded", "ssim", "abs_rel")}
-                                for m in res.means}
-                print(key, f"{time.time() - start:.0f}s", flush=True)
-                for m, v in results[key].items():
-                    print(f"   {m:20s} " + "  ".join(f"{k}={v[k]:.3f}" if v[k] is not None else f"{k}=-" for k in v),
-                          flush=True)
-                out.parent.mkdir(parents=True, exist_ok=True)
-                out.write_text(json.dumps(results, indent=1))
+                record(results, key, res, out, start)
 
 
 if __name__ == "__main__":

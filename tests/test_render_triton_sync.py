@@ -5,23 +5,17 @@ On a machine without a GPU the path runs in Triton's interpreter (conftest.py); 
 ``torch.Tensor`` methods that wait for the device are called *directly from cylindersplat's code* (Triton's
 interpreter copies tensors itself; those calls are not the render path's)."""
 
-import os
-import sys
-
 import pytest
 import torch
 
 pytest.importorskip("triton")
 
-import cylindersplat  # noqa: E402
 from cylindersplat.gaussians import Gaussians  # noqa: E402
 from cylindersplat.render import render_equirect  # noqa: E402
 from render_scenes import shell_scene  # noqa: E402
+from tensor_waits import HOST_COPIES, waits_during  # noqa: E402
 
 DEVICE = "cuda" if torch.cuda.is_available() else "cpu"
-ROOT = os.path.dirname(cylindersplat.__file__)
-HOST_COPIES = ("item", "tolist", "cpu", "numpy")  # explicit: never in the render path
-IMPLICIT = ("__bool__", "__int__", "__float__", "__index__", "nonzero")  # a Python value or a data-dependent size
 # The implicit synchronisations left (file, function): input validation (finite values, rigid poses, camera
 # distance), the compaction of visible pairs and the pair count that sizes the binning's buffers.
 KNOWN = {
@@ -35,27 +29,7 @@ KNOWN = {
 
 def _calls_during(fn) -> set:
     """(method, file under cylindersplat/, function) of every watched Tensor method cylindersplat calls in ``fn``."""
-    found = set()
-    originals = {name: getattr(torch.Tensor, name) for name in HOST_COPIES + IMPLICIT}
-
-    def watched(name):
-        original = originals[name]
-
-        def method(self, *args, **kwargs):
-            caller = sys._getframe(1).f_code
-            if caller.co_filename.startswith(ROOT):
-                found.add((name, os.path.relpath(caller.co_filename, ROOT), caller.co_name))
-            return original(self, *args, **kwargs)
-        return method
-
-    try:
-        for name in originals:
-            setattr(torch.Tensor, name, watched(name))
-        fn()
-    finally:
-        for name, original in originals.items():
-            setattr(torch.Tensor, name, original)
-    return found
+    return set(waits_during(fn))
 
 
 @pytest.mark.parametrize("binning,backward", [("key64", "sums"), ("depth_tile", "joined"), ("fused", "chunked8")])

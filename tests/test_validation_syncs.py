@@ -2,41 +2,18 @@
 GPU, 13 host synchronisations of the render call came from validation): ``Gaussians.validate`` and ``validate_c2w``
 each wait for the device once on valid input, and still name the first problem, in the same order, on bad input."""
 
-import sys
-
 import pytest
 import torch
 
 from cylindersplat.gaussians import Gaussians
 from cylindersplat.geometry import make_c2w
 from cylindersplat.geometry.poses import validate_c2w
-
-WAITS = ("__bool__", "__int__", "__float__", "__index__", "item", "tolist", "nonzero")
+from tensor_waits import waits_during
 
 
 def _waits(fn) -> int:
-    """How many Tensor methods that wait for the device the validators themselves call during ``fn``."""
-    count = 0
-    originals = {name: getattr(torch.Tensor, name) for name in WAITS}
-
-    def watched(name):
-        original = originals[name]
-
-        def method(self, *args, **kwargs):
-            nonlocal count
-            if sys._getframe(1).f_code.co_name in ("validate", "validate_c2w"):
-                count += 1
-            return original(self, *args, **kwargs)
-        return method
-
-    try:
-        for name in WAITS:
-            setattr(torch.Tensor, name, watched(name))
-        fn()
-    finally:
-        for name, original in originals.items():
-            setattr(torch.Tensor, name, original)
-    return count
+    """How many times the validators themselves wait for the device during ``fn``."""
+    return sum(function in ("validate", "validate_c2w") for _, _, function in waits_during(fn))
 
 
 def _gaussians(n=50):

@@ -144,16 +144,16 @@ def iter_views(
         raise ValueError(f"camera is {camera.height}x{camera.width} but {height}x{width} was asked for")
     device = gaussians.device
     bar = Progress(len(c2w), desc, unit, progress)
+    layers = None if front is None else (gaussians[:front], gaussians[front:])  # split once, drawn per chunk
     at_once, start = chunk or AUTO_VIEWS_AT_ONCE, 0
     try:
         while start < len(c2w):
             try:
                 poses = c2w[start:start + at_once].to(device)
-                if front is None:
+                if layers is None:
                     out = render(gaussians, poses, camera, background=background, settings=settings)
                 else:
-                    out = render_layered(gaussians[:front], gaussians[front:], poses, camera, background=background,
-                                         settings=settings)
+                    out = render_layered(*layers, poses, camera, background=background, settings=settings)
             except RenderMemoryError:
                 if chunk is not None or at_once == 1 or len(c2w) - start == 1:
                     raise

@@ -33,6 +33,7 @@ import math
 from dataclasses import dataclass
 
 import torch
+from torch import Tensor
 
 from .projection import ProjectedGaussians
 from .rasterize import TileBins, tile_spans
@@ -64,9 +65,7 @@ def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16, binning: 
     total = int(ends[-1]) if len(counts) else 0  # the one host synchronisation: the output size
     tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
     if total == 0:
-        none = [torch.empty(0, *shape, dtype=torch.int64, device=proj.camera.device)
-                for shape in ((), (), (2,), (2,), ())]
-        return TileBins(*none, tiles_x, tiles_y)
+        return TileBins(*_pair_fields(0, proj.camera.device), tiles_x, tiles_y)
     if binning == "fused":
         return _bin_fused(proj, by_depth, ends, total, tile_size)
     if binning == "depth_tile":
@@ -78,11 +77,7 @@ def _bin_key64(proj, spans, offsets, total, tile_size) -> TileBins:
     from . import triton_binning_kernels as kernels
 
     device = proj.camera.device
-    keys = torch.empty(total, dtype=torch.int64, device=device)
-    gaussian = torch.empty(total, dtype=torch.int64, device=device)
-    rows = torch.empty(total, 2, dtype=torch.int64, device=device)
-    cols = torch.empty(total, 2, dtype=torch.int64, device=device)
-    shift = torch.empty(total, dtype=torch.int64, device=device)
+    keys, gaussian, rows, cols, shift = _pair_fields(total, device)  # the tile slot holds the 64-bit sort keys
     depth_bits = proj.depth.detach().float().contiguous().view(torch.int32)
     num = len(offsets)
     kernels.emit_pairs_kernel[((num + _BLOCK - 1) // _BLOCK,)](
@@ -110,15 +105,19 @@ def _bin_depth_then_tile(proj, spans, by_depth, offsets, total, tile_size) -> Ti
     kernels.emit_tile_keys_kernel[((num + _BLOCK - 1) // _BLOCK,)](
         *args, keys, rank, num, spans.tiles_x, tiles_per_camera, TILE=tile_size, BLOCK=_BLOCK)
     order = torch.sort(keys, stable=True).indices  # by tile; within a tile, emission (= depth) order
-    gaussian = torch.empty(total, dtype=torch.int64, device=device)
-    tile = torch.empty(total, dtype=torch.int64, device=device)
-    rows = torch.empty(total, 2, dtype=torch.int64, device=device)
-    cols = torch.empty(total, 2, dtype=torch.int64, device=device)
-    shift = torch.empty(total, dtype=torch.int64, device=device)
+    gaussian, tile, rows, cols, shift = _pair_fields(total, device)
     kernels.write_sorted_pairs_kernel[((total + _BLOCK - 1) // _BLOCK,)](
         *args, order, rank, gaussian, tile, rows, cols, shift, total, proj.width, spans.tiles_x, tiles_per_camera,
         TILE=tile_size, BLOCK=_BLOCK)
     return TileBins(gaussian, tile, rows, cols, shift, spans.tiles_x, spans.tiles_y)
+
+
+def _pair_fields(total: int, device) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
+    """Empty int64 pair fields of :class:`.rasterize.TileBins`: Gaussian, tile, rows (2), columns (2), column shift."""
+    def empty(*shape):
+        return torch.empty(total, *shape, dtype=torch.int64, device=device)
+
+    return empty(), empty(), empty(2), empty(2), empty()
 
 
 def _key_buffers(proj, total, num_tiles):
@@ -158,11 +157,7 @@ def _bin_fused(proj, by_depth, ends, total, tile_size) -> TileBins:
     kernels.emit_fused_keys_kernel[((num + _BLOCK - 1) // _BLOCK,)](
         *head, keys, rank, num, proj.height, proj.width, tiles_x, tiles_per_camera, **constants)
     order = torch.sort(keys, stable=True).indices  # by tile; within a tile, emission (= depth) order
-    gaussian = torch.empty(total, dtype=torch.int64, device=device)
-    tile = torch.empty(total, dtype=torch.int64, device=device)
-    rows = torch.empty(total, 2, dtype=torch.int64, device=device)
-    cols = torch.empty(total, 2, dtype=torch.int64, device=device)
-    shift = torch.empty(total, dtype=torch.int64, device=device)
+    gaussian, tile, rows, cols, shift = _pair_fields(total, device)
     kernels.write_fused_pairs_kernel[((total + _BLOCK - 1) // _BLOCK,)](
         *head, order, rank, gaussian, tile, rows, cols, shift, total, proj.height, proj.width, tiles_x,
         tiles_per_camera, **constants)

@@ -15,6 +15,19 @@ import triton.language as tl
 
 
 @triton.jit
+def _store_pair_rect(rows_ptr, cols_ptr, at, i0, i1, a0, b0, a1, b1, ty, tx, second, mask, TILE: tl.constexpr):
+    """A pair's pixel rectangle (its footprint's rows and columns inside its tile; ``second``: the part of a
+    footprint wrapped across the seam) at place ``at``, in the fields' own integer type."""
+    lo = tl.where(second, a1, a0)
+    hi = tl.where(second, b1, b0)
+    kind = rows_ptr.dtype.element_ty
+    tl.store(rows_ptr + 2 * at, tl.maximum(i0, ty * TILE).to(kind), mask=mask)
+    tl.store(rows_ptr + 2 * at + 1, tl.minimum(i1, ty * TILE + TILE - 1).to(kind), mask=mask)
+    tl.store(cols_ptr + 2 * at, tl.maximum(lo, tx * TILE).to(kind), mask=mask)
+    tl.store(cols_ptr + 2 * at + 1, tl.minimum(hi, tx * TILE + TILE - 1).to(kind), mask=mask)
+
+
+@triton.jit
 def emit_pairs_kernel(
     camera_ptr, depth_bits_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr,
     offset_ptr, key_ptr, gaussian_ptr, rows_ptr, cols_ptr, shift_ptr,
@@ -46,16 +59,11 @@ def emit_pairs_kernel(
         col = k % nx_safe
         second = col >= nx0
         tx = tl.where(second, a1 // TILE + col - nx0, a0 // TILE + col)
-        lo = tl.where(second, a1, a0)
-        hi = tl.where(second, b1, b0)
         tile = camera * tiles_per_camera + ty * tiles_x + tx
         at = start + k
         tl.store(key_ptr + at, (tile.to(tl.int64) << 32) | depth_bits, mask=on)
         tl.store(gaussian_ptr + at, g.to(tl.int64), mask=on)
-        tl.store(rows_ptr + 2 * at, tl.maximum(i0, ty * TILE), mask=on)
-        tl.store(rows_ptr + 2 * at + 1, tl.minimum(i1, ty * TILE + TILE - 1), mask=on)
-        tl.store(cols_ptr + 2 * at, tl.maximum(lo, tx * TILE), mask=on)
-        tl.store(cols_ptr + 2 * at + 1, tl.minimum(hi, tx * TILE + TILE - 1), mask=on)
+        _store_pair_rect(rows_ptr, cols_ptr, at, i0, i1, a0, b0, a1, b1, ty, tx, second, on, TILE)
         tl.store(shift_ptr + at, a0 - j0 - tl.where(second, width, 0), mask=on)
 
 
@@ -132,14 +140,9 @@ def write_sorted_pairs_kernel(
     camera, i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _load_spans(
         g, mask, camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr)
     ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
-    lo = tl.where(second, a1, a0)
-    hi = tl.where(second, b1, b0)
     tl.store(gaussian_ptr + q, g.to(tl.int64), mask=mask)
     tl.store(tile_ptr + q, tile.to(tl.int64), mask=mask)
-    tl.store(rows_ptr + 2 * q, tl.maximum(i0, ty * TILE), mask=mask)
-    tl.store(rows_ptr + 2 * q + 1, tl.minimum(i1, ty * TILE + TILE - 1), mask=mask)
-    tl.store(cols_ptr + 2 * q, tl.maximum(lo, tx * TILE), mask=mask)
-    tl.store(cols_ptr + 2 * q + 1, tl.minimum(hi, tx * TILE + TILE - 1), mask=mask)
+    _store_pair_rect(rows_ptr, cols_ptr, q, i0, i1, a0, b0, a1, b1, ty, tx, second, mask, TILE)
     tl.store(shift_ptr + q, a0 - j0 - tl.where(second, width, 0), mask=mask)
 
 
@@ -240,14 +243,9 @@ def write_fused_pairs_kernel(
     i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_of(uv_ptr, ext_ptr, g, mask, height, width, TILE, WRAP_U)
     k = at - (tl.load(end_ptr + i, mask=mask, other=0) - ny * (nx0 + nx1))
     ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
-    lo = tl.where(second, a1, a0)
-    hi = tl.where(second, b1, b0)
     tl.store(gaussian_ptr + q, g.to(tl.int64), mask=mask)
     tl.store(tile_ptr + q, tile.to(tl.int64), mask=mask)
-    tl.store(rows_ptr + 2 * q, tl.maximum(i0, ty * TILE), mask=mask)
-    tl.store(rows_ptr + 2 * q + 1, tl.minimum(i1, ty * TILE + TILE - 1), mask=mask)
-    tl.store(cols_ptr + 2 * q, tl.maximum(lo, tx * TILE), mask=mask)
-    tl.store(cols_ptr + 2 * q + 1, tl.minimum(hi, tx * TILE + TILE - 1), mask=mask)
+    _store_pair_rect(rows_ptr, cols_ptr, q, i0, i1, a0, b0, a1, b1, ty, tx, second, mask, TILE)
     tl.store(shift_ptr + q, a0 - j0 - tl.where(second, width, 0), mask=mask)
 
 
@@ -320,13 +318,8 @@ def write_lean_pairs_kernel(
                                                               height, width, TILE, WRAP_U)
     k = at - (tl.load(end_ptr + i, mask=mask, other=0) - ny * (nx0 + nx1))
     ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
-    lo = tl.where(second, a1, a0)
-    hi = tl.where(second, b1, b0)
     tl.store(gaussian_ptr + q, g.to(tl.int32), mask=mask)
-    tl.store(rows_ptr + 2 * q, tl.maximum(i0, ty * TILE).to(tl.int32), mask=mask)
-    tl.store(rows_ptr + 2 * q + 1, tl.minimum(i1, ty * TILE + TILE - 1).to(tl.int32), mask=mask)
-    tl.store(cols_ptr + 2 * q, tl.maximum(lo, tx * TILE).to(tl.int32), mask=mask)
-    tl.store(cols_ptr + 2 * q + 1, tl.minimum(hi, tx * TILE + TILE - 1).to(tl.int32), mask=mask)
+    _store_pair_rect(rows_ptr, cols_ptr, q, i0, i1, a0, b0, a1, b1, ty, tx, second, mask, TILE)
     # The tiles' first places, from the sorted keys (every key < num_tiles).
     key = tl.load(sorted_key_ptr + q, mask=mask, other=0).to(tl.int32)
     key = tl.where(mask, key, num_tiles)

@@ -166,6 +166,22 @@ def composite_forward_kernel(
 
 
 @triton.jit
+def _output_gradients(grad_out_ptr, out_ptr, pixel, inside):
+    """The pixels' output gradients ``g`` (rgb, depth, alpha) and ``S = g . out`` (all contributions)."""
+    gptr = grad_out_ptr + pixel * 5
+    g_r = tl.load(gptr + 0, mask=inside, other=0.0)
+    g_g = tl.load(gptr + 1, mask=inside, other=0.0)
+    g_b = tl.load(gptr + 2, mask=inside, other=0.0)
+    g_d = tl.load(gptr + 3, mask=inside, other=0.0)
+    g_a = tl.load(gptr + 4, mask=inside, other=0.0)
+    optr = out_ptr + pixel * 5
+    total = (g_r * tl.load(optr + 0, mask=inside, other=0.0) + g_g * tl.load(optr + 1, mask=inside, other=0.0)
+             + g_b * tl.load(optr + 2, mask=inside, other=0.0) + g_d * tl.load(optr + 3, mask=inside, other=0.0)
+             + g_a * tl.load(optr + 4, mask=inside, other=0.0))
+    return g_r, g_g, g_b, g_d, g_a, total
+
+
+@triton.jit
 def composite_backward_kernel(
     packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr, grad_out_ptr, grad_packed_ptr,
     height, width, tiles_x, tiles_per_camera,
@@ -181,16 +197,7 @@ def composite_backward_kernel(
     row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
     end = tl.load(tile_start_ptr + tile + 1)
-    gptr = grad_out_ptr + pixel * 5
-    g_r = tl.load(gptr + 0, mask=inside, other=0.0)
-    g_g = tl.load(gptr + 1, mask=inside, other=0.0)
-    g_b = tl.load(gptr + 2, mask=inside, other=0.0)
-    g_d = tl.load(gptr + 3, mask=inside, other=0.0)
-    g_a = tl.load(gptr + 4, mask=inside, other=0.0)
-    optr = out_ptr + pixel * 5
-    total = (g_r * tl.load(optr + 0, mask=inside, other=0.0) + g_g * tl.load(optr + 1, mask=inside, other=0.0)
-             + g_b * tl.load(optr + 2, mask=inside, other=0.0) + g_d * tl.load(optr + 3, mask=inside, other=0.0)
-             + g_a * tl.load(optr + 4, mask=inside, other=0.0))
+    g_r, g_g, g_b, g_d, g_a, total = _output_gradients(grad_out_ptr, out_ptr, pixel, inside)
     trans = tl.where(inside, 1.0, 0.0)
     alive = inside
     prefix = tl.zeros([TILE * TILE], dtype=tl.float32)
@@ -332,16 +339,7 @@ def composite_backward_chunked_kernel(
     row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
     end = tl.load(tile_start_ptr + tile + 1)
-    gptr = grad_out_ptr + pixel * 5
-    g_r = tl.load(gptr + 0, mask=inside, other=0.0)
-    g_g = tl.load(gptr + 1, mask=inside, other=0.0)
-    g_b = tl.load(gptr + 2, mask=inside, other=0.0)
-    g_d = tl.load(gptr + 3, mask=inside, other=0.0)
-    g_a = tl.load(gptr + 4, mask=inside, other=0.0)
-    optr = out_ptr + pixel * 5
-    total = (g_r * tl.load(optr + 0, mask=inside, other=0.0) + g_g * tl.load(optr + 1, mask=inside, other=0.0)
-             + g_b * tl.load(optr + 2, mask=inside, other=0.0) + g_d * tl.load(optr + 3, mask=inside, other=0.0)
-             + g_a * tl.load(optr + 4, mask=inside, other=0.0))
+    g_r, g_g, g_b, g_d, g_a, total = _output_gradients(grad_out_ptr, out_ptr, pixel, inside)
     trans = tl.where(inside, 1.0, 0.0)
     alive = inside
     prefix = tl.zeros([TILE * TILE], dtype=tl.float32)
