@@ -13,9 +13,9 @@
 #   model           the paper config end to end (network + one render), 1-4 views;
 #   train           one training step of each curriculum stage at 512x1024, batch 1, bf16 autocast;
 #   run             a short training run of the paper config on procedural 256x512 data (loss must fall).
-# Not in the default run (name them): binning (the Triton binning and backward variants side by side, with stages,
-# at 0.1 and 1.3 M Gaussians, 512x1024: `bench render --variants ...`, under a minute; then a profile of two
-# of them at 1.3 M, kernel by kernel),
+# Not in the default run (name them): binning (the Triton binning, backward, forward and compaction variants side by
+# side, with stages, at 0.1 and 1.3 M Gaussians, 512x1024: `bench render --variants ...`, about two minutes; then a
+# profile of three of them at 1.3 M, kernel by kernel),
 # model_compiled (the model through torch.compile) and base (the `base`
 # preset trained for at most CHECK_BASE_MINUTES (20) in all, resumed by later calls from $CHECK_BASE_DIR,
 # default outputs/gpu_check_base; at its budget the trainer is interrupted cleanly - a checkpoint - and the
@@ -103,10 +103,13 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
 
 # Item sizes: full (the issue's) or smoke (seconds on a CPU).
 # The default (fused,joined) beside the lean forward (no host sync before compositing: triton_backend.FORWARD),
-# with the joined and the chunked8 backward (--stages shows each in its own stage). The variants measured on
+# with the joined and the chunked8 backward (--stages shows each in its own stage), and both forwards with the
+# visible pairs compacted first (",nonzero": triton_backend.COMPACTION; the default "none" bins every pair, the
+# invisible ones inert, and reads the device once per render). The variants measured on
 # 2026-11-26 (key64 / depth_tile binning, sums / chunked4 backward): benchmarks/RESULTS.md.
-binning_variants="--variants fused,joined fused,joined,lean fused,chunked8,lean"
-profile_variants="--variants fused,joined fused,joined,lean"
+binning_variants="--variants fused,joined fused,joined,default,nonzero fused,joined,lean fused,joined,lean,nonzero
+                  fused,chunked8,lean"
+profile_variants="--variants fused,joined fused,joined,default,nonzero fused,joined,lean"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
   render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
@@ -127,7 +130,8 @@ if [ $smoke = 1 ]; then
 else
   # The GPU kernels' tests only (slow-marked ones included: seconds on a GPU), not the reference's CPU tests.
   test_args=(tests/test_render_triton.py tests/test_render_triton_projection.py tests/test_render_binning.py
-             tests/test_render_triton_sync.py tests/test_render_triton_lean.py tests/test_triton_compile.py)
+             tests/test_render_triton_sync.py tests/test_render_triton_lean.py tests/test_triton_compile.py
+             tests/test_render_deferred_checks.py)
   render_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --repeats 3)
   stages_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3)
   binning_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3 $binning_variants)
@@ -209,10 +213,10 @@ for item in $items; do
       run_item stages "${CHECK_LIMIT_STAGES:-60}" $py -m cylindersplat bench render "${stages_args[@]}"
       excerpt '^[{#]' "$out/stages.log" ;;
     binning)
-      run_item binning "${CHECK_LIMIT_BINNING:-90}" $py -m cylindersplat bench render "${binning_args[@]}"
+      run_item binning "${CHECK_LIMIT_BINNING:-150}" $py -m cylindersplat bench render "${binning_args[@]}"
       excerpt '^[{#|]' "$out/binning.log"
       # Where the time goes, kernel by kernel (torch.profiler, device time): today's path and the fused one.
-      run_item binning_profile "${CHECK_LIMIT_BINNING_PROFILE:-45}" $py -m cylindersplat bench render "${profile_args[@]}"
+      run_item binning_profile "${CHECK_LIMIT_BINNING_PROFILE:-75}" $py -m cylindersplat bench render "${profile_args[@]}"
       excerpt '^[#]\|Self CUDA\|Self CPU\|^ *[a-zA-Z_].*%' "$out/binning_profile.log" ;;
     gsplat)
       if [ -n "$gsplat_build" ]; then  # its background build, within what is left of the budget

@@ -1,9 +1,18 @@
-"""Host synchronisations of the Triton render path (issue 35): none of its own host copies, and no new implicit
-synchronisation beyond the known ones listed here (which the issue wants gone; removing one updates the list).
+"""Host synchronisations of the Triton render path (issue 35): one read of the device per forward, none in the
+backward.
 
 On a machine without a GPU the path runs in Triton's interpreter (conftest.py); the check records which
 ``torch.Tensor`` methods that wait for the device are called *directly from cylindersplat's code* (Triton's
-interpreter copies tensors itself; those calls are not the render path's)."""
+interpreter copies tensors itself; those calls are not the render path's), in order, each call once.
+
+The rule: the whole forward + backward makes exactly one such call, :data:`ONE_READ` - the ``tolist`` of
+:meth:`.projection.DeferredValues.read_with`, which copies the pair count that sizes the binning's buffers (or, in
+the lean forward, tells whether they held every pair) together with the render's deferred input checks (the
+Gaussians' and poses' values, the cameras' distance, the number of visible pairs) in one copy. That ``tolist`` is
+the only host copy allowed; any other call, of a host copy or of an implicit wait (``__bool__``, ``__int__``,
+``nonzero``, ...), fails the test. With ``triton_backend.COMPACTION = "nonzero"`` (the visible pairs compacted
+first) there is one more, the compaction's ``nonzero``.
+"""
 
 import pytest
 import torch
@@ -13,70 +22,65 @@ pytest.importorskip("triton")
 from cylindersplat.gaussians import Gaussians  # noqa: E402
 from cylindersplat.render import render_equirect  # noqa: E402
 from render_scenes import shell_scene  # noqa: E402
-from tensor_waits import HOST_COPIES, waits_during  # noqa: E402
+from tensor_waits import waits_during  # noqa: E402
 
 DEVICE = "cuda" if torch.cuda.is_available() else "cpu"
-# The implicit synchronisations left (file, function): input validation (finite values, rigid poses, camera
-# distance), the compaction of visible pairs and the pair count that sizes the binning's buffers.
-KNOWN = {
-    ("__bool__", "gaussians/container.py", "validate"),
-    ("__bool__", "geometry/poses.py", "validate_c2w"),
-    ("__float__", "validation.py", "farthest_camera"),
-    ("nonzero", "render/projection.py", "_compact"),
-    ("__int__", "render/triton_binning.py", "bin_to_tiles_by_key"),
-}
+ONE_READ = ("tolist", "render/projection.py", "read_with")  # the pair count and the deferred checks, one copy
+COMPACTION_READ = ("nonzero", "render/projection.py", "_pairs")  # COMPACTION = "nonzero" only
 
 
-def _calls_during(fn) -> set:
-    """(method, file under cylindersplat/, function) of every watched Tensor method cylindersplat calls in ``fn``."""
-    return set(waits_during(fn))
+def _params():
+    g = shell_scene(20, seed=1, dtype=torch.float32)
+    return {k: v.to(DEVICE).requires_grad_() for k, v in g.tensors().items()}
+
+
+def _forward_then_backward(params) -> tuple[list, list]:
+    """The waits of one render's forward, then of its backward (each a list, in order)."""
+    outputs = []
+
+    def forward():
+        outputs.append(render_equirect(Gaussians(**params), torch.eye(4, device=DEVICE), 8, 16, backend="triton"))
+
+    forward_waits = waits_during(forward)
+    out = outputs[0]
+    backward_waits = waits_during(lambda: (out.rgb.sum() + out.depth.sum()).backward())
+    assert params["means"].grad.abs().max() > 0  # the path really ran, backward included
+    return forward_waits, backward_waits
 
 
 @pytest.mark.parametrize("binning,backward", [("key64", "sums"), ("depth_tile", "joined"), ("fused", "chunked8")])
-def test_the_triton_render_path_makes_no_host_copies_and_no_new_synchronisation(monkeypatch, binning, backward):
+def test_the_triton_render_path_reads_the_device_once(monkeypatch, binning, backward):
     from cylindersplat.render import triton_backend, triton_binning
 
-    monkeypatch.setattr(triton_binning, "BINNING", binning)  # every variant (issue 35) makes the same one sync
+    monkeypatch.setattr(triton_binning, "BINNING", binning)  # every variant makes the same one read
     monkeypatch.setattr(triton_backend, "BACKWARD", backward)
-    g = shell_scene(20, seed=1, dtype=torch.float32)
-    params = {k: v.to(DEVICE).requires_grad_() for k, v in g.tensors().items()}
-
-    def forward_and_backward():
-        out = render_equirect(Gaussians(**params), torch.eye(4, device=DEVICE), 8, 16, backend="triton")
-        (out.rgb.sum() + out.depth.sum()).backward()
-
-    calls = _calls_during(forward_and_backward)
-    assert params["means"].grad.abs().max() > 0  # the path really ran, backward included
-    assert not {c for c in calls if c[0] in HOST_COPIES}, calls
-    assert calls - KNOWN == set(), f"new host synchronisation in the render path: {sorted(calls - KNOWN)}"
-
-
-# The lean forward (triton_backend.FORWARD = "lean") reads the pair count once, after the compositing is queued,
-# instead of the binning's read before it sizes its buffers.
-LEAN_KNOWN = KNOWN - {("__int__", "render/triton_binning.py", "bin_to_tiles_by_key")} | {
-    ("__int__", "render/triton_backend.py", "_lean_backend")}
+    forward_waits, backward_waits = _forward_then_backward(_params())
+    assert forward_waits == [ONE_READ]
+    assert backward_waits == []
 
 
 @pytest.mark.parametrize("backward", ["joined", "chunked4"])
-def test_the_lean_forward_reads_the_pair_count_once_after_compositing(monkeypatch, backward):
+def test_the_lean_forward_reads_the_device_once_after_compositing(monkeypatch, backward):
     from cylindersplat.render import triton_backend, triton_binning
 
     monkeypatch.setattr(triton_backend, "FORWARD", "lean")
     monkeypatch.setattr(triton_backend, "BACKWARD", backward)
     monkeypatch.setattr(triton_binning, "_CAPACITY", {})
-    g = shell_scene(20, seed=1, dtype=torch.float32)
-    params = {k: v.to(DEVICE).requires_grad_() for k, v in g.tensors().items()}
     binnings = []
     original = triton_binning.bin_lean
     monkeypatch.setattr(triton_binning, "bin_lean", lambda *args: binnings.append(args[2]) or original(*args))
-
-    def forward_and_backward():
-        out = render_equirect(Gaussians(**params), torch.eye(4, device=DEVICE), 8, 16, backend="triton")
-        (out.rgb.sum() + out.depth.sum()).backward()
-
-    calls = _calls_during(forward_and_backward)
-    assert params["means"].grad.abs().max() > 0
-    assert not {c for c in calls if c[0] in HOST_COPIES}, calls
-    assert calls - LEAN_KNOWN == set(), f"new host synchronisation in the lean path: {sorted(calls - LEAN_KNOWN)}"
-    assert ("__int__", "render/triton_binning.py", "bin_to_tiles_by_key") not in calls
+    forward_waits, backward_waits = _forward_then_backward(_params())
+    assert forward_waits == [ONE_READ]
+    assert backward_waits == []
     assert len(binnings) == 1  # the first capacity was large enough: no rerun
+
+
+@pytest.mark.parametrize("forward", ["default", "lean"])
+def test_compacting_the_visible_pairs_adds_its_one_nonzero(monkeypatch, forward):
+    from cylindersplat.render import triton_backend
+
+    monkeypatch.setattr(triton_backend, "COMPACTION", "nonzero")
+    monkeypatch.setattr(triton_backend, "FORWARD", forward)
+    forward_waits, backward_waits = _forward_then_backward(_params())
+    assert forward_waits == [COMPACTION_READ, ONE_READ]
+    assert backward_waits == []

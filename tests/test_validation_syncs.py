@@ -61,3 +61,31 @@ def test_bad_poses_name_the_problem(change, message):
     change(poses)
     with pytest.raises(ValueError, match=message):
         validate_c2w(poses)
+
+
+def test_the_deferred_forms_wait_for_nothing_and_flag_what_the_validators_name():
+    # The render path that reads the device once (issue 35) queues these flags and reads them with its pair count.
+    from cylindersplat.geometry.poses import c2w_problem_flags
+    from cylindersplat.validation import camera_too_far
+
+    g = _gaussians()
+    poses = torch.stack([make_c2w(translation=torch.tensor([0.1 * i, 0.0, 0.0])) for i in range(3)])
+    flags = []
+
+    def queue():
+        flags.extend([g.problem_flags(), c2w_problem_flags(poses), camera_too_far(poses)])
+
+    assert waits_during(queue) == []
+    assert not any(bool(f.any()) for f in flags)
+    g.opacities[3] = 1.5
+    poses[1, 0, 0] = -1.0
+    poses[2, 2, 3] = 2e4
+    assert g.problem_flags().tolist() == [False] * 5 + [False, True, False]  # finite x5, scales, opacities, quaternions
+    assert c2w_problem_flags(poses).tolist() == [False, False, True, False]  # the reflection
+    assert bool(camera_too_far(poses)) and not bool(camera_too_far(poses[:2]))
+    with pytest.raises(ValueError, match=r"opacities must lie in \[0, 1\]"):
+        g.validate()
+    with pytest.raises(ValueError, match="sh must have shape"):  # the structure is checked at once, as before
+        Gaussians(g.means, g.scales, g.rotations, g.opacities, g.sh[:2]).problem_flags()
+    with pytest.raises(ValueError, match=r"must have shape \(\.\.\., 4, 4\)"):
+        c2w_problem_flags(poses[..., :3])

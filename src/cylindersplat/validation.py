@@ -33,9 +33,9 @@ from .errors import ImplausibleInputError, InputError
 from .utils.notices import Notice
 
 __all__ = ["check_images", "check_depths", "check_c2w", "check_depth_plausible", "check_translation_plausible",
-           "check_opacity_threshold", "check_constant_depth", "farthest_camera", "check_splats_near_origin",
-           "check_scene_scale", "ScaleWarning", "PLAUSIBILITY_OVERRIDE", "MIN_DEPTH_M", "MAX_DEPTH_M",
-           "MAX_TRANSLATION_M"]
+           "check_opacity_threshold", "check_constant_depth", "farthest_camera", "camera_too_far",
+           "check_splats_near_origin", "check_scene_scale", "ScaleWarning", "PLAUSIBILITY_OVERRIDE", "MIN_DEPTH_M",
+           "MAX_DEPTH_M", "MAX_TRANSLATION_M"]
 
 MIN_DEPTH_M = 0.01
 MAX_DEPTH_M = 1000.0
@@ -190,7 +190,20 @@ def _median_positive(depth: Tensor) -> float | None:
 
 def farthest_camera(c2w: Tensor) -> float:
     """The largest distance (m) of a camera of ``c2w`` from the origin."""
-    return float(c2w[..., :3, 3].detach().double().norm(dim=-1).max()) if c2w.numel() else 0.0
+    return float(_farthest(c2w)) if c2w.numel() else 0.0
+
+
+def camera_too_far(c2w: Tensor) -> Tensor:
+    """Whether a camera of ``c2w`` lies beyond :data:`MAX_TRANSLATION_M` (``farthest_camera(c2w) >
+    MAX_TRANSLATION_M``) as a device-side bool scalar, unread (a render that reads the device once reads it with
+    its pair count)."""
+    if not c2w.numel():
+        return torch.zeros((), dtype=torch.bool, device=c2w.device)
+    return _farthest(c2w) > MAX_TRANSLATION_M
+
+
+def _farthest(c2w: Tensor) -> Tensor:
+    return c2w[..., :3, 3].detach().double().norm(dim=-1).max()
 
 
 def check_translation_plausible(c2w: Tensor, where: str) -> None:

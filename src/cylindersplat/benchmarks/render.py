@@ -11,12 +11,13 @@ binning, fragment expansion + sort, compositing, backward for the PyTorch refere
 compositing kernels). ``--ply-view N`` also times what a user waits for to see a scene: a PLY of ``N``
 Gaussians loaded and one 512x1024 view rendered (no gradients), per backend. A backend that runs out
 of memory is reported as such in the rows and the closing table (the others are still timed).
-``--variants BINNING,BACKWARD[,FORWARD] ...`` times the Triton backend's variants side by side (issue 35): one
-``triton[binning,backward]`` row each (``triton[binning,backward,lean]`` with the lean forward, whose binning is
-always the fused one's), then ``# agreement`` lines (each variant's image and gradients against the
-first's, at the timed size), e.g. ``--backend triton --stages --variants key64,sums fused,sums
-fused,joined fused,joined,lean`` (with ``--stages`` the binning variant shows in ``bin``, the backward one in
-``backward``).
+``--variants BINNING,BACKWARD[,FORWARD[,COMPACTION]] ...`` times the Triton backend's variants side by side (issue
+35): one ``triton[binning,backward]`` row each (``triton[binning,backward,lean]`` with the lean forward, whose binning
+is always the fused one's; ``triton[binning,backward,default,nonzero]`` with the visible pairs compacted first,
+:data:`cylindersplat.render.triton_backend.COMPACTION`), then ``# agreement`` lines (each variant's image and
+gradients against the first's, at the timed size), e.g. ``--backend triton --stages --variants key64,sums fused,sums
+fused,joined fused,joined,lean fused,joined,default,nonzero`` (with ``--stages`` the binning variant shows in
+``bin``, the backward one in ``backward``).
 """
 
 from __future__ import annotations
@@ -139,7 +140,7 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
             from cylindersplat.render.triton_projection import project_dense_triton
 
             proj = project_gaussians(*flatten_cameras(g, c2w)[:2], Equirect(height, width), settings,
-                                     project_dense_triton)
+                                     project_dense_triton, every_pair=triton_backend.takes_every_pair())
             mark()
             lean = triton_backend.FORWARD == "lean"
             if lean:  # the capacity grows in the warm-up iteration
@@ -228,16 +229,20 @@ def ply_view(num: int, device: torch.device, backends: list[str], folder: str, h
 
 
 def triton_variant_name(text: str) -> tuple[str, ...]:
-    """``"BINNING,BACKWARD[,FORWARD]"`` (argparse type): the pair (or triple), each checked against the Triton
-    backend's variants; FORWARD ``default`` is left out (the pair)."""
-    binning, backward, *forward = text.split(",") + [""] * (text.count(",") < 1)
-    ok = binning in triton_binning.BINNINGS and backward in triton_backend.BACKWARDS and len(forward) <= 1
-    if not ok or forward and forward[0] not in triton_backend.FORWARDS:
+    """``"BINNING,BACKWARD[,FORWARD[,COMPACTION]]"`` (argparse type): the fields, each checked against the Triton
+    backend's variants; trailing defaults (FORWARD ``default``, COMPACTION ``none``) are left out."""
+    binning, backward, *rest = text.split(",") + [""] * (text.count(",") < 1)
+    options = (triton_binning.BINNINGS, triton_backend.BACKWARDS, triton_backend.FORWARDS, triton_backend.COMPACTIONS)
+    fields = (binning, backward, *rest)
+    if len(fields) > len(options) or any(f not in choices for f, choices in zip(fields, options)):
         raise argparse.ArgumentTypeError(
-            f"{text!r} is not BINNING,BACKWARD[,FORWARD] with BINNING one of {', '.join(triton_binning.BINNINGS)}, "
-            f"BACKWARD one of {', '.join(triton_backend.BACKWARDS)} and FORWARD one of "
-            f"{', '.join(triton_backend.FORWARDS)}")
-    return (binning, backward) if forward in ([], ["default"]) else (binning, backward, forward[0])
+            f"{text!r} is not BINNING,BACKWARD[,FORWARD[,COMPACTION]] with BINNING one of "
+            f"{', '.join(triton_binning.BINNINGS)}, BACKWARD one of {', '.join(triton_backend.BACKWARDS)}, FORWARD one "
+            f"of {', '.join(triton_backend.FORWARDS)} and COMPACTION one of {', '.join(triton_backend.COMPACTIONS)}")
+    defaults = (None, None, "default", "none")
+    while len(fields) > 2 and fields[-1] == defaults[len(fields) - 1]:
+        fields = fields[:-1]
+    return fields
 
 
 def variant_agreement(num: int, height: int, device: torch.device, variants: list[tuple[str, ...]]) -> list[str]:
@@ -274,16 +279,19 @@ def variant_agreement(num: int, height: int, device: torch.device, variants: lis
 
 
 @contextlib.contextmanager
-def triton_variant(binning: str | None, backward: str | None, forward: str | None = None):
-    """The Triton backend with the given binning, backward and forward variants (None: the default) while inside."""
-    saved = triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD
+def triton_variant(binning: str | None, backward: str | None, forward: str | None = None,
+                   compaction: str | None = None):
+    """The Triton backend with the given binning, backward, forward and compaction variants (None: the default)
+    while inside."""
+    saved = triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD, triton_backend.COMPACTION
     triton_binning.BINNING = binning or saved[0]
     triton_backend.BACKWARD = backward or saved[1]
     triton_backend.FORWARD = forward or saved[2]
+    triton_backend.COMPACTION = compaction or saved[3]
     try:
         yield
     finally:
-        triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD = saved
+        triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD, triton_backend.COMPACTION = saved
 
 
 def ratio_line(base: dict, row: dict, dev: str) -> str:
@@ -338,12 +346,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--compile", action="store_true", help="projection through torch.compile "
                                                                "(render.projection.compile_projection)")
     parser.add_argument("--variants", nargs="+", type=triton_variant_name, default=[],
-                        metavar="BINNING,BACKWARD[,FORWARD]",
+                        metavar="BINNING,BACKWARD[,FORWARD[,COMPACTION]]",
                         help="Triton variants timed side by side, one row each: binning "
                              f"{'|'.join(triton_binning.BINNINGS)} (default {triton_binning.BINNING}), backward "
                              f"{'|'.join(triton_backend.BACKWARDS)} (default {triton_backend.BACKWARD}), forward "
                              f"{'|'.join(triton_backend.FORWARDS)} (default {triton_backend.FORWARD}; lean: the fused "
-                             "binning without the host sync before compositing)")
+                             "binning without the host sync before compositing), compaction "
+                             f"{'|'.join(triton_backend.COMPACTIONS)} (default {triton_backend.COMPACTION}; nonzero: "
+                             "only the visible pairs, one more host sync)")
     parser.add_argument("--ply-view", type=positive_int, nargs="+", default=[], metavar="N",
                         help="also time loading a PLY of N Gaussians and rendering one 512x1024 view, per backend")
     args = parser.parse_args(argv)

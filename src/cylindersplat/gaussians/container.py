@@ -99,6 +99,20 @@ class Gaussians:
     # -- validation ----------------------------------------------------------------------
     def validate(self) -> "Gaussians":
         """Raise ``ValueError`` naming the first inconsistency; return ``self`` when all is well."""
+        problems, flags = self._checks()
+        if flags.any():  # one host synchronisation on a GPU, not one per check
+            raise ValueError(problems[int(flags.int().argmax())])
+        return self
+
+    def problem_flags(self) -> Tensor:
+        """:meth:`validate` without waiting for the device: shapes, dtypes and devices are checked now (the same
+        ``ValueError``), the value checks come back as a device-side bool vector ``(K,)``, unread, true where a
+        check fails (:meth:`validate` then names the first). A render that reads the device once reads these with
+        its pair count (:mod:`cylindersplat.render.api`)."""
+        return self._checks()[1]
+
+    def _checks(self) -> tuple[list[str], Tensor]:
+        """Check the structure (raise ``ValueError``); the value checks' messages and device-side flags, in order."""
         n = self.means.shape[-2] if self.means.ndim >= 2 else None
         if self.means.ndim < 2 or self.means.shape[-1] != 3:
             raise ValueError(f"means must have shape (*B, N, 3), got {tuple(self.means.shape)}")
@@ -120,8 +134,7 @@ class Gaussians:
                 raise ValueError(f"{name} must be a floating-point tensor, got {t.dtype}")
             if t.device != self.means.device:
                 raise ValueError(f"{name} is on {t.device} but means is on {self.means.device}")
-        # The value checks as one device-side vector, read once (one host synchronisation on a GPU, not one per
-        # check); the first failing check, in this order, names the problem.
+        # The value checks as one device-side vector; the first failing check, in this order, names the problem.
         problems = [f"{name} contains non-finite values (NaN or Inf)" for name in self.tensors()]
         flags = [~torch.isfinite(t).all() for t in self.tensors().values()]
         problems += ["scales must be non-negative standard deviations", "opacities must lie in [0, 1]"]
@@ -129,10 +142,7 @@ class Gaussians:
         if n:
             problems.append("rotations contain a zero quaternion")
             flags.append((torch.linalg.vector_norm(self.rotations, dim=-1) == 0).any())
-        flags = torch.stack(flags)
-        if flags.any():
-            raise ValueError(problems[int(flags.int().argmax())])
-        return self
+        return problems, torch.stack(flags)
 
     # -- structural operations -----------------------------------------------------------
     def _map(self, fn) -> "Gaussians":

@@ -8,6 +8,7 @@ from torch import Tensor
 
 __all__ = [
     "validate_c2w",
+    "c2w_problem_flags",
     "invert_rigid",
     "transform_points",
     "world_to_camera",
@@ -24,23 +25,8 @@ def validate_c2w(c2w: Tensor, name: str = "c2w", atol: float = 1e-3) -> Tensor:
     Raises ``ValueError`` naming the problem (shape, non-finite entries, non-orthonormal rotation,
     reflection instead of rotation, wrong last row).
     """
-    if not isinstance(c2w, Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(c2w).__name__}")
-    if c2w.ndim < 2 or c2w.shape[-2:] != (4, 4):
-        raise ValueError(f"{name} must have shape (..., 4, 4), got {tuple(c2w.shape)}")
-    if c2w.numel() == 0:
-        return c2w
-    # Every check as one device-side vector, read once (one host synchronisation on a GPU); the first failing
-    # check, in this order, names the problem.
-    rot = c2w[..., :3, :3].double()
-    eye = torch.eye(3, dtype=rot.dtype, device=rot.device)
-    err = (rot @ rot.transpose(-1, -2) - eye).abs().amax()
-    last = c2w[..., 3, :].double()
-    expected = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=last.dtype, device=last.device)
-    finite = torch.isfinite(c2w).all()
-    flags = torch.stack([~finite, finite & (err > atol), finite & (torch.linalg.det(rot) < 0).any(),
-                         finite & ((last - expected).abs().amax() > atol)])
-    if flags.any():
+    flags, err = _c2w_checks(c2w, name, atol)
+    if c2w.numel() and flags.any():  # one host synchronisation on a GPU, not one per check
         problems = [f"{name} contains non-finite values (NaN or Inf)",
                     f"{name} rotation part is not orthonormal (max |R R^T - I| = {float(err):.3g})",
                     f"{name} rotation part is a reflection (determinant -1), not a rotation; "
@@ -48,6 +34,39 @@ def validate_c2w(c2w: Tensor, name: str = "c2w", atol: float = 1e-3) -> Tensor:
                     f"{name} last row must be [0, 0, 0, 1]"]
         raise ValueError(problems[int(flags.int().argmax())])
     return c2w
+
+
+def c2w_problem_flags(c2w: Tensor, name: str = "c2w", atol: float = 1e-3) -> Tensor:
+    """:func:`validate_c2w` without waiting for the device: type and shape are checked now (the same errors), the
+    value checks come back as a device-side bool vector ``(4,)``, unread, true where a check fails
+    (:func:`validate_c2w` then names the first)."""
+    return _c2w_checks(c2w, name, atol)[0]
+
+
+def _c2w_checks(c2w: Tensor, name: str, atol: float) -> tuple[Tensor, Tensor]:
+    """Check type and shape (raise); the value checks' device-side flags ``(4,)`` in :func:`validate_c2w`'s order,
+    and the largest ``|R R^T - I|``."""
+    if not isinstance(c2w, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(c2w).__name__}")
+    if c2w.ndim < 2 or c2w.shape[-2:] != (4, 4):
+        raise ValueError(f"{name} must have shape (..., 4, 4), got {tuple(c2w.shape)}")
+    if c2w.numel() == 0:
+        return torch.zeros(4, dtype=torch.bool, device=c2w.device), torch.zeros((), device=c2w.device)
+    rot = c2w[..., :3, :3].double()
+    eye = torch.eye(3, dtype=rot.dtype, device=rot.device)
+    err = (rot @ rot.transpose(-1, -2) - eye).abs().amax()
+    last = c2w[..., 3, :].double()
+    expected = torch.eye(4, dtype=last.dtype, device=last.device)[3]  # [0, 0, 0, 1], made on the device (no copy)
+    finite = torch.isfinite(c2w).all()
+    flags = torch.stack([~finite, finite & (err > atol), finite & (_det3(rot) < 0).any(),
+                         finite & ((last - expected).abs().amax() > atol)])
+    return flags, err
+
+
+def _det3(m: Tensor) -> Tensor:
+    """Determinants of 3x3 matrices ``(..., 3, 3)`` by the triple product (elementwise: no solver that may wait
+    for the device)."""
+    return (m[..., 0, :] * torch.linalg.cross(m[..., 1, :], m[..., 2, :])).sum(-1)
 
 
 def invert_rigid(pose: Float[Tensor, "*batch 4 4"]) -> Float[Tensor, "*batch 4 4"]:

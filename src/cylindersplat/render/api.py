@@ -8,6 +8,11 @@ alpha)`` on the flattened layout of :class:`.projection.ProjectedGaussians` (cam
 ``"triton"`` is the fast GPU backend, registered when Triton imports; ``"numba"`` the fast CPU
 backend, registered when numba is installed. ``"auto"`` picks the fast backend of the device and
 falls back to the reference (with one warning) where it cannot run. :func:`register_backend` adds others.
+
+On the ``"triton"`` backend a render waits for the device once (issue 35): its input checks are queued as device
+flags and read with the binning's pair count (:class:`.projection.DeferredValues`), every pair is projected (the
+invisible ones inert: no count of the visible ones to read, :data:`.triton_backend.COMPACTION`), and a failed check
+is named on the host with the same message as on the other backends, which check at once.
 """
 
 from __future__ import annotations
@@ -23,13 +28,15 @@ from torch import Tensor
 
 from ..errors import InputError
 from ..gaussians import Gaussians
-from ..geometry.poses import validate_c2w
-from ..validation import MAX_TRANSLATION_M, farthest_camera
+from ..geometry.poses import c2w_problem_flags, validate_c2w
+from ..validation import MAX_TRANSLATION_M, camera_too_far, farthest_camera
 from .cameras import CameraModel, Equirect
 from .numba_backend import numba_available, numba_backend
 from .numba_projection import project_dense_numba
 from .projection import (
+    DeferredValues,
     DenseProjection,
+    InputCheckFailed,
     ProjectedGaussians,
     RasterSettings,
     UnsupportedSettings,
@@ -37,7 +44,7 @@ from .projection import (
     project_gaussians,
 )
 from .rasterize import rasterize
-from .triton_backend import triton_available, triton_backend
+from .triton_backend import takes_every_pair, triton_available, triton_backend
 from .triton_projection import project_dense_triton
 
 __all__ = ["RenderOutput", "render", "render_equirect", "available_backends", "register_backend", "Backend"]
@@ -58,13 +65,14 @@ Backend = Callable[[ProjectedGaussians, RasterSettings, "Tensor | None"], tuple[
 _reference_backend: Backend = rasterize
 _BACKENDS: dict[str, Backend] = {"torch": _reference_backend}
 _PROJECTIONS: dict = {}  # backend -> its own dense projection (projection.project_dense's signature)
+_DEFERRING: dict = {}  # backend -> whether it takes every pair this render (it reads the deferred checks)
 _AUTO_ORDER: dict[str, list[str]] = {}  # device type -> fast backends "auto" tries there, in order
 _AUTO_DISABLED: set = set()  # fast backends that failed here; "auto" skips them
 _WARNED_NO_NUMBA: list[bool] = [False]
 
 
 def register_backend(name: str, fn: Backend, auto: bool = False, projection: DenseProjection | None = None,
-                     devices: tuple[str, ...] = ("cuda",)) -> None:
+                     devices: tuple[str, ...] = ("cuda",), deferred_checks: Callable[[], bool] | None = None) -> None:
     """Make ``fn`` available as ``backend=name``.
 
     ``fn(projected, settings, background)`` gets :class:`ProjectedGaussians` of any camera model
@@ -75,6 +83,11 @@ def register_backend(name: str, fn: Backend, auto: bool = False, projection: Den
     ``projection`` (optional) replaces the reference's per-pair projection math for this backend
     (:func:`.projection.project_dense`'s signature); it may raise :class:`UnsupportedSettings` for a
     camera model or input it does not handle, and the reference's is used for that call.
+    ``deferred_checks`` (optional) marks a backend that makes one host read, its pair count, through
+    :func:`.projection.read_count`: :func:`render` then queues its input checks as device flags that this read
+    brings along (:attr:`.projection.ProjectedGaussians.deferred`; a failed one stops the render there with the
+    check's own error) instead of reading them first. Called once per render, it says whether the backend takes
+    every pair from the projection, the invisible ones inert (no host read of the visible count), or the visible ones.
     """
     if not isinstance(name, str) or not name or name == "auto":
         raise ValueError(f"backend name must be a non-empty string other than 'auto', got {name!r}")
@@ -83,6 +96,8 @@ def register_backend(name: str, fn: Backend, auto: bool = False, projection: Den
     _BACKENDS[name] = fn
     if projection is not None:
         _PROJECTIONS[fn] = projection
+    if deferred_checks is not None:
+        _DEFERRING[fn] = deferred_checks
     for device_type in devices if auto else ():
         order = _AUTO_ORDER.setdefault(device_type, [])
         if name not in order:
@@ -90,7 +105,8 @@ def register_backend(name: str, fn: Backend, auto: bool = False, projection: Den
 
 
 if triton_available():
-    register_backend("triton", triton_backend, auto=True, projection=project_dense_triton)
+    register_backend("triton", triton_backend, auto=True, projection=project_dense_triton,
+                     deferred_checks=takes_every_pair)
 if numba_available():
     register_backend("numba", numba_backend, auto=True, projection=project_dense_numba, devices=("cpu",))
 
@@ -132,6 +148,8 @@ def _run_fast(fn: Backend, backend: str, fast: Callable, reference: Callable, un
     (it compiles at first use, which may fail on this machine) with a warning."""
     try:
         return fast()
+    except InputCheckFailed:
+        raise  # bad input, not a broken backend: render names the problem
     except (torch.OutOfMemoryError, MemoryError):
         raise  # not a broken backend (RenderMemoryError included): the reference would need more memory still
     except UnsupportedSettings:
@@ -151,15 +169,16 @@ def _run_fast(fn: Backend, backend: str, fast: Callable, reference: Callable, un
 
 
 def _project(fn: Backend, backend: str, gaussians: Gaussians, c2w: Tensor, camera: CameraModel,
-             settings: RasterSettings):
+             settings: RasterSettings, every_pair: bool = False):
     """The backend's own projection where it has one and can take this input, else the reference's
-    (a backend's projection that cannot take a camera model or input leaves it to the reference)."""
+    (a backend's projection that cannot take a camera model or input leaves it to the reference);
+    ``every_pair``: :func:`.projection.project_gaussians`'."""
     dense = _PROJECTIONS.get(fn)
-    reference = lambda: project_gaussians(gaussians, c2w, camera, settings)  # noqa: E731
+    reference = lambda: project_gaussians(gaussians, c2w, camera, settings, every_pair=every_pair)  # noqa: E731
     if dense is None or fn in _AUTO_DISABLED:
         return reference()
-    return _run_fast(fn, backend, lambda: project_gaussians(gaussians, c2w, camera, settings, dense), reference,
-                     unsupported_is_final=False)
+    return _run_fast(fn, backend, lambda: project_gaussians(gaussians, c2w, camera, settings, dense, every_pair),
+                     reference, unsupported_is_final=False)
 
 
 def _rasterize(fn: Backend, backend: str, proj: ProjectedGaussians, settings, background):
@@ -198,13 +217,9 @@ def render(
         raise TypeError(f"gaussians must be a cylindersplat.gaussians.Gaussians, got {type(gaussians).__name__}")
     if not isinstance(camera, CameraModel):
         raise TypeError(f"camera must be a camera model (cylindersplat.render.cameras), got {type(camera).__name__}")
-    gaussians.validate()
-    validate_c2w(c2w)
-    far = farthest_camera(c2w)
-    if far > MAX_TRANSLATION_M:  # float32 positions keep ~1 m / 2^24 of relative precision: splats smear and jitter
-        warnings.warn(f"cameras up to {far:.3g} m from the origin (beyond {MAX_TRANSLATION_M:g} m): float32 loses "
-                      "centimetres there and the render is wrong; recentre the scene (subtract a common origin)",
-                      RuntimeWarning, stacklevel=2)
+    # A backend that reads the device once (its pair count) reads the input checks with it; others check now.
+    deferred = _defers_checks(backend, gaussians.device)
+    checks = _queue_checks(gaussians, c2w) if deferred else _check_inputs(gaussians, c2w)
     settings = settings or RasterSettings()
     if not isinstance(settings, RasterSettings):
         raise TypeError(f"settings must be a RasterSettings, got {type(settings).__name__}")
@@ -213,30 +228,110 @@ def render(
     if num_cameras == 0:
         raise ValueError(f"c2w holds no cameras (shape {tuple(c2w.shape)}); give at least one 4x4 camera-to-world pose")
     if background is not None:
-        try:
-            background = torch.as_tensor(background, dtype=gaussians.dtype, device=gaussians.device)
-        except (TypeError, ValueError, RuntimeError):
-            raise TypeError("background must be RGB numbers in [0, 1] (3 floats or a tensor), got "
-                            f"{background!r:.80}") from None
-        if background.shape[-1:] != (3,) or background.numel() not in (3, 3 * num_cameras):
-            raise ValueError(f"background must be RGB, (3,) or one per camera {(*out_shape, 3)}, got "
-                             f"{tuple(background.shape)}")
-        if not torch.isfinite(background).all():
-            raise ValueError("background must be finite (RGB in [0, 1]), got "
-                             f"{background.tolist() if background.numel() <= 12 else 'NaN/inf values'}")
+        background = _background(background, gaussians, out_shape, num_cameras, checks)
     fn = _pick_backend(backend, gaussians.device)
-    proj = _project(fn, backend, flat_gaussians, flat_c2w, camera, settings)
-    if proj.camera.numel() == 0 and gaussians.means.shape[-2] > 0 and camera.sees_every_direction:
+    proj = _project(fn, backend, flat_gaussians, flat_c2w, camera, settings, deferred and _DEFERRING[fn]())
+    if checks is None:
+        _warn_none_visible(len(proj.camera), gaussians, camera, settings)
+    else:
+        proj.deferred = _deferred_values(checks, proj)
+    try:
+        rgb, depth, alpha = _rasterize(fn, backend, proj, settings, background)
+        found = None if checks is None else proj.deferred.read()  # read with the pair count (or now: none read)
+    except InputCheckFailed:
+        found = None  # named below, outside this handler (the error alone, without this one as its context)
+    else:
+        if found is not None:  # the checks' warnings, as the immediate ones (the far cameras' first)
+            _warn_far(c2w, far=found[1] != 0, stacklevel=3)
+            if proj.visible is not None:
+                _warn_none_visible(found[2], gaussians, camera, settings)
+        h, w = camera.height, camera.width
+        return RenderOutput(
+            rgb=rgb.reshape(*out_shape, 3, h, w), depth=depth.reshape(*out_shape, h, w),
+            alpha=alpha.reshape(*out_shape, h, w)
+        )
+    _check_inputs(gaussians, c2w, background)  # a deferred check failed: today's checks, in order, name it
+    raise RuntimeError("a deferred input check of render failed, but checking the inputs again found nothing")
+
+
+def _defers_checks(backend: str, device: torch.device) -> bool:
+    """Whether this render's backend reads the input checks with its pair count (``register_backend``'s
+    ``deferred_checks``). A backend that cannot be used is refused later, after the input checks, as before; "auto"
+    on the CPU never defers (and is not asked here: it may warn that numba is missing)."""
+    if backend == "auto" and device.type == "cpu":
+        return False
+    try:
+        return _pick_backend(backend, device) in _DEFERRING
+    except InputError:
+        return False
+
+
+def _check_inputs(gaussians: Gaussians, c2w: Tensor, background: Tensor | None = None) -> None:
+    """The input checks that read the device, now: the Gaussians' and poses' values (raise), the cameras' distance
+    (warn) and the background's values (raise: ``background`` already has its checked shape)."""
+    gaussians.validate()
+    validate_c2w(c2w)
+    _warn_far(c2w)
+    if background is not None:
+        _check_background_finite(background)
+
+
+def _queue_checks(gaussians: Gaussians, c2w: Tensor) -> list[Tensor]:
+    """:func:`_check_inputs` without waiting for the device: shapes are checked now (the same errors), the values
+    queued as device flags ``[any problem, cameras too far]`` (0-dim bool; :func:`_background` adds its own), on the
+    Gaussians' device (poses elsewhere, e.g. on the CPU, are checked on the copy the render uses anyway)."""
+    poses = c2w.to(device=gaussians.device) if isinstance(c2w, Tensor) else c2w
+    return [torch.cat((gaussians.problem_flags(), c2w_problem_flags(poses))).any(), camera_too_far(poses)]
+
+
+def _deferred_values(checks: list[Tensor], proj: ProjectedGaussians) -> DeferredValues:
+    """What the backend reads with its pair count: ``[any input problem, cameras too far]`` and, where the
+    projection kept every pair, the number visible (int64 ``(2,)`` or ``(3,)``)."""
+    values = [checks[0], checks[1]] + ([proj.visible] if proj.visible is not None else [])
+    return DeferredValues(torch.stack([v.long() for v in values]))
+
+
+def _warn_far(c2w: Tensor, far: bool | None = None, stacklevel: int = 4) -> None:
+    """Warn where a camera lies beyond MAX_TRANSLATION_M (``far``: already known, else read now); ``stacklevel``: at
+    render's caller from :func:`_check_inputs`."""
+    distance = farthest_camera(c2w) if far is None or far else 0.0
+    if distance > MAX_TRANSLATION_M:  # float32 positions keep ~1 m / 2^24 of relative precision: splats smear, jitter
+        warnings.warn(f"cameras up to {distance:.3g} m from the origin (beyond {MAX_TRANSLATION_M:g} m): float32 "
+                      "loses centimetres there and the render is wrong; recentre the scene (subtract a common origin)",
+                      RuntimeWarning, stacklevel=stacklevel)
+
+
+def _warn_none_visible(num_visible: int, gaussians: Gaussians, camera: CameraModel, settings: RasterSettings) -> None:
+    if num_visible == 0 and gaussians.means.shape[-2] > 0 and camera.sees_every_direction:
         # A panorama sees every direction: nothing visible means a unit or pose problem, not framing.
         warnings.warn(f"none of the {gaussians.means.shape[-2]:,} Gaussians is visible from these cameras (all closer "
                       f"than settings.near={settings.near} m or transparent); check the scene's scale and the poses",
-                      RuntimeWarning, stacklevel=3)
-    rgb, depth, alpha = _rasterize(fn, backend, proj, settings, background)
-    h, w = camera.height, camera.width
-    return RenderOutput(
-        rgb=rgb.reshape(*out_shape, 3, h, w), depth=depth.reshape(*out_shape, h, w),
-        alpha=alpha.reshape(*out_shape, h, w)
-    )
+                      RuntimeWarning, stacklevel=4)
+
+
+def _background(background, gaussians: Gaussians, out_shape: tuple[int, ...], num_cameras: int,
+                checks: list[Tensor] | None) -> Tensor:
+    """``background`` as a tensor of the Gaussians' dtype and device, its shape checked; its values checked now
+    (``checks`` None) or queued (a flag or-ed into ``checks[0]``)."""
+    try:
+        background = torch.as_tensor(background, dtype=gaussians.dtype, device=gaussians.device)
+    except (TypeError, ValueError, RuntimeError):
+        raise TypeError("background must be RGB numbers in [0, 1] (3 floats or a tensor), got "
+                        f"{background!r:.80}") from None
+    if background.shape[-1:] != (3,) or background.numel() not in (3, 3 * num_cameras):
+        raise ValueError(f"background must be RGB, (3,) or one per camera {(*out_shape, 3)}, got "
+                         f"{tuple(background.shape)}")
+    if checks is None:
+        _check_background_finite(background)
+    else:
+        checks[0] = checks[0] | ~torch.isfinite(background).all()
+    return background
+
+
+def _check_background_finite(background: Tensor) -> None:
+    if not torch.isfinite(background).all():
+        raise ValueError("background must be finite (RGB in [0, 1]), got "
+                         f"{background.tolist() if background.numel() <= 12 else 'NaN/inf values'}")
 
 
 def render_equirect(

@@ -43,6 +43,7 @@ from ..geometry.rotations import quaternion_to_matrix
 from .covariance import eval_sh
 
 __all__ = ["ProjectedGaussians", "RasterSettings", "UnsupportedSettings", "PixelMap", "flatten_cameras",
+           "DeferredValues", "InputCheckFailed", "read_count",
            "to_camera_frame",
            "ewa_footprint", "project_dense", "project_gaussians", "compile_projection"]
 
@@ -90,9 +91,48 @@ class RasterSettings:
             raise InputError(f"RasterSettings.tile_size must be an integer >= 1 (e.g. 16), got {self.tile_size!r}")
 
 
+class InputCheckFailed(Exception):
+    """A deferred input check (:class:`DeferredValues`) failed: the render stops and checks its inputs on the host,
+    which raises the check's own error. Not a ``ValueError``: no backend fallback catches it."""
+
+
+class DeferredValues:
+    """Device-side values a render reads together with its one host read (the backend's pair count) instead of on
+    their own (issue 35): int64 ``(K,)``, ``values[0]`` the flag of the input checks that stop the render (any
+    non-zero: :class:`InputCheckFailed` at the read), the rest read for the caller (:attr:`host`)."""
+
+    def __init__(self, values: Tensor):
+        self.values = values
+        self.host: list[int] | None = None
+
+    def read_with(self, count: Tensor) -> int:
+        """The value of ``count`` (a one-element integer device tensor), read in one copy with :attr:`values`."""
+        count_value, *self.host = torch.cat((count.reshape(1).long(), self.values)).tolist()
+        self._stop_on_failed_checks()
+        return count_value
+
+    def read(self) -> list[int]:
+        """:attr:`values` on the host: read now where no backend read them with its pair count."""
+        if self.host is None:
+            self.host = self.values.tolist()
+        self._stop_on_failed_checks()
+        return self.host
+
+    def _stop_on_failed_checks(self) -> None:
+        if self.host[0]:
+            raise InputCheckFailed("an input check failed (the render checks its inputs on the host to name it)")
+
+
+def read_count(proj: "ProjectedGaussians", count: Tensor) -> int:
+    """A backend's one host read: the value of ``count`` (one element, on the device), with the render's deferred
+    values (:attr:`ProjectedGaussians.deferred`) in the same copy where it has some."""
+    return int(count) if proj.deferred is None else proj.deferred.read_with(count)
+
+
 @dataclass
 class ProjectedGaussians:
-    """Visible (Gaussian, camera) pairs, flattened over cameras.
+    """(Gaussian, camera) pairs, flattened over cameras: the visible ones, or every pair with the invisible ones
+    inert (outside the image with no extent: they meet no tile), where ``visible`` is given.
 
     camera:   (M,)   index of the camera (0 .. num_cameras - 1)
     gaussian: (M,)   row of the Gaussian in the flattened ``(B * N)`` Gaussians
@@ -116,6 +156,8 @@ class ProjectedGaussians:
     height: int
     width: int
     wrap_u: bool
+    visible: Tensor | None = None  # every pair's rows: the number of visible pairs (0-dim int64, on the device)
+    deferred: DeferredValues | None = None  # read with the backend's pair count (:func:`read_count`)
 
 
 @dataclass
@@ -231,11 +273,29 @@ def _view_colors(gaussians: Gaussians, c2w: Tensor, camera: Tensor, gauss: Tenso
     return eval_sh(sh.index_select(0, gauss), dirs)
 
 
-def _compact(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, camera_model) -> ProjectedGaussians:
-    """Keep the visible pairs: one index computation and gathers (every ``x[mask]`` would synchronise again)."""
+# An invisible pair's row where every pair is kept: u = v = -1 (outside the image: its pixel rows end before row 0),
+# the rest (conic, extent, depth) 0. It meets no tile, so no binning counts it and no compositing reads it.
+_INERT_UV = -1.0
+
+
+def _pairs(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, camera_model,
+           every_pair: bool = False) -> ProjectedGaussians:
+    """The visible pairs (one index computation and gathers: every ``x[mask]`` would synchronise again), or with
+    ``every_pair`` all ``B * V * N`` of them, the invisible ones inert (:data:`_INERT_UV`), so that nothing waits
+    for the device to learn how many are visible."""
     num_b, num_v, num_n = valid.shape
-    index = valid.reshape(-1).nonzero().squeeze(1)
-    geo = geo.reshape(-1, 8).index_select(0, index).to(gaussians.dtype)
+    geo = geo.reshape(-1, 8)
+    visible = None
+    if every_pair:
+        index = torch.arange(valid.numel(), device=valid.device)
+        inert = torch.zeros(8, dtype=geo.dtype, device=geo.device)
+        inert[:2] = _INERT_UV  # filled on the device: no host-to-device copy
+        geo = torch.where(valid.reshape(-1, 1), geo, inert)
+        visible = valid.sum()
+    else:
+        index = valid.reshape(-1).nonzero().squeeze(1)
+        geo = geo.index_select(0, index)
+    geo = geo.to(gaussians.dtype)
     gauss = index % num_n + (index // (num_v * num_n)) * num_n  # row of the (B*N) Gaussians
     camera = index // num_n
     return ProjectedGaussians(
@@ -251,6 +311,7 @@ def _compact(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, came
         height=camera_model.height,
         width=camera_model.width,
         wrap_u=camera_model.wrap_u,
+        visible=visible,
     )
 
 
@@ -279,13 +340,16 @@ DenseProjection = Callable[[Tensor, Tensor, Tensor, Tensor, Tensor, Any, RasterS
 
 
 def project_gaussians(
-    gaussians: Gaussians, c2w: Tensor, camera, settings: RasterSettings, dense: DenseProjection | None = None
+    gaussians: Gaussians, c2w: Tensor, camera, settings: RasterSettings, dense: DenseProjection | None = None,
+    every_pair: bool = False,
 ) -> ProjectedGaussians:
     """Project flattened Gaussians ``(B, N, ...)`` into cameras ``(B, V, 4, 4)`` (:func:`flatten_cameras`)
     with a camera model (:mod:`.cameras`); cameras are flattened to ``C = B * V`` in the result.
 
     ``dense`` replaces the reference's per-pair math (:func:`project_dense`), e.g. by a fused kernel.
+    ``every_pair``: keep all ``B * V * N`` pairs, the invisible ones inert (no host synchronisation; for backends
+    that bin by tile spans), instead of the visible ones.
     """
     g = gaussians
     geo, valid = (dense or _reference_dense())(g.means, g.scales, g.rotations, g.opacities, c2w, camera, settings)
-    return _compact(geo, valid, gaussians, c2w, camera)
+    return _pairs(geo, valid, gaussians, c2w, camera, every_pair)

@@ -21,11 +21,12 @@ import importlib.util
 import torch
 from torch import Tensor
 
-from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings
+from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings, read_count
 from .rasterize import TileBins, pack_projected, unpack_composited
 from .triton_binning import bin_to_tiles_by_key
 
-__all__ = ["triton_available", "triton_backend", "composite_triton", "BACKWARDS", "BACKWARD", "FORWARDS", "FORWARD"]
+__all__ = ["triton_available", "triton_backend", "composite_triton", "BACKWARDS", "BACKWARD", "FORWARDS", "FORWARD",
+           "COMPACTIONS", "COMPACTION", "takes_every_pair"]
 
 # The compositing backward's variant: "sums" (:func:`.triton_kernels.composite_backward_kernel`, one pair at a
 # time: ten block-wide sums and ten scalar atomics per pair), "joined" (the same with one block-wide sum of the
@@ -46,9 +47,26 @@ BACKWARD = "joined"
 FORWARDS = ("default", "lean")
 FORWARD = "default"
 
+# The rows the backend gets from the projection (issue 35): "none" (every (camera, Gaussian) pair, the invisible ones
+# inert - outside the image, no extent - so no host synchronisation sizes them; the binning's sort and counts run
+# over all B * V * N pairs) or "nonzero" (the visible pairs only, compacted by a ``nonzero``: one more host
+# synchronisation, fewer rows where many pairs are invisible, e.g. pinhole views). The same images and gradients.
+# Either way the render's input checks are read with the pair count (:func:`.projection.read_count`): one host
+# synchronisation per forward with "none", two with "nonzero". Not yet measured on a GPU; module-level: the
+# benchmark switches it.
+COMPACTIONS = ("none", "nonzero")
+COMPACTION = "none"
+
 
 def triton_available() -> bool:
     return importlib.util.find_spec("triton") is not None
+
+
+def takes_every_pair() -> bool:
+    """Whether the backend wants every pair from the projection (:data:`COMPACTION`), asked once per render."""
+    if COMPACTION not in COMPACTIONS:
+        raise ValueError(f"unknown Triton compaction {COMPACTION!r}: choose one of {', '.join(COMPACTIONS)}")
+    return COMPACTION == "none"
 
 
 class _TritonComposite(torch.autograd.Function):
@@ -137,7 +155,7 @@ def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background
     while True:
         bins = bin_lean(proj, settings.tile_size, capacity)
         out = composite_lean(proj, bins, settings, background)
-        needed = int(bins.total)  # the one host synchronisation, after the compositing is queued
+        needed = read_count(proj, bins.total)  # the one host synchronisation, after the compositing is queued
         if needed <= capacity:
             return out
         capacity = grow_capacity(key, needed)
@@ -156,7 +174,7 @@ def composite_lean(proj: ProjectedGaussians, bins, settings: RasterSettings, bac
 def _lean_packed(proj: ProjectedGaussians) -> tuple[Tensor, int, torch.dtype]:
     """The compositing kernels' rows, their layout (:mod:`.triton_kernels`, ``LEAN``) and the outputs' dtype:
     where ``uv``, ``conic`` and ``depth`` are columns 0-1, 2-4 and 7 of one float32 ``(M, 8)`` tensor (the
-    projection's rows, as :func:`.projection._compact` makes them), that tensor with opacity and colour appended
+    projection's rows, as :func:`.projection._pairs` makes them), that tensor with opacity and colour appended
     (``M x 12``, one concatenation; the gradient reaches the projection's rows whole, not column by column); else
     :func:`.rasterize.pack_projected`'s rows (``M x 11``)."""
     base = proj.uv._base

@@ -24,7 +24,8 @@ are):
 
 :data:`BINNING` is the default: ``"fused"``, measured on an H100 (benchmarks/RESULTS.md, 2026-11-26) at 1.4 ms for
 1.3 M Gaussians (4.9 M tile pairs) against 9.1 ms for ``"key64"`` and 3.6 ms for ``"depth_tile"``, with the same
-bins; ``binning=`` picks one per call. Each makes one host synchronisation: the pair count that sizes the buffers.
+bins; ``binning=`` picks one per call. Each makes one host synchronisation: the pair count that sizes the buffers,
+read with the render's deferred input checks (:func:`.projection.read_count`).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .projection import ProjectedGaussians
+from .projection import ProjectedGaussians, read_count
 from .rasterize import TileBins, tile_spans
 
 __all__ = ["BINNINGS", "BINNING", "bin_to_tiles_by_key", "bin_lean", "LeanBins"]
@@ -62,7 +63,7 @@ def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16, binning: 
         spans = tile_spans(proj, tile_size)
         counts = spans.count if by_depth is None else spans.count[by_depth]
     ends = torch.cumsum(counts, 0)
-    total = int(ends[-1]) if len(counts) else 0  # the one host synchronisation: the output size
+    total = read_count(proj, ends[-1:]) if len(counts) else 0  # the one host synchronisation: the output size
     tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
     if total == 0:
         return TileBins(*_pair_fields(0, proj.camera.device), tiles_x, tiles_y)
