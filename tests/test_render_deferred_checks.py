@@ -215,7 +215,9 @@ def test_on_a_gpu_the_forward_synchronises_once_and_the_backward_never(monkeypat
     outputs = []
 
     def forward_pass():
-        outputs.append(render(Gaussians(**params), poses, Equirect(64, 128), backend="triton"))
+        # an RGB background as a tuple: made on the device (a host-to-device copy would synchronise)
+        outputs.append(render(Gaussians(**params), poses, Equirect(64, 128), background=(0.2, 0.3, 0.4),
+                              backend="triton"))
 
     def backward_pass():
         (outputs[-1].rgb.sum() + outputs[-1].depth.sum()).backward()

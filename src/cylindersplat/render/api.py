@@ -219,6 +219,8 @@ def render(
         raise TypeError(f"camera must be a camera model (cylindersplat.render.cameras), got {type(camera).__name__}")
     # A backend that reads the device once (its pair count) reads the input checks with it; others check now.
     deferred = _defers_checks(backend, gaussians.device)
+    if deferred and isinstance(c2w, Tensor):
+        c2w = c2w.to(device=gaussians.device)  # once: poses elsewhere (e.g. the CPU) are checked where they are used
     checks = _queue_checks(gaussians, c2w) if deferred else _check_inputs(gaussians, c2w)
     settings = settings or RasterSettings()
     if not isinstance(settings, RasterSettings):
@@ -278,10 +280,8 @@ def _check_inputs(gaussians: Gaussians, c2w: Tensor, background: Tensor | None =
 
 def _queue_checks(gaussians: Gaussians, c2w: Tensor) -> list[Tensor]:
     """:func:`_check_inputs` without waiting for the device: shapes are checked now (the same errors), the values
-    queued as device flags ``[any problem, cameras too far]`` (0-dim bool; :func:`_background` adds its own), on the
-    Gaussians' device (poses elsewhere, e.g. on the CPU, are checked on the copy the render uses anyway)."""
-    poses = c2w.to(device=gaussians.device) if isinstance(c2w, Tensor) else c2w
-    return [torch.cat((gaussians.problem_flags(), c2w_problem_flags(poses))).any(), camera_too_far(poses)]
+    queued as device flags ``[any problem, cameras too far]`` (0-dim bool; :func:`_background` adds its own)."""
+    return [torch.cat((gaussians.problem_flags(), c2w_problem_flags(c2w))).any(), camera_too_far(c2w)]
 
 
 def _deferred_values(checks: list[Tensor], proj: ProjectedGaussians) -> DeferredValues:
@@ -314,7 +314,7 @@ def _background(background, gaussians: Gaussians, out_shape: tuple[int, ...], nu
     """``background`` as a tensor of the Gaussians' dtype and device, its shape checked; its values checked now
     (``checks`` None) or queued (a flag or-ed into ``checks[0]``)."""
     try:
-        background = torch.as_tensor(background, dtype=gaussians.dtype, device=gaussians.device)
+        background = _on_device(background, gaussians.dtype, gaussians.device)
     except (TypeError, ValueError, RuntimeError):
         raise TypeError("background must be RGB numbers in [0, 1] (3 floats or a tensor), got "
                         f"{background!r:.80}") from None
@@ -326,6 +326,17 @@ def _background(background, gaussians: Gaussians, out_shape: tuple[int, ...], nu
     else:
         checks[0] = checks[0] | ~torch.isfinite(background).all()
     return background
+
+
+def _on_device(values, dtype: torch.dtype, device: torch.device) -> Tensor:
+    """``torch.as_tensor(values, dtype=dtype, device=device)``; a flat tuple or list of numbers (an RGB) is written
+    there by fills instead, as a host-to-device copy waits for the device on CUDA (a render per training step)."""
+    if isinstance(values, (tuple, list)) and all(type(v) in (int, float) for v in values):
+        out = torch.empty(len(values), dtype=dtype, device=device)
+        for i, value in enumerate(values):
+            out[i] = value
+        return out
+    return torch.as_tensor(values, dtype=dtype, device=device)
 
 
 def _check_background_finite(background: Tensor) -> None:
