@@ -15,7 +15,13 @@ Every row draws the same forward pass of the shipped weights (with the inpaint f
   splats, not coverage lost to edge fading (its coverage against that of the same splats drawn opaque, LO-HI);
 * ``volume near edges, R``: volume Gaussians kept only within R x H pixels of a depth edge of some input view;
 * ``pixel opacity x K``: pixel Gaussians' opacities scaled by K (alpha capped at 0.99 as ever; not a valid 3DGS
-  scene, an experiment only).
+  scene, an experiment only);
+* ``layers, interior KxK (LO-HI)``: the front layer normalised only where it covers every pixel of a K x K window
+  (an erosion of its coverage: gaps inside a seen surface, not the rims of disocclusions);
+* ``surface blend T, MODE``: the pixel layer's colour by surface splatting (the normalised weights of the pixel
+  Gaussians within T (relative depth) of the front surface; ``render.layered.blend_front_surface`` is the library's
+  version), with no volume behind (``none``), the volume behind by the over operator (``over``: the library's
+  ``render_pixel_blending=surface``) or under the opaque layer (``layers``).
 
 Per protocol and prior: WS-PSNR on all and hidden pixels, SSIM. Results are appended to ``--out``.
 """
@@ -43,6 +49,25 @@ from cylindersplat.model.sampling import sample_panorama
 from cylindersplat.render import Equirect
 from cylindersplat.render.api import RenderOutput
 from cylindersplat.render.layered import composite_layers, render_layered
+
+
+def composite_interior(front: RenderOutput, back: RenderOutput, k: int, cover) -> RenderOutput:
+    """The front layer over the back one, normalised by its own coverage only where it covers every pixel of the
+    k x k window around (its erosion reaches ``cover``): a gap between splats inside a seen surface, not the
+    partly covered rim of a disocclusion (there the window holds an uncovered pixel and the back layer shows)."""
+    a = front.alpha
+    flat = a.reshape(-1, 1, *a.shape[-2:])
+    r = k // 2
+    eroded = -F.max_pool2d(F.pad(-flat, (r, r, 0, 0), mode="circular"), k, stride=1, padding=(r, 0))
+    low, high = cover
+    t = ((eroded.view_as(a) - low) / (high - low)).clamp(0, 1)
+    s = t * t * (3 - 2 * t)
+    own = a.clamp_min(1e-6)
+    through = 1 - a
+    rgb = s[:, None] * front.rgb / own[:, None] + (1 - s)[:, None] * (front.rgb + through[:, None] * back.rgb)
+    depth = s * front.depth / own + (1 - s) * (front.depth + through * back.depth)
+    alpha = s + (1 - s) * (a + through * back.alpha)
+    return RenderOutput(rgb, depth, alpha)
 
 
 def _forward(model, sample):
@@ -126,12 +151,57 @@ def drawings(model) -> dict:
             return render_views(scaled, sample.target_poses, h, w, settings=settings)
         return run
 
+    def interior(k, low, high):  # normalise only where the front layer covers every pixel of a k x k window
+        def run(sample):
+            _, g, n = _forward(model, sample)
+            h, w = size(sample)
+            front = render_views(g[:n], sample.target_poses, h, w, settings=settings)
+            back = render_views(g[n:], sample.target_poses, h, w, settings=settings)
+            return composite_interior(front, back, k, (low, high))
+        return run
+
+    def surface_blend(eps, back_mode):
+        """The pixel layer's colour as the normalised Gaussian-weighted mean of the pixel Gaussians on the front
+        surface (EWA surface splatting's epsilon-z-buffer, gated per Gaussian at its centre), instead of the over
+        operator's front-most splat; its coverage stays the opaque drawing's."""
+        def run(sample):
+            _, g, n = _forward(model, sample)
+            h, w = size(sample)
+            pix = g[:n]
+            front = render_views(pix, sample.target_poses, h, w, settings=settings)
+            surface = torch.where(front.alpha > 0.5, front.depth / front.alpha.clamp_min(1e-6),
+                                  torch.full_like(front.depth, float("inf")))
+            points = world_to_camera(pix.means[None].expand(len(sample.target_poses), -1, 3), sample.target_poses)
+            uv, radial = project_equirect(points, h, w)
+            u = uv[..., 0].floor().long() % w
+            v = uv[..., 1].floor().long().clamp(0, h - 1)
+            blend = settings if False else replace(settings, alpha_min=1e-9)
+            rgbs = []
+            for t in range(len(sample.target_poses)):
+                on_front = radial[t] <= surface[t, v[t], u[t]] * (1 + eps)
+                weights = replace(pix, opacities=pix.opacities * on_front * 1e-3)
+                mean = render_views(weights, sample.target_poses[t:t + 1], h, w, settings=blend)
+                colour = mean.rgb / mean.alpha.clamp_min(1e-12)[:, None]
+                rgbs.append(torch.where(mean.alpha[:, None] > 1e-7, colour * front.alpha[t:t + 1, None],
+                                        front.rgb[t:t + 1]))
+            front = RenderOutput(torch.cat(rgbs), front.depth, front.alpha)
+            if back_mode == "none":
+                return front
+            back = render_views(g[n:], sample.target_poses, h, w, settings=settings)
+            cover = (0.999998, 0.999999) if back_mode == "over" else (0.3, 0.6)
+            return composite_layers(front, back, cover=cover)
+        return run
+
     runs = {"layers, over": layers(None)}
     runs.update({f"layers, cover {lo:g}-{hi:g}": layers((lo, hi)) for lo, hi in ((0.3, 0.6), (0.6, 0.9), (0.8, 0.97))})
     runs.update({f"layers, front opacity >= {t:g}": front_opacity(t) for t in (0.5, 0.9, 0.99)})
     runs.update({f"layers, gaps only ({lo:g}-{hi:g})": gaps_only(lo, hi) for lo, hi in ((0.5, 0.9), (0.8, 0.97))})
     runs.update({f"volume near edges, {r:g}": near_edges(r) for r in (0.03, 0.06, 0.12)})
     runs.update({f"pixel opacity x {k:g}": opacity_gain(k) for k in (1.5, 2.0)})
+    runs.update({f"surface blend {e:g}, {m}": surface_blend(e, m) for e in (0.1, 0.2, 0.4)
+                 for m in ("none", "over", "layers")})
+    runs.update({f"layers, interior {k}x{k} ({lo:g}-{hi:g})": interior(k, lo, hi)
+                 for k, lo, hi in ((3, 0.3, 0.6), (3, 0.5, 0.8), (5, 0.3, 0.6))})
     return runs
 
 
@@ -145,6 +215,7 @@ def main() -> None:
     p.add_argument("--scenes", default=None, help="synthetic data: comma list of scene ids")
     p.add_argument("--checkpoint", default="tiny-synth")
     p.add_argument("--out", required=True)
+    p.add_argument("--only", default=None, help="drawing-name prefixes to run, separated by '|' (default: all)")
     args = p.parse_args()
     model = from_pretrained(args.checkpoint).eval()
     out = Path(args.out)
@@ -161,7 +232,10 @@ def main() -> None:
             methods = [with_fill(model_method(model, "one pass"), "inpaint", "one pass"),
                        with_fill(model_method(model.with_config().set_mode("pixel"), "pixel branch"), "inpaint",
                                  "pixel branch")]
-            methods += [with_fill(Method(name, run), "inpaint", name) for name, run in drawings(model).items()]
+            runs = drawings(model)
+            if args.only:
+                runs = {name: run for name, run in runs.items() if name.startswith(tuple(args.only.split("|")))}
+            methods += [with_fill(Method(name, run), "inpaint", name) for name, run in runs.items()]
             res = evaluate(dataset, methods, progress=False)
             record(results, key, res, out, start, metrics=("ws_psnr", "ws_psnr_occluded", "ssim"))
 

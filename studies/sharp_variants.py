@@ -47,6 +47,9 @@ VARIANTS = {
     "tiny (the paper's drawing)": "paper",
     **{f"tiny_sharp + clearance {c:g}": {**RECIPE, "fusion.surface_clearance": c} for c in (0.0, 0.05, 0.1, 0.4)},
     "tiny_sharp + layers": {**RECIPE, "render_layering": "pixel_over_volume"},
+    "tiny_sharp + surface blending": {**RECIPE, "render_pixel_blending": "surface"},
+    "tiny_sharp + surface blending + layers": {**RECIPE, "render_pixel_blending": "surface",
+                                               "render_layering": "pixel_over_volume"},
     "tiny_sharp + clearing seen_through": {**RECIPE, "fusion.pixel_clearing": "seen_through"},
     "tiny_sharp + no clearing": {**RECIPE, "fusion.pixel_clearing": "none"},
     **{f"tiny_sharp + edge step {e:g}": {**RECIPE, "fusion.clearing_edge_step": e} for e in (0.02, 0.1)},
@@ -85,7 +88,8 @@ def main() -> None:
     base = from_pretrained(args.checkpoint)
     paper = {"render_dilation": 0.3, "pixel.footprint": "learned", "pixel.opacity": "learned",
              "pixel.refine_depth": "everywhere", "fusion.surface_clearance": 0.0,
-             "fusion.pixel_clearing": "seen_through", "render_layering": "one_pass"}
+             "fusion.pixel_clearing": "seen_through", "render_layering": "one_pass",
+             "render_pixel_blending": "over"}
     models = {name: base.with_config(**(paper if VARIANTS[name] == "paper" else VARIANTS[name]))
               for name in args.variants.split(",")}
     results = {}

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import replace
 from pathlib import Path
 from typing import Iterator
 
@@ -18,7 +19,7 @@ from ..gaussians import Gaussians
 from ..render import Equirect, RasterSettings, render
 from ..render.api import RenderOutput
 from ..render.cameras import CameraModel
-from ..render.layered import render_layered
+from ..render.layered import COVER, FrontLayer, render_layered
 from ..render.rasterize import RenderMemoryError
 from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
@@ -67,10 +68,12 @@ def reconstruct_gaussians(
     size suggests one (:func:`~cylindersplat.validation.check_scene_scale`) is warned about. A ``min_opacity``
     that leaves no Gaussian is an error naming it.
 
-    ``layers``: also return the number of leading Gaussians to draw as a front layer
-    (:func:`~cylindersplat.render.layered.render_layered`; pass it on as ``front=`` to :func:`render_views`,
-    :func:`iter_views` or :func:`write_flythrough`): the pixel Gaussians when the model's ``render_layering`` is
-    ``"pixel_over_volume"`` and it outputs both branches, else ``None`` (one pass)."""
+    ``layers``: also return the leading Gaussians to draw as a front layer, a
+    :class:`~cylindersplat.render.layered.FrontLayer` (:func:`~cylindersplat.render.layered.render_layered`; pass it
+    on as ``front=`` to :func:`render_views`, :func:`iter_views` or :func:`write_flythrough`): the pixel Gaussians
+    when the model outputs both branches and its ``render_layering`` is ``"pixel_over_volume"`` or its
+    ``render_pixel_blending`` is ``"surface"`` (a pixel-only model's Gaussians are then all one blended layer), else
+    ``None`` (one pass)."""
     if amp not in ("auto", "off"):
         raise InputError(f"amp must be 'auto' or 'off', got {amp!r}")
     check_opacity_threshold(min_opacity)
@@ -88,9 +91,13 @@ def reconstruct_gaussians(
     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_bf16):
         out = model(images[None].to(device), depths[None].to(device), c2w[None].to(device))
     gaussians = out.gaussians.detach().to(torch.float32).batch(0)
-    layered = getattr(model.config, "render_layering", "one_pass") == "pixel_over_volume"
-    both = out.pixel_gaussians is not None and out.volume_gaussians is not None
-    front = out.pixel_gaussians.num_gaussians if layered and both else None  # fused: pixel Gaussians first
+    opaque = getattr(model.config, "render_layering", "one_pass") == "pixel_over_volume"
+    blend = getattr(model.config, "render_pixel_blending", "over") == "surface"
+    front = None  # fused: pixel Gaussians first
+    if (opaque or blend) and out.pixel_gaussians is not None and out.volume_gaussians is not None:
+        front = FrontLayer(out.pixel_gaussians.num_gaussians, blend=blend, opaque=opaque)
+    elif blend and out.volume_gaussians is None:  # the pixel branch alone: all of them blend
+        front = FrontLayer(gaussians.num_gaussians, blend=True)
     if min_opacity > 0:
         keep = gaussians.opacities > min_opacity
         kept = gaussians[keep]
@@ -99,7 +106,7 @@ def reconstruct_gaussians(
                              f"(the most opaque has {float(gaussians.opacities.max()):.3g}); choose a lower value")
         gaussians = kept
         if front is not None:
-            front = int(keep[:front].sum())
+            front = replace(front, count=int(keep[:front.count].sum()))
     return (gaussians, front) if layers else gaussians
 
 
@@ -124,14 +131,15 @@ def iter_views(
     camera: CameraModel | None = None,
     unit: str = "view",
     settings: RasterSettings | None = None,
-    front: int | None = None,
+    front: FrontLayer | int | None = None,
 ) -> Iterator[RenderOutput]:
     """Render ``K`` views ``chunk`` cameras at a time, yielding each chunk (on the CPU) as soon as it is
     done: a caller that writes and drops them holds at most ``chunk`` views. ``camera``: any camera
     model (default ``Equirect(height, width)``; e.g. ``Pinhole(K, height, width)``); ``settings``: the rasterizer's
-    constants (a model's Gaussians are drawn with :func:`raster_settings` of its config); ``front``: the first
-    ``front`` Gaussians are drawn as a layer over the others (:func:`~cylindersplat.render.layered.render_layered`;
-    :func:`reconstruct_gaussians` with ``layers=True`` gives it), None: one depth-sorted pass.
+    constants (a model's Gaussians are drawn with :func:`raster_settings` of its config); ``front``: the leading
+    Gaussians drawn as a layer over the others (a :class:`~cylindersplat.render.layered.FrontLayer`, or their count;
+    :func:`~cylindersplat.render.layered.render_layered`; :func:`reconstruct_gaussians` with ``layers=True`` gives
+    it), None: one depth-sorted pass.
 
     ``chunk=None`` batches automatically: :data:`AUTO_VIEWS_AT_ONCE` views at a time, halved (down to one, with
     a :class:`~cylindersplat.utils.notices.Notice`) whenever the renderer refuses a batch for memory
@@ -144,7 +152,8 @@ def iter_views(
         raise ValueError(f"camera is {camera.height}x{camera.width} but {height}x{width} was asked for")
     device = gaussians.device
     bar = Progress(len(c2w), desc, unit, progress)
-    layers = None if front is None else (gaussians[:front], gaussians[front:])  # split once, drawn per chunk
+    front = FrontLayer.of(front)
+    layers = None if front is None else (gaussians[:front.count], gaussians[front.count:])  # split once, per chunk
     at_once, start = chunk or AUTO_VIEWS_AT_ONCE, 0
     try:
         while start < len(c2w):
@@ -153,7 +162,8 @@ def iter_views(
                 if layers is None:
                     out = render(gaussians, poses, camera, background=background, settings=settings)
                 else:
-                    out = render_layered(*layers, poses, camera, background=background, settings=settings)
+                    out = render_layered(*layers, poses, camera, background=background, settings=settings,
+                                         cover=COVER if front.opaque else None, blend=front.blend)
             except RenderMemoryError:
                 if chunk is not None or at_once == 1 or len(c2w) - start == 1:
                     raise
@@ -178,7 +188,7 @@ def render_views(
     desc: str = "render",
     camera: CameraModel | None = None,
     settings: RasterSettings | None = None,
-    front: int | None = None,
+    front: FrontLayer | int | None = None,
 ) -> RenderOutput:
     """Render ``K`` views (default panoramas; ``camera`` any camera model) in chunks of ``chunk`` cameras
     (bounded render memory; None: automatic, see :func:`iter_views`; ``front``: as there); all results on the
@@ -267,7 +277,7 @@ def write_flythrough(
     chunk: int | None = 2,
     progress: bool = True,
     settings: RasterSettings | None = None,
-    front: int | None = None,
+    front: FrontLayer | int | None = None,
 ) -> Path:
     """Render a looped path of ``frames`` poses through the cameras ``c2w`` (or exactly the poses ``poses``,
     one frame each) as RGB above depth and stream the frames into a video (``.gif``, or ``.mp4``/``.webm``

@@ -80,6 +80,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "fusion.side": ("both", "front", "hidden"),
     "fusion.pixel_clearing": ("none", "seen_through", "at_depth_edges"),
     "render_layering": ("one_pass", "pixel_over_volume"),
+    "render_pixel_blending": ("over", "surface"),
     "prior_alignment": ("none", "photometric"),
     "pixel.footprint": ("learned", "pixel", "surface"),
     "pixel.opacity": ("learned", "opaque"),
@@ -292,6 +293,13 @@ class ModelConfig:
     # (cylindersplat.render.layered): the volume fills what they leave uncovered instead of showing through their
     # partial coverage. Used by eval, render and the demo; training and exported splat files draw one pass
     render_layering: Literal["one_pass", "pixel_over_volume"] = "one_pass"
+    # How the pixel Gaussians combine among themselves where eval, render and the demo draw them. "over" (3DGS, the
+    # paper): the front-most splat wins. "surface" (issue 34): surface splatting, the normalised weights of every
+    # pixel Gaussian on the front surface (cylindersplat.render.layered.blend_front_surface), which averages the
+    # views that see a surface and shows no lattice of splat discs where the target magnifies it. The pixel
+    # Gaussians are then drawn as a layer of their own over the volume's (with the over operator unless
+    # render_layering makes it opaque). Training and exported splat files draw one pass
+    render_pixel_blending: Literal["over", "surface"] = "over"
 
     def validate(self) -> "ModelConfig":
         """Raise ``ValueError`` naming the first inconsistent field; return ``self``."""

@@ -11,26 +11,62 @@ a 2-D inpaint behind it would paint them). Below ``cover[0]`` the back layer sho
 operation (``front + (1 - alpha_front) * back``), with a smoothstep between the two. Where the back layer holds a
 surface in front of the front layer (a hidden surface seen only from the target) the layers' order is wrong; with
 targets between or near the inputs that is rare, and the one-pass drawing remains the default.
+
+:func:`blend_front_surface` (``render_pixel_blending="surface"``) also changes how the front layer's
+own Gaussians combine. The over operator lets the front-most of overlapping opaque splats win, which a target that
+magnifies a surface shows as a lattice of splat discs, and where two inputs see the same surface it keeps one
+view's splats instead of averaging both. Surface splatting (EWA surface splatting's epsilon-z-buffer) instead
+normalises the Gaussian weights of every splat on the front surface: a pixel's colour is ``sum_i w_i c_i / sum_i
+w_i`` over the Gaussians whose depth lies within ``tolerance`` (relative) of the front surface at their centre.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
+import torch
 from jaxtyping import Float
 from torch import Tensor
 
 from ..gaussians import Gaussians
+from ..geometry import world_to_camera
 from .api import RenderOutput, render
 from .cameras import CameraModel
 from .projection import RasterSettings
 
-__all__ = ["COVER", "composite_layers", "render_layered"]
+__all__ = ["COVER", "SURFACE_TOLERANCE", "FrontLayer", "blend_front_surface", "composite_layers", "render_layered"]
 
 COVER = (0.3, 0.6)  # front-layer coverage from which the back layer starts to be hidden, and is fully hidden
+SURFACE_TOLERANCE = 0.1  # relative depth behind the front surface within which splats blend (0.1-0.2 measured alike)
+_BLEND_OPACITY = 1e-3  # opacity scale of the blending pass: compositing becomes a sum (transmittance stays ~1)
+_BLEND_SETTINGS = {"alpha_min": 1e-12}  # ... and no weight is culled as too faint
 
 
-def composite_layers(front: RenderOutput, back: RenderOutput, cover: tuple[float, float] = COVER) -> RenderOutput:
+@dataclass(frozen=True)
+class FrontLayer:
+    """The first ``count`` Gaussians of a set drawn as a layer over the rest; ``blend``: its own Gaussians combined by
+    surface splatting (:func:`blend_front_surface`) instead of the over operator; ``opaque``: the layer hides the
+    rest where it covers a pixel (:data:`COVER`), else the plain over operator puts it over them."""
+
+    count: int
+    blend: bool = False
+    opaque: bool = True
+
+    @classmethod
+    def of(cls, front: "FrontLayer | int | None") -> "FrontLayer | None":
+        """``front`` as a :class:`FrontLayer` (an int is a count drawn with the over operator)."""
+        return cls(int(front)) if isinstance(front, int) else front
+
+
+def composite_layers(front: RenderOutput, back: RenderOutput,
+                     cover: tuple[float, float] | None = COVER) -> RenderOutput:
     """The front render over the back one (both on black, same shapes: rgb ``(..., 3, H, W)``, depth and alpha
-    ``(..., H, W)``, depth alpha-weighted), the front taken as opaque where its coverage reaches ``cover[1]``."""
+    ``(..., H, W)``, depth alpha-weighted), the front taken as opaque where its coverage reaches ``cover[1]``
+    (``None``: never, the plain over operator)."""
+    if cover is None:
+        through = 1 - front.alpha
+        return RenderOutput(front.rgb + through.unsqueeze(-3) * back.rgb, front.depth + through * back.depth,
+                            front.alpha + through * back.alpha)
     low, high = cover
     if not 0.0 <= low < high <= 1.0:
         raise ValueError(f"cover must be two coverages 0 <= low < high <= 1, got {cover}")
@@ -48,6 +84,49 @@ def composite_layers(front: RenderOutput, back: RenderOutput, cover: tuple[float
     return RenderOutput(rgb, depth, alpha)
 
 
+def blend_front_surface(
+    gaussians: Gaussians,
+    c2w: Float[Tensor, "... 4 4"],
+    camera: CameraModel,
+    drawn: RenderOutput,
+    backend: str = "auto",
+    settings: RasterSettings | None = None,
+    tolerance: float = SURFACE_TOLERANCE,
+) -> RenderOutput:
+    """``drawn`` (the render of unbatched ``gaussians`` from ``c2w``, on black) with its colour replaced by the
+    normalised Gaussian-weighted mean of the splats on its front surface; its coverage and depth are kept.
+
+    A Gaussian is on the front surface of a camera when its mean's depth is at most ``(1 + tolerance)`` times the
+    drawn depth (alpha-normalised, where the render covers at least half the pixel) at the pixel its mean falls on.
+    The weights are the Gaussians' own (opacity x footprint), so edge-faded splats weigh less; a second render of
+    the surface's Gaussians at a tiny opacity makes the over operator a sum."""
+    if tolerance <= 0:
+        raise ValueError(f"tolerance must be > 0 (relative depth), got {tolerance}")
+    settings = settings or RasterSettings()
+    poses = c2w.reshape(-1, 4, 4).to(gaussians.means)
+    num_cameras, (h, w) = len(poses), (camera.height, camera.width)
+    depth = drawn.depth.reshape(num_cameras, h, w)
+    alpha = drawn.alpha.reshape(num_cameras, h, w)
+    surface = torch.where(alpha > 0.5, depth / alpha.clamp_min(1e-6), torch.full_like(depth, float("inf")))
+    with torch.no_grad():  # which splats blend is a choice, not a parameter: no gradient through it
+        points = world_to_camera(gaussians.means.detach().double()[None], poses.double())  # (C, N, 3)
+        pixels = camera.pixel_map(points[None], settings)
+        u = pixels.u[0].floor().long()
+        u = u % w if camera.wrap_u else u.clamp(0, w - 1)
+        v = pixels.v[0].floor().long().clamp(0, h - 1)
+        front_depth = surface.view(num_cameras, -1).gather(1, v * w + u)
+        on_surface = pixels.valid[0] & (pixels.depth[0] <= front_depth * (1 + tolerance))
+    per_camera = Gaussians(**{name: value[None].expand(num_cameras, *value.shape)
+                              for name, value in gaussians.tensors().items()})
+    weights = replace(per_camera, opacities=per_camera.opacities * on_surface.to(gaussians.opacities) * _BLEND_OPACITY)
+    summed = render(weights, poses[:, None], camera, backend=backend, settings=replace(settings, **_BLEND_SETTINGS))
+    total = summed.alpha.reshape(num_cameras, 1, h, w)
+    mean = summed.rgb.reshape(num_cameras, 3, h, w) / total.clamp_min(1e-30)
+    rgb = drawn.rgb.reshape(num_cameras, 3, h, w)
+    rgb = torch.where(total > 1e-9, mean * alpha[:, None], rgb)
+    return RenderOutput(rgb.reshape(drawn.rgb.shape), drawn.depth, drawn.alpha)
+
+
 def render_layered(
     front: Gaussians,
     back: Gaussians,
@@ -56,11 +135,15 @@ def render_layered(
     background: Tensor | tuple[float, float, float] | None = None,
     backend: str = "auto",
     settings: RasterSettings | None = None,
-    cover: tuple[float, float] = COVER,
+    cover: tuple[float, float] | None = COVER,
+    blend: bool = False,
 ) -> RenderOutput:
-    """:func:`~cylindersplat.render.render` of two unbatched sets of Gaussians as layers (:func:`composite_layers`),
-    with ``background`` behind both."""
+    """:func:`~cylindersplat.render.render` of two unbatched sets of Gaussians as layers (:func:`composite_layers`;
+    ``cover=None``: the plain over operator), with ``background`` behind both; ``blend``: the front layer's colour by
+    surface splatting (:func:`blend_front_surface`)."""
     first = render(front, c2w, camera, backend=backend, settings=settings)
+    if blend and front.num_gaussians:
+        first = blend_front_surface(front, c2w, camera, first, backend=backend, settings=settings)
     if back.num_gaussians == 0:
         out = first
     else:
