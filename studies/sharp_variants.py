@@ -27,7 +27,10 @@ SHARP = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_
 # the shipped weights' drawing: configs/recipes/tiny_sharp.yaml
 RECIPE = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5, "pixel.opacity": "opaque",
           "pixel.refine_depth": "where_missing", "fusion.surface_clearance": 0.2,
-          "fusion.pixel_clearing": "at_depth_edges"}
+          "fusion.pixel_clearing": "at_depth_edges", "render_pixel_blending": "surface"}
+# the recipe before session 16 (the front-most pixel splat wins): the variants studied with it keep it, so that their
+# stored results (studies/results/sharp_*.json of 2026-11-26 before session 16) are what these names give
+OVER = {**RECIPE, "render_pixel_blending": "over"}
 VARIANTS = {
     "shipped": {},
     "dilation 0": {"render_dilation": 0.0},
@@ -44,18 +47,18 @@ VARIANTS = {
     "sharp": SHARP,
     "sharp + measured depth kept": {**SHARP, "pixel.refine_depth": "where_missing"},
     "tiny_sharp": RECIPE,
+    "tiny_sharp + over": OVER,
     "tiny (the paper's drawing)": "paper",
-    **{f"tiny_sharp + clearance {c:g}": {**RECIPE, "fusion.surface_clearance": c} for c in (0.0, 0.05, 0.1, 0.4)},
     "tiny_sharp + layers": {**RECIPE, "render_layering": "pixel_over_volume"},
-    "tiny_sharp + surface blending": {**RECIPE, "render_pixel_blending": "surface"},
-    "tiny_sharp + surface blending + layers": {**RECIPE, "render_pixel_blending": "surface",
-                                               "render_layering": "pixel_over_volume"},
-    "tiny_sharp + clearing seen_through": {**RECIPE, "fusion.pixel_clearing": "seen_through"},
-    "tiny_sharp + no clearing": {**RECIPE, "fusion.pixel_clearing": "none"},
-    **{f"tiny_sharp + edge step {e:g}": {**RECIPE, "fusion.clearing_edge_step": e} for e in (0.02, 0.1)},
-    **{f"tiny_sharp + fusion sigma {v:g}": {**RECIPE, "fusion.sigma": v} for v in (0.02, 0.05)},
-    **{f"tiny_sharp + footprint {f:g}": {**RECIPE, "pixel.footprint_px": f} for f in (0.4, 0.6, 0.7)},
-    **{f"tiny_sharp + refinement within {m:g}": {**RECIPE, "pixel.refine_depth": "everywhere",
+    "tiny_sharp + over + layers": {**OVER, "render_layering": "pixel_over_volume"},
+    **{f"tiny_sharp + clearance {c:g}": {**OVER, "fusion.surface_clearance": c} for c in (0.0, 0.05, 0.1, 0.4)},
+    "tiny_sharp + clearing seen_through": {**OVER, "fusion.pixel_clearing": "seen_through"},
+    "tiny_sharp + blending + clearing seen_through": {**RECIPE, "fusion.pixel_clearing": "seen_through"},
+    "tiny_sharp + no clearing": {**OVER, "fusion.pixel_clearing": "none"},
+    **{f"tiny_sharp + edge step {e:g}": {**OVER, "fusion.clearing_edge_step": e} for e in (0.02, 0.1)},
+    **{f"tiny_sharp + fusion sigma {v:g}": {**OVER, "fusion.sigma": v} for v in (0.02, 0.05)},
+    **{f"tiny_sharp + footprint {f:g}": {**OVER, "pixel.footprint_px": f} for f in (0.4, 0.6, 0.7)},
+    **{f"tiny_sharp + refinement within {m:g}": {**OVER, "pixel.refine_depth": "everywhere",
                                                    "pixel.max_log_depth_offset": m} for m in (0.02, 0.05, 0.1)},
 }
 

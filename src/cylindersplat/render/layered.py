@@ -38,6 +38,7 @@ __all__ = ["COVER", "SURFACE_TOLERANCE", "FrontLayer", "blend_front_surface", "c
 
 COVER = (0.3, 0.6)  # front-layer coverage from which the back layer starts to be hidden, and is fully hidden
 SURFACE_TOLERANCE = 0.1  # relative depth behind the front surface within which splats blend (0.1-0.2 measured alike)
+SOLID_OPACITY = 0.5  # pixel Gaussians at least this opaque define the front surface
 _BLEND_OPACITY = 1e-3  # opacity scale of the blending pass: compositing becomes a sum (transmittance stays ~1)
 _BLEND_SETTINGS = {"alpha_min": 1e-12}  # ... and no weight is culled as too faint
 
@@ -97,7 +98,8 @@ def blend_front_surface(
     normalised Gaussian-weighted mean of the splats on its front surface; its coverage and depth are kept.
 
     A Gaussian is on the front surface of a camera when its mean's depth is at most ``(1 + tolerance)`` times the
-    drawn depth (alpha-normalised, where the render covers at least half the pixel) at the pixel its mean falls on.
+    depth of the solid splats (opacity >= :data:`SOLID_OPACITY`, drawn opaque; where they cover at least half the
+    pixel) at the pixel its mean falls on.
     The weights are the Gaussians' own (opacity x footprint), so edge-faded splats weigh less; a second render of
     the surface's Gaussians at a tiny opacity makes the over operator a sum."""
     if tolerance <= 0:
@@ -105,10 +107,14 @@ def blend_front_surface(
     settings = settings or RasterSettings()
     poses = c2w.reshape(-1, 4, 4).to(gaussians.means)
     num_cameras, (h, w) = len(poses), (camera.height, camera.width)
-    depth = drawn.depth.reshape(num_cameras, h, w)
     alpha = drawn.alpha.reshape(num_cameras, h, w)
-    surface = torch.where(alpha > 0.5, depth / alpha.clamp_min(1e-6), torch.full_like(depth, float("inf")))
     with torch.no_grad():  # which splats blend is a choice, not a parameter: no gradient through it
+        # The front surface is that of the solid splats: faint ones in front (edge-faded, flying pixels) would pull
+        # an expected depth forward and leave the surface behind them out of its own blend.
+        solid = (gaussians.opacities.detach() >= SOLID_OPACITY).to(gaussians.opacities)
+        front = render(replace(gaussians, opacities=solid), poses, camera, backend=backend, settings=settings)
+        depth, cover = front.depth.reshape(num_cameras, h, w), front.alpha.reshape(num_cameras, h, w)
+        surface = torch.where(cover > 0.5, depth / cover.clamp_min(1e-6), torch.full_like(depth, float("inf")))
         points = world_to_camera(gaussians.means.detach().double()[None], poses.double())  # (C, N, 3)
         pixels = camera.pixel_map(points[None], settings)
         u = pixels.u[0].floor().long()
