@@ -19,9 +19,11 @@ Every row draws the same forward pass of the shipped weights (with the inpaint f
 * ``layers, interior KxK (LO-HI)``: the front layer normalised only where it covers every pixel of a K x K window
   (an erosion of its coverage: gaps inside a seen surface, not the rims of disocclusions);
 * ``surface blend T, MODE``: the pixel layer's colour by surface splatting (the normalised weights of the pixel
-  Gaussians within T (relative depth) of the front surface; ``render.layered.blend_front_surface`` is the library's
-  version), with no volume behind (``none``), the volume behind by the over operator (``over``: the library's
-  ``render_pixel_blending=surface``) or under the opaque layer (``layers``).
+  Gaussians within T (relative depth) of the front surface, here the drawn layer's expected depth), with no volume
+  behind (``none``), the volume behind by the over operator (``over``) or under the opaque layer (``layers``);
+* ``blend (library), solid S, over``: the library's version (``render.layered.blend_front_surface``, the front
+  surface that of the splats of opacity >= S drawn opaque, tolerance 0.1) with the volume behind by the over
+  operator: ``render_pixel_blending=surface`` draws it so with S = 0.5.
 
 Per protocol and prior: WS-PSNR on all and hidden pixels, SSIM. Results are appended to ``--out``.
 """
@@ -48,7 +50,7 @@ from cylindersplat.model.pretrained import from_pretrained
 from cylindersplat.model.sampling import sample_panorama
 from cylindersplat.render import Equirect
 from cylindersplat.render.api import RenderOutput
-from cylindersplat.render.layered import composite_layers, render_layered
+from cylindersplat.render.layered import blend_front_surface, composite_layers, render_layered
 
 
 def composite_interior(front: RenderOutput, back: RenderOutput, k: int, cover) -> RenderOutput:
@@ -200,6 +202,19 @@ def drawings(model) -> dict:
     runs.update({f"pixel opacity x {k:g}": opacity_gain(k) for k in (1.5, 2.0)})
     runs.update({f"surface blend {e:g}, {m}": surface_blend(e, m) for e in (0.1, 0.2, 0.4)
                  for m in ("none", "over", "layers")})
+    def library_blend(solid):  # render.layered.blend_front_surface (gated by the solid splats), volume behind by over
+        def run(sample):
+            _, g, n = _forward(model, sample)
+            h, w = size(sample)
+            camera = Equirect(h, w)
+            front = render_views(g[:n], sample.target_poses, h, w, settings=settings)
+            front = blend_front_surface(g[:n], sample.target_poses, camera, front, settings=settings,
+                                        solid_opacity=solid)
+            back = render_views(g[n:], sample.target_poses, h, w, settings=settings)
+            return composite_layers(front, back, cover=None)
+        return run
+
+    runs.update({f"blend (library), solid {s:g}, over": library_blend(s) for s in (0.2, 0.5, 0.8)})
     runs.update({f"layers, interior {k}x{k} ({lo:g}-{hi:g})": interior(k, lo, hi)
                  for k, lo, hi in ((3, 0.3, 0.6), (3, 0.5, 0.8), (5, 0.3, 0.6))})
     return runs

@@ -93,12 +93,13 @@ def blend_front_surface(
     backend: str = "auto",
     settings: RasterSettings | None = None,
     tolerance: float = SURFACE_TOLERANCE,
+    solid_opacity: float = SOLID_OPACITY,
 ) -> RenderOutput:
     """``drawn`` (the render of unbatched ``gaussians`` from ``c2w``, on black) with its colour replaced by the
     normalised Gaussian-weighted mean of the splats on its front surface; its coverage and depth are kept.
 
     A Gaussian is on the front surface of a camera when its mean's depth is at most ``(1 + tolerance)`` times the
-    depth of the solid splats (opacity >= :data:`SOLID_OPACITY`, drawn opaque; where they cover at least half the
+    depth of the solid splats (opacity >= ``solid_opacity``, drawn opaque; where they cover at least half the
     pixel) at the pixel its mean falls on.
     The weights are the Gaussians' own (opacity x footprint), so edge-faded splats weigh less; a second render of
     the surface's Gaussians at a tiny opacity makes the over operator a sum."""
@@ -111,7 +112,7 @@ def blend_front_surface(
     with torch.no_grad():  # which splats blend is a choice, not a parameter: no gradient through it
         # The front surface is that of the solid splats: faint ones in front (edge-faded, flying pixels) would pull
         # an expected depth forward and leave the surface behind them out of its own blend.
-        solid = (gaussians.opacities.detach() >= SOLID_OPACITY).to(gaussians.opacities)
+        solid = (gaussians.opacities.detach() >= solid_opacity).to(gaussians.opacities)
         front = render(replace(gaussians, opacities=solid), poses, camera, backend=backend, settings=settings)
         depth, cover = front.depth.reshape(num_cameras, h, w), front.alpha.reshape(num_cameras, h, w)
         surface = torch.where(cover > 0.5, depth / cover.clamp_min(1e-6), torch.full_like(depth, float("inf")))
