@@ -177,6 +177,35 @@ def test_render_and_export_cli(folder, checkpoint, tmp_path, capsys):
     assert sorted(p.name for p in (out / "views").iterdir()) == ["poses.json", "view_000_depth.png", "view_000_rgb.png"]
 
 
+def test_render_pixel_blending_option(folder, checkpoint, tmp_path, capsys):
+    """--pixel-blending overrides the model's drawing of its pixel Gaussians (said in one line); the blended views are
+    those of render_layered(blend=True) on the same Gaussians, and a bad value is refused naming the choices."""
+    from cylindersplat.inference.pipeline import reconstruct_gaussians, render_views
+    from cylindersplat.model.pretrained import from_pretrained
+
+    path, *_ = folder
+    common = ["render", "--input", str(path), "--checkpoint", str(checkpoint), "--resolution", "16x32", "--frames", "0",
+              "--min-opacity", "0", "--no-ply"]
+    assert main([*common, "--out", str(tmp_path / "over"), "--pixel-blending", "over"]) == 0
+    assert "--pixel-blending over" not in capsys.readouterr().out  # the model's own drawing already: nothing to say
+    assert main([*common, "--out", str(tmp_path / "surface"), "--pixel-blending", "surface"]) == 0
+    assert "pixel Gaussians drawn with --pixel-blending surface (this model's own: over)" in capsys.readouterr().out
+    over, surface = (np.asarray(Image.open(tmp_path / name / "views" / "view_000_rgb.png"), dtype=float)
+                     for name in ("over", "surface"))
+    assert np.abs(over - surface).max() > 2  # the drawing changed
+    model = from_pretrained(str(checkpoint)).with_config(render_pixel_blending="surface")
+    inputs = load_panorama_folder(path, (16, 32))
+    gaussians, front = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, layers=True)
+    poses = json.loads((tmp_path / "surface" / "views" / "poses.json").read_text())
+    c2w = torch.tensor(poses["frames"][0]["c2w"], dtype=torch.float32)[None]
+    expected = render_views(gaussians, c2w, 16, 32, front=front)
+    expected = (expected.rgb[0].clamp(0, 1).permute(1, 2, 0).numpy() * 255).round()
+    assert np.abs(expected - surface).max() <= 1
+    with pytest.raises(SystemExit):
+        main([*common, "--out", str(tmp_path / "x"), "--pixel-blending", "blur"])
+    assert "invalid choice: 'blur'" in (err := capsys.readouterr().err) and "surface" in err
+
+
 def test_cli_errors(folder, checkpoint, tmp_path, capsys):
     path, *_ = folder
     assert main(["export", "--input", str(path), "--checkpoint", str(tmp_path / "missing.safetensors")]) == 1

@@ -128,6 +128,11 @@ def reconstruct_from_args(args: argparse.Namespace, layers: bool = False):
     elif args.prior_scale == "model" and not args.skip_plausibility_checks and len(inputs.names) > 1:
         _warn_if_scale_off(inputs, args.input)
     model.config.prior_alignment = "none"
+    blending = getattr(args, "pixel_blending", "model")  # render's --pixel-blending
+    if blending != "model" and blending != model.config.render_pixel_blending:
+        print(f"pixel Gaussians drawn with --pixel-blending {blending} (this model's own: "
+              f"{model.config.render_pixel_blending})")
+        model.config.render_pixel_blending = blending
     start = time.perf_counter()
     # the folder's depths were checked just above, by file name: no second, nameless round of the same checks
     gaussians, front = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, args.device,

@@ -264,4 +264,9 @@ def register(subparsers) -> None:
     parser.add_argument("--background", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("R", "G", "B"),
                         help="background colour in [0, 1] (default black)")
     parser.add_argument("--no-ply", action="store_true", help="do not write gaussians.ply")
+    parser.add_argument("--pixel-blending", choices=["model", "over", "surface"], default="model",
+                        help="how the pixel Gaussians of a seen surface combine: blended by their weights (surface; "
+                        "sharper, 4 renders per view), the front-most one shown as 3DGS does (over; one render per "
+                        "view, 2-3x faster), or as the model's config says (model, the default; the shipped weights: "
+                        "surface)")
     parser.set_defaults(func=run)
