@@ -3,6 +3,7 @@ the commands when no --checkpoint is given."""
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -52,6 +53,21 @@ def test_the_shipped_weights_recipes_are_the_runs_settings():
         assert config_as_dict(load_config(recipe)) == config_as_dict(load_config("tiny", overrides)), recipe
     script = (Path(__file__).resolve().parents[1] / "scripts" / "train_pretrained.sh").read_text()
     assert all(f"--config {recipe}" in script for recipe in runs)
+
+
+def test_another_seed_leaves_the_shipped_weights_alone(tmp_path):
+    """TRAIN_SEED=N trains the same recipe with another seed into OUT, never over the shipped file; a seed that is not
+    a whole number is refused before anything is written."""
+    import subprocess
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "train_pretrained.sh"
+    text = script.read_text()
+    assert 'TARGET="$OUT/tiny_synth_seed$SEED.safetensors"' in text and '"train.seed=$SEED"' in text
+    shipped = pretrained_path().read_bytes()
+    done = subprocess.run(["bash", str(script), str(tmp_path / "out")], env={**os.environ, "TRAIN_SEED": "1x"},
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "TRAIN_SEED must be a whole number, got '1x'" in done.stderr
+    assert not (tmp_path / "out").exists() and pretrained_path().read_bytes() == shipped
 
 
 def test_from_pretrained_takes_a_file_or_a_run_folder(tmp_path):
