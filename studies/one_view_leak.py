@@ -25,7 +25,9 @@ Every row draws the same forward pass of the shipped weights (with the inpaint f
   surface that of the splats of opacity >= S drawn opaque, tolerance 0.1) with the volume behind by the over
   operator: ``render_pixel_blending=surface`` draws it so with S = 0.5;
 * ``blend, opaque where solid covers (LO-HI)``: that blended layer normalised by its coverage (opaque) where its
-  solid splats (opacity >= 0.5, drawn opaque) cover the pixel, smoothstep LO-HI; the over operator elsewhere.
+  solid splats (opacity >= 0.5, drawn opaque) cover the pixel, smoothstep LO-HI; the over operator elsewhere;
+* ``blend, opaque where summed weight (LO-HI)``: the same, where the pixel splats' summed weights (opacity x
+  footprint; about 1.6 inside a surface of opaque footprint-0.5 splats, half that at its rim) reach LO-HI.
 
 Per protocol and prior: WS-PSNR on all and hidden pixels, SSIM. Results are appended to ``--out``.
 """
@@ -238,6 +240,28 @@ def drawings(model) -> dict:
 
     runs.update({f"blend, opaque where solid covers ({lo:g}-{hi:g})": blend_solid_cover(lo, hi)
                  for lo, hi in ((0.3, 0.6), (0.6, 0.9), (0.8, 0.97))})
+
+    def blend_weight_cover(low, high):  # the blended layer opaque where its splats' summed weight is an interior's
+        def run(sample):
+            _, g, n = _forward(model, sample)
+            h, w = size(sample)
+            pix = g[:n]
+            front = render_views(pix, sample.target_poses, h, w, settings=settings)
+            front = blend_front_surface(pix, sample.target_poses, Equirect(h, w), front, settings=settings)
+            faint = replace(pix, opacities=pix.opacities * 1e-3)  # the over operator as a sum of the weights
+            total = render_views(faint, sample.target_poses, h, w,
+                                 settings=replace(settings, alpha_min=1e-12)).alpha / 1e-3
+            back = render_views(g[n:], sample.target_poses, h, w, settings=settings)
+            a = front.alpha
+            s = smoothstep(total, low, high)
+            own = a.clamp_min(1e-6)
+            over = composite_layers(front, back, cover=None)
+            return RenderOutput(s[:, None] * front.rgb / own[:, None] + (1 - s)[:, None] * over.rgb,
+                                s * front.depth / own + (1 - s) * over.depth, s + (1 - s) * over.alpha)
+        return run
+
+    runs.update({f"blend, opaque where summed weight ({lo:g}-{hi:g})": blend_weight_cover(lo, hi)
+                 for lo, hi in ((0.8, 1.2), (1.0, 1.4), (1.2, 1.8))})
     runs.update({f"layers, interior {k}x{k} ({lo:g}-{hi:g})": interior(k, lo, hi)
                  for k, lo, hi in ((3, 0.3, 0.6), (3, 0.5, 0.8), (5, 0.3, 0.6))})
     return runs
