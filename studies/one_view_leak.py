@@ -7,7 +7,10 @@ against it (benchmarks/RESULTS.md, "Sharp as a warp", items 2, 3 and 5).
 
 Every row draws the same forward pass of the shipped weights (with the inpaint fill behind, as FW + inpaint has):
 
-* ``one pass``: the shipped drawing; ``pixel branch``: its pixel Gaussians alone;
+* ``one pass``: the shipped drawing (since session 16 with the pixel Gaussians blended: the files stored before it,
+  ``one_view_leak_fixture.json`` and ``one_view_leak_synthetic.json``, hold the front-most splat's ``one pass``;
+  ``--checkpoint`` of a file drawn ``render_pixel_blending=over`` gives it again); ``pixel branch``: its pixel Gaussians
+  alone;
 * ``layers, over``: pixel Gaussians over volume Gaussians with the plain over operator (only the order changes);
 * ``layers, cover LOW-HIGH``: the layered drawing, the front layer opaque from coverage HIGH (render.layered);
 * ``layers, front opacity >= T``: only pixel Gaussians of opacity >= T in the front layer (edge-faded ones behind);
