@@ -120,19 +120,34 @@ def _wall(z, colours, spacing=0.1, n=13):
                               torch.ones(count, dtype=torch.float64), colours)
 
 
-def test_blending_is_the_normalised_weighted_mean_of_the_front_surface():
+def _backends():
+    """Every backend the blending may run on here (the fast ones take the tiny blending opacities too)."""
+    import importlib.util
+
+    from cylindersplat.render import available_backends
+
+    names = ["torch"] + [b for b in ("numba",) if b in available_backends()]
+    if importlib.util.find_spec("triton") is not None:  # on the CPU in Triton's interpreter (conftest.py)
+        names.append("triton")
+    return names
+
+
+@pytest.mark.parametrize("backend", _backends())
+def test_blending_is_the_normalised_weighted_mean_of_the_front_surface(backend):
     """Reference: the weights computed per pixel from the projected footprints (opacity x exp(-mahalanobis / 2)
-    inside the support), summed over the front wall's splats only; the wall behind it (1.5x as far) is left out."""
+    inside the support), summed over the front wall's splats only; the wall behind it (1.5x as far) is left out.
+    Every backend: the blending pass's opacities (1/1000) are far below 3DGS's alpha threshold."""
     torch.manual_seed(0)
+    dtype = torch.float64 if backend == "torch" else torch.float32
     wall = _wall(2.0, torch.rand(169, 3, dtype=torch.float64))
     behind = _wall(3.0, torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64).repeat(169, 1), spacing=0.15)
+    wall, behind = (Gaussians(**{k: v.to(dtype) for k, v in g.tensors().items()}) for g in (wall, behind))
     both = Gaussians.cat([wall, behind])
-    camera, pose, settings = Equirect(48, 96), torch.eye(4, dtype=torch.float64), RasterSettings(dilation=0.0)
-    drawn = render(both, pose, camera, backend="torch", settings=settings)
-    blended = blend_front_surface(both, pose, camera, drawn, backend="torch", settings=settings)
+    camera, pose, settings = Equirect(48, 96), torch.eye(4, dtype=dtype), RasterSettings(dilation=0.0)
+    drawn = render(both, pose, camera, backend=backend, settings=settings)
+    blended = blend_front_surface(both, pose, camera, drawn, backend=backend, settings=settings)
     proj = camera.project(wall, pose, settings)
-    jj, ii = torch.meshgrid(torch.arange(96, dtype=torch.float64) + 0.5, torch.arange(48, dtype=torch.float64) + 0.5,
-                            indexing="xy")
+    jj, ii = torch.meshgrid(torch.arange(96, dtype=dtype) + 0.5, torch.arange(48, dtype=dtype) + 0.5, indexing="xy")
     du = jj[None] - proj.uv[:, 0, None, None]
     dv = ii[None] - proj.uv[:, 1, None, None]
     a, b, c = (proj.conic[:, k, None, None] for k in range(3))
