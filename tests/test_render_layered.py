@@ -141,11 +141,14 @@ def test_blending_is_the_normalised_weighted_mean_of_the_front_surface(backend):
     dtype = torch.float64 if backend == "torch" else torch.float32
     wall = _wall(2.0, torch.rand(169, 3, dtype=torch.float64))
     behind = _wall(3.0, torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64).repeat(169, 1), spacing=0.15)
+    device = "cuda" if backend == "triton" and torch.cuda.is_available() else "cpu"  # else Triton's interpreter
     wall, behind = (Gaussians(**{k: v.to(dtype) for k, v in g.tensors().items()}) for g in (wall, behind))
-    both = Gaussians.cat([wall, behind])
-    camera, pose, settings = Equirect(48, 96), torch.eye(4, dtype=dtype), RasterSettings(dilation=0.0)
+    both = Gaussians(**{k: v.to(device) for k, v in Gaussians.cat([wall, behind]).tensors().items()})
+    camera, pose, settings = Equirect(48, 96), torch.eye(4, dtype=dtype, device=device), RasterSettings(dilation=0.0)
     drawn = render(both, pose, camera, backend=backend, settings=settings)
     blended = blend_front_surface(both, pose, camera, drawn, backend=backend, settings=settings)
+    drawn, blended = (RenderOutput(o.rgb.cpu(), o.depth.cpu(), o.alpha.cpu()) for o in (drawn, blended))
+    pose = pose.cpu()
     proj = camera.project(wall, pose, settings)
     jj, ii = torch.meshgrid(torch.arange(96, dtype=dtype) + 0.5, torch.arange(48, dtype=dtype) + 0.5, indexing="xy")
     du = jj[None] - proj.uv[:, 0, None, None]
