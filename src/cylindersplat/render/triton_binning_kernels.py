@@ -36,30 +36,14 @@ def emit_pairs_kernel(
 ):
     g = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
     mask = g < num_gaussians
-    camera = tl.load(camera_ptr + g, mask=mask, other=0)
+    camera, i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _load_spans(
+        g, mask, camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr)
     depth_bits = tl.load(depth_bits_ptr + g, mask=mask, other=0).to(tl.int64)
-    i0 = tl.load(i0_ptr + g, mask=mask, other=0)
-    i1 = tl.load(i1_ptr + g, mask=mask, other=0)
-    j0 = tl.load(j0_ptr + g, mask=mask, other=0)
-    a0 = tl.load(a0_ptr + g, mask=mask, other=0)
-    b0 = tl.load(b0_ptr + g, mask=mask, other=0)
-    a1 = tl.load(a1_ptr + g, mask=mask, other=0)
-    b1 = tl.load(b1_ptr + g, mask=mask, other=0)
-    ny = tl.load(ny_ptr + g, mask=mask, other=0)
-    nx0 = tl.load(nx0_ptr + g, mask=mask, other=0)
-    nx1 = tl.load(nx1_ptr + g, mask=mask, other=0)
     start = tl.load(offset_ptr + g, mask=mask, other=0)
-    nx = nx0 + nx1
-    count = ny * nx
-    nx_safe = tl.where(nx > 0, nx, 1)
-    # Every value divided below is >= 0 (Triton's // truncates, torch's floors: they agree there).
+    count = ny * (nx0 + nx1)
     for k in range(0, tl.max(count, axis=0)):
         on = mask & (k < count)
-        ty = k // nx_safe + i0 // TILE
-        col = k % nx_safe
-        second = col >= nx0
-        tx = tl.where(second, a1 // TILE + col - nx0, a0 // TILE + col)
-        tile = camera * tiles_per_camera + ty * tiles_x + tx
+        ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
         at = start + k
         tl.store(key_ptr + at, (tile.to(tl.int64) << 32) | depth_bits, mask=on)
         tl.store(gaussian_ptr + at, g.to(tl.int64), mask=on)

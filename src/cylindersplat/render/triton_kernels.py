@@ -125,6 +125,17 @@ def _add_gradients(gp, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, o, JOINED: tl.con
 
 
 @triton.jit
+def _store_pixels(out_ptr, pixel, inside, acc_r, acc_g, acc_b, acc_d, acc_a):
+    """A forward kernel's output per pixel: rgb, depth and alpha (= 1 - final transmittance), 5 values."""
+    optr = out_ptr + pixel * 5
+    tl.store(optr + 0, acc_r, mask=inside)
+    tl.store(optr + 1, acc_g, mask=inside)
+    tl.store(optr + 2, acc_b, mask=inside)
+    tl.store(optr + 3, acc_d, mask=inside)
+    tl.store(optr + 4, acc_a, mask=inside)
+
+
+@triton.jit
 def composite_forward_kernel(
     packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr,
     height, width, tiles_x, tiles_per_camera,
@@ -157,12 +168,7 @@ def composite_forward_kernel(
         acc_a += w
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
         p += 1
-    optr = out_ptr + pixel * 5
-    tl.store(optr + 0, acc_r, mask=inside)
-    tl.store(optr + 1, acc_g, mask=inside)
-    tl.store(optr + 2, acc_b, mask=inside)
-    tl.store(optr + 3, acc_d, mask=inside)
-    tl.store(optr + 4, acc_a, mask=inside)  # = 1 - final transmittance
+    _store_pixels(out_ptr, pixel, inside, acc_r, acc_g, acc_b, acc_d, acc_a)
 
 
 @triton.jit
@@ -316,12 +322,7 @@ def composite_forward_chunked_kernel(
         acc_a += tl.sum(w, axis=0)
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
         p0 += CHUNK
-    optr = out_ptr + pixel * 5
-    tl.store(optr + 0, acc_r, mask=inside)
-    tl.store(optr + 1, acc_g, mask=inside)
-    tl.store(optr + 2, acc_b, mask=inside)
-    tl.store(optr + 3, acc_d, mask=inside)
-    tl.store(optr + 4, acc_a, mask=inside)
+    _store_pixels(out_ptr, pixel, inside, acc_r, acc_g, acc_b, acc_d, acc_a)
 
 
 @triton.jit
