@@ -60,6 +60,20 @@ from cylindersplat.render.api import RenderOutput
 from cylindersplat.render.layered import blend_front_surface, composite_layers, render_layered
 
 
+def smoothstep(x, low, high):
+    t = ((x - low) / (high - low)).clamp(0, 1)
+    return t * t * (3 - 2 * t)
+
+
+def opaque_where(front: RenderOutput, back: RenderOutput, s) -> RenderOutput:
+    """The front layer over the back one, normalised by its own coverage (opaque) with weight ``s`` per pixel and
+    by the plain over operator with ``1 - s``."""
+    own = front.alpha.clamp_min(1e-6)
+    over = composite_layers(front, back, cover=None)
+    return RenderOutput(s[:, None] * front.rgb / own[:, None] + (1 - s)[:, None] * over.rgb,
+                        s * front.depth / own + (1 - s) * over.depth, s + (1 - s) * over.alpha)
+
+
 def composite_interior(front: RenderOutput, back: RenderOutput, k: int, cover) -> RenderOutput:
     """The front layer over the back one, normalised by its own coverage only where it covers every pixel of the
     k x k window around (its erosion reaches ``cover``): a gap between splats inside a seen surface, not the
@@ -68,15 +82,7 @@ def composite_interior(front: RenderOutput, back: RenderOutput, k: int, cover) -
     flat = a.reshape(-1, 1, *a.shape[-2:])
     r = k // 2
     eroded = -F.max_pool2d(F.pad(-flat, (r, r, 0, 0), mode="circular"), k, stride=1, padding=(r, 0))
-    low, high = cover
-    t = ((eroded.view_as(a) - low) / (high - low)).clamp(0, 1)
-    s = t * t * (3 - 2 * t)
-    own = a.clamp_min(1e-6)
-    through = 1 - a
-    rgb = s[:, None] * front.rgb / own[:, None] + (1 - s)[:, None] * (front.rgb + through[:, None] * back.rgb)
-    depth = s * front.depth / own + (1 - s) * (front.depth + through * back.depth)
-    alpha = s + (1 - s) * (a + through * back.alpha)
-    return RenderOutput(rgb, depth, alpha)
+    return opaque_where(front, back, smoothstep(eroded.view_as(a), *cover))
 
 
 def _forward(model, sample):
@@ -112,10 +118,6 @@ def drawings(model) -> dict:
             return render_views(g[order], sample.target_poses, h, w, settings=settings, front=int(front.sum()))
         return run
 
-    def smoothstep(x, low, high):
-        t = ((x - low) / (high - low)).clamp(0, 1)
-        return t * t * (3 - 2 * t)
-
     def gaps_only(low, high):  # normalise coverage gaps between opaque splats, not coverage lost to edge fading
         def run(sample):
             _, g, n = _forward(model, sample)
@@ -125,12 +127,8 @@ def drawings(model) -> dict:
                                    h, w, settings=settings)
             back = render_views(g[n:], sample.target_poses, h, w, settings=settings)
             a = front.alpha
-            s = smoothstep(a, 0.3, 0.6) * smoothstep(a / unfaded.alpha.clamp_min(1e-6), low, high)
-            own = a.clamp_min(1e-6)
-            over = RenderOutput(front.rgb + (1 - a)[:, None] * back.rgb, front.depth + (1 - a) * back.depth,
-                                a + (1 - a) * back.alpha)
-            return RenderOutput(s[:, None] * front.rgb / own[:, None] + (1 - s)[:, None] * over.rgb,
-                                s * front.depth / own + (1 - s) * over.depth, s + (1 - s) * over.alpha)
+            return opaque_where(front, back, smoothstep(a, 0.3, 0.6) * smoothstep(a / unfaded.alpha.clamp_min(1e-6),
+                                                                                    low, high))
         return run
 
     def near_edges(radius):
@@ -223,47 +221,28 @@ def drawings(model) -> dict:
 
     runs.update({f"blend (library), solid {s:g}, over": library_blend(s) for s in (0.2, 0.5, 0.8)})
 
-    def blend_solid_cover(low, high):  # the blended layer opaque where its solid splats cover the pixel
+    def blended_opaque_where(coverage, low, high):  # the blended layer opaque where coverage(pix, sample) is high
         def run(sample):
             _, g, n = _forward(model, sample)
             h, w = size(sample)
             pix = g[:n]
             front = render_views(pix, sample.target_poses, h, w, settings=settings)
             front = blend_front_surface(pix, sample.target_poses, Equirect(h, w), front, settings=settings)
-            solid = (pix.opacities >= 0.5).to(pix.opacities)
-            cover = render_views(replace(pix, opacities=solid), sample.target_poses, h, w, settings=settings).alpha
             back = render_views(g[n:], sample.target_poses, h, w, settings=settings)
-            a = front.alpha
-            s = smoothstep(cover, low, high)
-            own = a.clamp_min(1e-6)
-            over = composite_layers(front, back, cover=None)
-            return RenderOutput(s[:, None] * front.rgb / own[:, None] + (1 - s)[:, None] * over.rgb,
-                                s * front.depth / own + (1 - s) * over.depth, s + (1 - s) * over.alpha)
+            return opaque_where(front, back, smoothstep(coverage(pix, sample, h, w), low, high))
         return run
 
-    runs.update({f"blend, opaque where solid covers ({lo:g}-{hi:g})": blend_solid_cover(lo, hi)
+    def solid_cover(pix, sample, h, w):  # the coverage of its solid splats
+        solid = replace(pix, opacities=(pix.opacities >= 0.5).to(pix.opacities))
+        return render_views(solid, sample.target_poses, h, w, settings=settings).alpha
+
+    def weight_sum(pix, sample, h, w):  # its splats' summed weights: the over operator as a sum at 1/1000 opacity
+        faint = replace(pix, opacities=pix.opacities * 1e-3)
+        return render_views(faint, sample.target_poses, h, w, settings=replace(settings, alpha_min=1e-12)).alpha / 1e-3
+
+    runs.update({f"blend, opaque where solid covers ({lo:g}-{hi:g})": blended_opaque_where(solid_cover, lo, hi)
                  for lo, hi in ((0.3, 0.6), (0.6, 0.9), (0.8, 0.97))})
-
-    def blend_weight_cover(low, high):  # the blended layer opaque where its splats' summed weight is an interior's
-        def run(sample):
-            _, g, n = _forward(model, sample)
-            h, w = size(sample)
-            pix = g[:n]
-            front = render_views(pix, sample.target_poses, h, w, settings=settings)
-            front = blend_front_surface(pix, sample.target_poses, Equirect(h, w), front, settings=settings)
-            faint = replace(pix, opacities=pix.opacities * 1e-3)  # the over operator as a sum of the weights
-            total = render_views(faint, sample.target_poses, h, w,
-                                 settings=replace(settings, alpha_min=1e-12)).alpha / 1e-3
-            back = render_views(g[n:], sample.target_poses, h, w, settings=settings)
-            a = front.alpha
-            s = smoothstep(total, low, high)
-            own = a.clamp_min(1e-6)
-            over = composite_layers(front, back, cover=None)
-            return RenderOutput(s[:, None] * front.rgb / own[:, None] + (1 - s)[:, None] * over.rgb,
-                                s * front.depth / own + (1 - s) * over.depth, s + (1 - s) * over.alpha)
-        return run
-
-    runs.update({f"blend, opaque where summed weight ({lo:g}-{hi:g})": blend_weight_cover(lo, hi)
+    runs.update({f"blend, opaque where summed weight ({lo:g}-{hi:g})": blended_opaque_where(weight_sum, lo, hi)
                  for lo, hi in ((0.8, 1.2), (1.0, 1.4), (1.2, 1.8))})
     runs.update({f"layers, interior {k}x{k} ({lo:g}-{hi:g})": interior(k, lo, hi)
                  for k, lo, hi in ((3, 0.3, 0.6), (3, 0.5, 0.8), (5, 0.3, 0.6))})
