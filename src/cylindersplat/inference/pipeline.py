@@ -91,13 +91,7 @@ def reconstruct_gaussians(
     with torch.autocast("cuda", dtype=torch.bfloat16, enabled=use_bf16):
         out = model(images[None].to(device), depths[None].to(device), c2w[None].to(device))
     gaussians = out.gaussians.detach().to(torch.float32).batch(0)
-    opaque = getattr(model.config, "render_layering", "one_pass") == "pixel_over_volume"
-    blend = getattr(model.config, "render_pixel_blending", "over") == "surface"
-    front = None  # fused: pixel Gaussians first
-    if (opaque or blend) and out.pixel_gaussians is not None and out.volume_gaussians is not None:
-        front = FrontLayer(out.pixel_gaussians.num_gaussians, blend=blend, opaque=opaque)
-    elif blend and out.volume_gaussians is None:  # the pixel branch alone: all of them blend
-        front = FrontLayer(gaussians.num_gaussians, blend=True)
+    front = model.front_layer(out)
     if min_opacity > 0:
         keep = gaussians.opacities > min_opacity
         kept = gaussians[keep]

@@ -90,6 +90,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     # VOLUME_LOSS_MODES (a test keeps the two equal); train.stage2_render is model/curriculum.py's STAGE2_RENDERS.
     "train.amp": ("auto", "bf16", "off"),
     "train.stage2_render": ("volume", "fused"),
+    "train.render_drawing": ("one_pass", "model"),
     "loss.use_lpips": ("auto", "on", "off"),
     "loss.volume_loss": ("scaled", "released"),
     "loss.pixel_stage_hidden": ("fill", "leave"),

@@ -21,6 +21,7 @@ from jaxtyping import Float
 from torch import Tensor, nn
 
 from ..gaussians import Gaussians
+from ..render.layered import FrontLayer
 from .config import CHOICES, ModelConfig, get_config
 from .curriculum import stage_policy
 from .fusion import fuse
@@ -148,6 +149,19 @@ class CylinderSplat(nn.Module):
             volume_gaussians=None if volume is None else volume.gaussians,
             prior_scales=prior_scales,
         )
+
+    def front_layer(self, out: ModelOutput) -> FrontLayer | None:
+        """How ``out.gaussians`` are drawn, as the model's config says (``render_layering``,
+        ``render_pixel_blending``): the leading pixel Gaussians as a front layer
+        (:func:`~cylindersplat.render.layered.render_layered`), or ``None`` for one depth-sorted pass. A pixel-only
+        output is all one blended layer under ``render_pixel_blending="surface"``."""
+        opaque = self.config.render_layering == "pixel_over_volume"
+        blend = self.config.render_pixel_blending == "surface"
+        if (opaque or blend) and out.pixel_gaussians is not None and out.volume_gaussians is not None:
+            return FrontLayer(out.pixel_gaussians.num_gaussians, blend=blend, opaque=opaque)  # fused: pixel first
+        if blend and out.volume_gaussians is None and out.pixel_gaussians is not None:
+            return FrontLayer(out.gaussians.num_gaussians, blend=True)
+        return None
 
 
 def from_config(config: ModelConfig | str = "paper", **changes) -> CylinderSplat:

@@ -83,6 +83,11 @@ class TrainConfig:
     # Stage 2 renders the volume Gaussians alone ("volume", the paper) or together with the frozen pixel
     # branch's ("fused"): then the volume branch is supervised only where the pixel branch leaves errors.
     stage2_render: Literal["volume", "fused"] = "volume"
+    # How training draws the targets: "one_pass" (the paper: every Gaussian in one depth-sorted pass) or "model"
+    # (the drawing eval and render use, from the model's render_layering / render_pixel_blending: the pixel
+    # Gaussians as a front layer, blended by surface splatting, the volume behind), so that the volume branch is
+    # supervised only where it shows at inference (issue 34). "model" costs two more renders per step with blending.
+    render_drawing: Literal["one_pass", "model"] = "one_pass"
     volume_lr_scale: float = 1.0  # volume-branch learning rate = lr x this (a per-branch rate for the joint stage)
     render_backend: str = "auto"  # render_equirect backend: auto, torch (reference) or triton
     seed: int = 0

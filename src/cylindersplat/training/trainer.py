@@ -31,7 +31,8 @@ from torch import Tensor
 from .. import interrupt
 from ..data import Sample
 from ..model import CylinderSplat, load_model, save_model
-from ..render import RasterSettings, available_backends, render_equirect
+from ..render import Equirect, RasterSettings, RenderOutput, available_backends, render_equirect
+from ..render.layered import COVER, FrontLayer, render_layered
 from ..utils.atomic import atomic_write_text
 from ..utils.progress import Progress
 from .checkpoint import capture_rng, prune_checkpoints, read_state, resolve_checkpoint, restore_rng, save_checkpoint
@@ -188,7 +189,8 @@ class Trainer:
         gaussians = out.gaussians.to(torch.float32)
         self._watch_gaussian_grads(gaussians)
         with torch.autocast(self.device.type, enabled=False):
-            render = self._render(gaussians, batch)
+            front = unwrap(self.train_model).front_layer(out) if self.config.train.render_drawing == "model" else None
+            render = self._render(gaussians, batch, front)
             self._last_render = (render, batch)
             volume_render = None
             if out.pixel_gaussians is not None and out.volume_gaussians is not None:  # a fused set: its volume part
@@ -198,12 +200,21 @@ class Trainer:
 
             return self.objective(batch, render, self.stage, volume_render)
 
-    def _render(self, gaussians, batch: Sample):
-        """fp32 render of the batch's target views."""
+    def _render(self, gaussians, batch: Sample, front: FrontLayer | None = None):
+        """fp32 render of the batch's target views: one depth-sorted pass, or with ``front`` the leading Gaussians
+        as a layer over the rest (``train.render_drawing=model``: the drawing inference uses)."""
         height, width = batch.target_images.shape[-2:]
-        return render_equirect(gaussians, batch.target_poses.float(), height, width,
-                               background=tuple(self.config.train.background), backend=self.config.train.render_backend,
-                               settings=RasterSettings(dilation=self.model.config.render_dilation))
+        poses, background = batch.target_poses.float(), tuple(self.config.train.background)
+        backend, settings = self.config.train.render_backend, RasterSettings(dilation=self.model.config.render_dilation)
+        if front is None:
+            return render_equirect(gaussians, poses, height, width, background=background, backend=backend,
+                                   settings=settings)
+        camera = Equirect(height, width)
+        parts = [render_layered(scene[:front.count], scene[front.count:], poses[b], camera, background=background,
+                                backend=backend, settings=settings, cover=COVER if front.opaque else None,
+                                blend=front.blend)
+                 for b, scene in enumerate(gaussians.batch(i) for i in range(len(poses)))]
+        return RenderOutput(*(torch.stack([getattr(p, k) for p in parts]) for k in ("rgb", "depth", "alpha")))
 
     def _watch_gaussian_grads(self, gaussians) -> None:
         """Record per Gaussian tensor whether its grad is finite; a device-side flag, no sync."""
