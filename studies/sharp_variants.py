@@ -58,6 +58,10 @@ VARIANTS = {
     **{f"tiny_sharp + edge step {e:g}": {**OVER, "fusion.clearing_edge_step": e} for e in (0.02, 0.1)},
     **{f"tiny_sharp + fusion sigma {v:g}": {**OVER, "fusion.sigma": v} for v in (0.02, 0.05)},
     **{f"tiny_sharp + footprint {f:g}": {**OVER, "pixel.footprint_px": f} for f in (0.4, 0.6, 0.7)},
+    # session 17: the footprint again under surface blending, where a larger splat averages instead of hiding
+    **{f"tiny_sharp + blended footprint {f:g}": {**RECIPE, "pixel.footprint_px": f} for f in (0.6, 0.7, 0.85, 1.0)},
+    **{f"tiny_sharp + covisible footprint {f:g}": {**RECIPE, "pixel.footprint_px": f,
+                                                     "fusion.pixel_footprint": "covisible"} for f in (0.6, 0.7)},
     **{f"tiny_sharp + refinement within {m:g}": {**OVER, "pixel.refine_depth": "everywhere",
                                                    "pixel.max_log_depth_offset": m} for m in (0.02, 0.05, 0.1)},
 }

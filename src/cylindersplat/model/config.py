@@ -79,6 +79,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "fusion.strategy": ("concat", "depth_prune"),
     "fusion.side": ("both", "front", "hidden"),
     "fusion.pixel_clearing": ("none", "seen_through", "at_depth_edges"),
+    "fusion.pixel_footprint": ("per_view", "covisible"),
     "render_layering": ("one_pass", "pixel_over_volume"),
     "render_pixel_blending": ("over", "surface"),
     "prior_alignment": ("none", "photometric"),
@@ -269,6 +270,12 @@ class FusionConfig:
     # 1 - exp(-e^2 / (2 clearance^2)) for a relative depth e behind it: inside a seen surface they can only leak
     # through the pixel Gaussians' partial coverage; far behind it (hidden space) they stay. 0 = off (the paper)
     surface_clearance: float = 0.0
+    # "covisible" (issue 34, session 17): a pixel Gaussian's footprint (its scales, whatever pixel.footprint) divided
+    # by sqrt(c), c the number of input views that see its point (each view's agreement with its refined depth,
+    # exp(-e^2 / (2 sigma^2)), summed; its own view counts 1): where c views' splats tile one surface, each needs
+    # 1/sqrt(c) of the area for the same coverage, so pixel.footprint_px is the footprint of a surface one view sees.
+    # "per_view": footprint_px everywhere (the splat density of one view is not the surface's)
+    pixel_footprint: Literal["per_view", "covisible"] = "per_view"
 
 
 @dataclass

@@ -37,7 +37,7 @@ from .config import FusionConfig
 from .pixel_branch import depth_edge_confidence
 from .sampling import sample_panorama
 
-__all__ = ["depth_confidence", "depth_edginess", "hidden_confidence", "fuse", "fuse_gaussians"]
+__all__ = ["covisibility", "depth_confidence", "depth_edginess", "hidden_confidence", "fuse", "fuse_gaussians"]
 
 
 def depth_confidence(
@@ -76,6 +76,19 @@ def hidden_confidence(
     fades, and only space no input view observed keeps full opacity."""
     points = world_to_camera(means_world[:, None], c2w)  # (B, V, N, 3): every point in every view
     return depth_confidence(points, refined_depth, sigma, "front", clearance).prod(dim=1)
+
+
+def covisibility(
+    means_world: Float[Tensor, "B N 3"],
+    c2w: Float[Tensor, "B V 4 4"],
+    refined_depth: Float[Tensor, "B V H W"],
+    sigma: float,
+) -> Float[Tensor, "B N"]:
+    """How many input views see each world point: the sum over views of its agreement with that view's refined
+    depth (``exp(-e^2 / (2 sigma^2))``, ``e`` the relative depth deviation along the view's ray; a point hidden
+    behind another view's surface or in front of it counts ~0 there). A pixel Gaussian counts ~1 in its own view."""
+    points = world_to_camera(means_world[:, None], c2w)  # (B, V, N, 3)
+    return depth_confidence(points, refined_depth, sigma, "both").sum(dim=1)
 
 
 def depth_edginess(depth: Float[Tensor, "B V H W"], step: float) -> Float[Tensor, "B VHW"]:
@@ -128,6 +141,12 @@ def fuse(
     if cfg.pixel_clearing not in ("none", "seen_through", "at_depth_edges"):
         raise ValueError(f"unknown fusion.pixel_clearing {cfg.pixel_clearing!r}; "
                          "expected 'none', 'seen_through' or 'at_depth_edges'")
+    if cfg.pixel_footprint not in ("per_view", "covisible"):
+        raise ValueError(f"unknown fusion.pixel_footprint {cfg.pixel_footprint!r}; expected 'per_view' or 'covisible'")
+    if pixel is not None and cfg.pixel_footprint == "covisible" and refined_depth.shape[1] > 1:
+        # c views' splats tile a surface they all see: each keeps 1/sqrt(c) of its footprint for the same coverage
+        count = covisibility(pixel.means.detach(), c2w, refined_depth.detach(), cfg.sigma).clamp_min(1.0)
+        pixel = replace(pixel, scales=pixel.scales * count.rsqrt().unsqueeze(-1))
     volume_gaussians = points = check_depth = None
     if volume is not None:
         volume_gaussians, points, check_depth = volume.gaussians, volume.points_cam, refined_depth
