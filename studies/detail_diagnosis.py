@@ -31,7 +31,8 @@ from cylindersplat.render import RasterSettings
 # the switches of docs/model.md ("Sharp pixel Gaussians") at the paper's values
 PAPER_DRAWING = {"render_dilation": 0.3, "pixel.footprint": "learned", "pixel.opacity": "learned",
                  "pixel.refine_depth": "everywhere", "fusion.surface_clearance": 0.0,
-                 "fusion.pixel_clearing": "seen_through", "render_layering": "one_pass"}
+                 "fusion.pixel_clearing": "seen_through", "render_layering": "one_pass",
+                 "render_pixel_blending": "over", "fusion.pixel_footprint": "per_view"}
 
 
 def _mean(values):

@@ -5,7 +5,10 @@ against it (benchmarks/RESULTS.md, "Sharp as a warp", items 2, 3 and 5).
     python studies/one_view_leak.py --data SYNTH --format synthetic --scenes 00000020,...,00000027 \\
         --priors default,gt --out studies/results/one_view_leak_synthetic.json
 
-Every row draws the same forward pass of the shipped weights (with the inpaint fill behind, as FW + inpaint has):
+Every row draws the same forward pass of the shipped weights (with the inpaint fill behind, as FW + inpaint has). The
+stored files were made before session 17, with one footprint for every pixel Gaussian (``fusion.pixel_footprint=
+per_view``, ``pixel.footprint_px=0.5``): a ``--checkpoint`` of the shipped tensors saved with those two settings gives
+them again.
 
 * ``one pass``: the shipped drawing (since session 16 with the pixel Gaussians blended: the files stored before it,
   ``one_view_leak_fixture.json`` and ``one_view_leak_synthetic.json``, hold the front-most splat's ``one pass``;

@@ -5,8 +5,9 @@
 
 Each cell: WS-PSNR on all pixels / on the hidden ones (no input sees them; "-" where a view has too few) / SSIM.
 Rows: the shipped weights as they draw (``tiny_sharp``), FW + inpaint, the shipped pixel branch with the better of
-the two fills, the same weights drawn with the front-most pixel splat winning (``tiny_sharp + over``, the drawing
-before session 16) and drawn the paper's way, each with its pixel branch's best fill row, and options.
+the two fills, the same weights drawn with one footprint for every pixel Gaussian (session 16's drawing), with the
+front-most pixel splat winning (``tiny_sharp + over``, the drawing before session 16) and drawn the paper's way,
+each with its pixel branch's best fill row, and options.
 """
 
 from __future__ import annotations
@@ -34,14 +35,17 @@ ROWS = (
     ("CylinderSplat, shipped weights (`recipes/tiny_sharp` drawing)", lambda b: b.get(SHIPPED)),
     ("FW + inpaint", lambda b: b.get("FW + inpaint")),
     ("its pixel branch + best fill", lambda b: best_fill(b, SHIPPED)),
-    ("shipped, front-most splat (`render_pixel_blending=over`, the drawing before)",
+    ("shipped, one footprint for all (`fusion.pixel_footprint=per_view`, 0.5 px: session 16's drawing)",
+     lambda b: b.get(f"{SHIPPED} (per-view footprint)")),
+    ("that pixel branch + best fill", lambda b: best_fill(b, f"{SHIPPED} (per-view footprint)")),
+    ("shipped, front-most splat (`render_pixel_blending=over`: session 15's drawing)",
      lambda b: b.get(f"{SHIPPED} + over")),
     ("that pixel branch + best fill", lambda b: best_fill(b, f"{SHIPPED} + over")),
     ("same weights, the paper's drawing", lambda b: b.get(PAPER)),
     ("that pixel branch + best fill", lambda b: best_fill(b, PAPER)),
     ("shipped, drawn as opaque layers (option `render_layering=pixel_over_volume`)",
      lambda b: b.get(f"{SHIPPED} + layers")),
-    ("shipped, pixel clearing everywhere (`fusion.pixel_clearing=seen_through`)",
+    ("session 16's drawing, pixel clearing everywhere (`fusion.pixel_clearing=seen_through`)",
      lambda b: b.get(f"{SHIPPED} + blending + clearing seen_through")),
 )
 

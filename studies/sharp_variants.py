@@ -3,8 +3,9 @@
     python studies/sharp_variants.py --data <pano_grf fixture> --out studies/results/sharp_variants_fixture.json
 
 Rows: FW + inpaint (the bar), and the tiny-synth weights drawn with the switches of docs/model.md ("Sharp pixel
-Gaussians") turned on one at a time (``--variants``; ``tiny_sharp`` is the shipped drawing, ``tiny (the paper's
-drawing)`` the same weights drawn as the paper does), their pixel branches with a fill behind (``--pixel-rows``);
+Gaussians") turned on one at a time (``--variants``; ``tiny_sharp`` is the shipped drawing, ``tiny_sharp (per-view
+footprint)`` that of session 16, ``tiny (the paper's drawing)`` the same weights drawn as the paper does), their
+pixel branches with a fill behind (``--pixel-rows``);
 per protocol, size and prior (``--priors``: gt, degraded:KIND, constant:M, default): WS-PSNR all / occluded, SSIM,
 AbsRel. Results are appended to ``--out`` (settings already there are skipped).
 """
@@ -24,10 +25,14 @@ from cylindersplat.evaluation.methods import forward_warp_method, model_method, 
 from cylindersplat.model.pretrained import from_pretrained
 
 SHARP = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5, "pixel.opacity": "opaque"}
-# the shipped weights' drawing: configs/recipes/tiny_sharp.yaml
+# the shipped weights' drawing of session 16 (one footprint for every pixel Gaussian); the variants studied with it
+# keep it, so that their stored results are what these names give
 RECIPE = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5, "pixel.opacity": "opaque",
           "pixel.refine_depth": "where_missing", "fusion.surface_clearance": 0.2,
-          "fusion.pixel_clearing": "at_depth_edges", "render_pixel_blending": "surface"}
+          "fusion.pixel_clearing": "at_depth_edges", "render_pixel_blending": "surface",
+          "fusion.pixel_footprint": "per_view"}
+# the shipped weights' drawing since session 17: configs/recipes/tiny_sharp.yaml (footprints by covisibility)
+SHIPPED = {**RECIPE, "pixel.footprint_px": 0.7, "fusion.pixel_footprint": "covisible"}
 # the recipe before session 16 (the front-most pixel splat wins): the variants studied with it keep it, so that their
 # stored results (studies/results/sharp_*.json of 2026-11-26 before session 16) are what these names give
 OVER = {**RECIPE, "render_pixel_blending": "over"}
@@ -46,10 +51,12 @@ VARIANTS = {
                                            "pixel.max_log_depth_offset": 0.0},
     "sharp": SHARP,
     "sharp + measured depth kept": {**SHARP, "pixel.refine_depth": "where_missing"},
-    "tiny_sharp": RECIPE,
+    "tiny_sharp": SHIPPED,
+    "tiny_sharp (per-view footprint)": RECIPE,
     "tiny_sharp + over": OVER,
     "tiny (the paper's drawing)": "paper",
-    "tiny_sharp + layers": {**RECIPE, "render_layering": "pixel_over_volume"},
+    "tiny_sharp + layers": {**SHIPPED, "render_layering": "pixel_over_volume"},
+    "tiny_sharp (per-view footprint) + layers": {**RECIPE, "render_layering": "pixel_over_volume"},
     "tiny_sharp + over + layers": {**OVER, "render_layering": "pixel_over_volume"},
     **{f"tiny_sharp + clearance {c:g}": {**OVER, "fusion.surface_clearance": c} for c in (0.0, 0.05, 0.1, 0.4)},
     "tiny_sharp + clearing seen_through": {**OVER, "fusion.pixel_clearing": "seen_through"},
@@ -60,8 +67,7 @@ VARIANTS = {
     **{f"tiny_sharp + footprint {f:g}": {**OVER, "pixel.footprint_px": f} for f in (0.4, 0.6, 0.7)},
     # session 17: the footprint again under surface blending, where a larger splat averages instead of hiding
     **{f"tiny_sharp + blended footprint {f:g}": {**RECIPE, "pixel.footprint_px": f} for f in (0.6, 0.7, 0.85, 1.0)},
-    **{f"tiny_sharp + covisible footprint {f:g}": {**RECIPE, "pixel.footprint_px": f,
-                                                     "fusion.pixel_footprint": "covisible"} for f in (0.6, 0.7)},
+    **{f"tiny_sharp + covisible footprint {f:g}": {**SHIPPED, "pixel.footprint_px": f} for f in (0.6, 0.7)},
     **{f"tiny_sharp + refinement within {m:g}": {**OVER, "pixel.refine_depth": "everywhere",
                                                    "pixel.max_log_depth_offset": m} for m in (0.02, 0.05, 0.1)},
 }
@@ -96,7 +102,7 @@ def main() -> None:
     paper = {"render_dilation": 0.3, "pixel.footprint": "learned", "pixel.opacity": "learned",
              "pixel.refine_depth": "everywhere", "fusion.surface_clearance": 0.0,
              "fusion.pixel_clearing": "seen_through", "render_layering": "one_pass",
-             "render_pixel_blending": "over"}
+             "render_pixel_blending": "over", "fusion.pixel_footprint": "per_view"}
     models = {name: base.with_config(**(paper if VARIANTS[name] == "paper" else VARIANTS[name]))
               for name in args.variants.split(",")}
     results = {}

@@ -34,7 +34,8 @@ def test_shipped_weights_have_the_tiny_sharp_recipes_model():
 
     shipped = from_pretrained(DEFAULT_PRETRAINED).config
     assert shipped == load_config("recipes/tiny_sharp").model
-    sharp = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.5,
+    sharp = {"render_dilation": 0.0, "pixel.footprint": "surface", "pixel.footprint_px": 0.7,
+             "fusion.pixel_footprint": "covisible",
              "pixel.opacity": "opaque", "pixel.refine_depth": "where_missing", "fusion.surface_clearance": 0.2,
              "fusion.pixel_clearing": "at_depth_edges", "render_pixel_blending": "surface"}
     assert load_config("tiny").model.replace(**sharp) == shipped
