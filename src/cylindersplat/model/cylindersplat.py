@@ -21,7 +21,7 @@ from jaxtyping import Float
 from torch import Tensor, nn
 
 from ..gaussians import Gaussians
-from ..render.layered import FrontLayer
+from ..render import FrontLayer
 from .config import CHOICES, ModelConfig, get_config
 from .curriculum import stage_policy
 from .fusion import fuse
