@@ -86,6 +86,7 @@ def render_middle(folder: Path, poses: np.ndarray, size: tuple[int, int]) -> tup
     from cylindersplat.data.io import read_rgb
     from cylindersplat.data.poses import PoseRecord, write_poses_json
     from cylindersplat.inference import load_panorama_folder, reconstruct_gaussians, render_views
+    from cylindersplat.inference.pipeline import raster_settings
     from cylindersplat.metrics.image import ws_psnr
     from cylindersplat.model.pretrained import from_pretrained
 
@@ -100,8 +101,9 @@ def render_middle(folder: Path, poses: np.ndarray, size: tuple[int, int]) -> tup
     model = from_pretrained("tiny-synth").eval()
     inputs = load_panorama_folder(inputs_folder, size)
     with torch.no_grad():
-        gaussians = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w)
-        out = render_views(gaussians, torch.from_numpy(poses[1]).float()[None], *size)
+        gaussians, front = reconstruct_gaussians(model, inputs.images, inputs.depths, inputs.c2w, layers=True)
+        out = render_views(gaussians, torch.from_numpy(poses[1]).float()[None], *size,
+                           settings=raster_settings(model.config), front=front)  # as `render` draws them
     target = read_rgb(folder.parent / "files" / "pano_01.png", size=size)
     return float(ws_psnr(out.rgb[0], target)), out.rgb[0]
 
@@ -149,7 +151,8 @@ def main() -> None:
             mm = np.asarray(Image.open(args.fixture / f / "depth.png")).astype(np.float64)[-4:]
             downs.append(float(np.median(mm[mm > 0]) / 1000.0))
         height = max(downs)
-        data, seconds = run_poses(tmp / "none", "--camera-height", f"{height:.3f}")
+        # the same folder as the unscaled run: its poses.json is replaced (data poses keeps it without --overwrite)
+        data, seconds = run_poses(tmp / "none", "--camera-height", f"{height:.3f}", "--overwrite")
         errors = pose_errors(poses_of(data), truth)
         result["camera_height"] = {"command": f"cylindersplat data poses FOLDER --camera-height {height:.3f}",
                                    "true_height_m": round(height, 3), "scale_estimate": data["sfm"]["scale"],
