@@ -2,7 +2,8 @@
 
 Examples::
 
-    cylindersplat bench model --config tiny                       # CPU smoke numbers
+    cylindersplat bench model --config tiny_paper                 # CPU smoke numbers
+    cylindersplat bench model --config recipes/tiny_sharp --height 256 --views 2   # the shipped model and drawing
     cylindersplat bench model --config paper --height 128          # paper widths/grids, small input
     cylindersplat bench model --config paper --height 512 --render # GPU: the paper's setting
 
@@ -38,12 +39,28 @@ def synthetic_inputs(views: int, height: int, device: torch.device, seed: int = 
     return images.to(device), depth.to(device), c2w.to(device)
 
 
+def model_config(name: str):
+    """The model config ``--config`` names: a model preset (``tiny_paper``, ``paper``, ...) or the model of a training
+    preset, recipe or YAML file (``tiny``, ``recipes/tiny_sharp``: the shipped weights' model and drawing). A name that
+    is neither raises a ``ValueError`` listing both kinds."""
+    from cylindersplat.model.config import PRESETS, RENAMED_PRESETS, get_config
+    from cylindersplat.training import load_config
+
+    if name in PRESETS or name in RENAMED_PRESETS:
+        return get_config(name)
+    try:
+        return load_config(name).model
+    except FileNotFoundError:
+        raise ValueError(f"--config {name!r} is neither a model preset ({', '.join(sorted(PRESETS))}) nor a training "
+                         "preset, recipe (recipes/NAME) or YAML file") from None
+
+
 def run_single(args) -> dict:
     from cylindersplat.model import from_config
 
     device = torch.device(args.device)
     torch.manual_seed(0)
-    model = from_config(args.config, mode=args.mode).to(device).eval()
+    model = from_config(model_config(args.config), mode=args.mode).to(device).eval()
     images, depth, c2w = synthetic_inputs(args.views, args.height, device)
     render = None
     if args.render:
@@ -101,7 +118,9 @@ def describe_device(device: str) -> str:
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineErrorParser(prog="cylindersplat bench model", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default="tiny_paper", help="model preset (tiny_paper, paper, ...)")
+    parser.add_argument("--config", default="tiny_paper",
+                        help="model preset (tiny_paper, paper, ...), or a training preset or recipe whose model to "
+                             "time (tiny, recipes/tiny_sharp: the shipped weights' model and drawing)")
     parser.add_argument("--height", type=positive_int, default=None, help="input panorama height (width = 2 x height)")
     parser.add_argument("--views", type=positive_int, nargs="+", default=[1, 2, 3, 4])
     parser.add_argument("--mode", default="both", choices=["pixel", "volume", "both"])
@@ -119,10 +138,12 @@ def main(argv: list[str] | None = None) -> None:
         from cylindersplat.render.projection import compile_projection
 
         compile_projection(True)
+    try:
+        config = model_config(args.config)
+    except ValueError as error:
+        parser.error(str(error))
     if args.height is None:
-        from cylindersplat.model import get_config
-
-        args.height = get_config(args.config).image_height
+        args.height = config.image_height
 
     if args.single:
         args.views = args.views[0]
