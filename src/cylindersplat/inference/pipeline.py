@@ -19,7 +19,7 @@ from ..gaussians import Gaussians
 from ..render import Equirect, RasterSettings, render
 from ..render.api import RenderOutput
 from ..render.cameras import CameraModel
-from ..render.layered import COVER, FrontLayer, render_layered
+from ..render.layered import FrontLayer, render_layered
 from ..render.rasterize import RenderMemoryError
 from ..utils.atomic import atomic_path
 from ..utils.colormap import colorize_depth
@@ -157,7 +157,7 @@ def iter_views(
                     out = render(gaussians, poses, camera, background=background, settings=settings)
                 else:
                     out = render_layered(*layers, poses, camera, background=background, settings=settings,
-                                         cover=COVER if front.opaque else None, blend=front.blend)
+                                         cover=front.cover, blend=front.blend)
             except RenderMemoryError:
                 if chunk is not None or at_once == 1 or len(c2w) - start == 1:
                     raise

@@ -53,6 +53,11 @@ class FrontLayer:
     blend: bool = False
     opaque: bool = True
 
+    @property
+    def cover(self) -> tuple[float, float] | None:
+        """``render_layered``'s ``cover`` for this layer: :data:`COVER` when opaque, else the plain over operator."""
+        return COVER if self.opaque else None
+
     @classmethod
     def of(cls, front: "FrontLayer | int | None") -> "FrontLayer | None":
         """``front`` as a :class:`FrontLayer` (an int is a count drawn with the over operator)."""

@@ -31,8 +31,15 @@ from torch import Tensor
 from .. import interrupt
 from ..data import Sample
 from ..model import CylinderSplat, load_model, save_model
-from ..render import Equirect, RasterSettings, RenderOutput, available_backends, render_equirect
-from ..render.layered import COVER, FrontLayer, render_layered
+from ..render import (
+    Equirect,
+    FrontLayer,
+    RasterSettings,
+    RenderOutput,
+    available_backends,
+    render_equirect,
+    render_layered,
+)
 from ..utils.atomic import atomic_write_text
 from ..utils.progress import Progress
 from .checkpoint import capture_rng, prune_checkpoints, read_state, resolve_checkpoint, restore_rng, save_checkpoint
@@ -210,10 +217,12 @@ class Trainer:
             return render_equirect(gaussians, poses, height, width, background=background, backend=backend,
                                    settings=settings)
         camera = Equirect(height, width)
-        parts = [render_layered(scene[:front.count], scene[front.count:], poses[b], camera, background=background,
-                                backend=backend, settings=settings, cover=COVER if front.opaque else None,
-                                blend=front.blend)
-                 for b, scene in enumerate(gaussians.batch(i) for i in range(len(poses)))]
+        parts = []
+        for b in range(len(poses)):  # render_layered takes one scene's Gaussians
+            scene = gaussians.batch(b)
+            parts.append(render_layered(scene[:front.count], scene[front.count:], poses[b], camera,
+                                        background=background, backend=backend, settings=settings, cover=front.cover,
+                                        blend=front.blend))
         return RenderOutput(*(torch.stack([getattr(p, k) for p in parts]) for k in ("rgb", "depth", "alpha")))
 
     def _watch_gaussian_grads(self, gaussians) -> None:
