@@ -105,10 +105,12 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
 # The default (fused,joined) beside the lean forward (no host sync before compositing: triton_backend.FORWARD),
 # with the joined and the chunked8 backward (--stages shows each in its own stage), and both forwards with the
 # visible pairs compacted first (",nonzero": triton_backend.COMPACTION; the default "none" bins every pair, the
-# invisible ones inert, and reads the device once per render). The variants measured on
+# invisible ones inert, and reads the device once per render), and the default with its input checks as PyTorch
+# operations (",torch": triton_backend.CHECK; the default "fused" is one kernel); --launches counts each variant's
+# kernel launches per forward and backward. The variants measured on
 # 2026-11-26 (key64 / depth_tile binning, sums / chunked4 backward): benchmarks/RESULTS.md.
-binning_variants="--variants fused,joined fused,joined,default,nonzero fused,joined,lean fused,joined,lean,nonzero
-                  fused,chunked8,lean"
+binning_variants="--launches --variants fused,joined fused,joined,default,none,torch fused,joined,default,nonzero
+                  fused,joined,lean fused,joined,lean,nonzero fused,chunked8,lean"
 profile_variants="--variants fused,joined fused,joined,default,nonzero fused,joined,lean"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)

@@ -1,6 +1,7 @@
 """``bench render --variants``: the Triton binning and backward variants it times side by side (issue 35)."""
 
 import argparse
+import ast
 
 import pytest
 
@@ -45,3 +46,18 @@ def test_the_lean_variant_is_timed_beside_the_default_with_its_agreement(capsys)
     assert "'backend': 'triton[fused,joined,lean]'" in out and "'num_pairs'" in out
     line = next(x for x in out.splitlines() if x.startswith("# agreement triton[fused,joined,lean] vs"))
     assert "rgb max |diff| 0.00e+00" in line, line
+
+
+def test_a_fifth_field_picks_the_input_checks_and_launches_are_counted(capsys):
+    assert bench_render.triton_variant_name("fused,joined,default,none,torch") == ("fused", "joined", "default",
+                                                                                  "none", "torch")
+    assert bench_render.triton_variant_name("fused,joined,default,none,fused") == ("fused", "joined")
+    with pytest.raises(argparse.ArgumentTypeError, match="CHECK one of fused, torch"):
+        bench_render.triton_variant_name("fused,joined,default,none,numpy")
+    bench_render.main(["--num", "30", "--height", "8", "--device", "cpu", "--backend", "triton", "--repeats", "1",
+                       "--launches", "--variants", "fused,joined", "fused,joined,default,none,torch"])
+    rows = [ast.literal_eval(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]  # printed rows
+    fused, torch_checks = (row["launches"] for row in rows)
+    assert fused["forward_triton"] == torch_checks["forward_triton"] + 1  # the checks kernel
+    assert torch_checks["forward"] - fused["forward"] >= 60 and fused["backward"] == torch_checks["backward"]
+    assert triton_backend.CHECK == "fused"  # the default is back

@@ -70,11 +70,12 @@ def _nothing_visible(g, c2w):
     return g, c2w, None
 
 
-@pytest.mark.parametrize("forward", ["default", "lean"])
+@pytest.mark.parametrize("forward,check", [("default", "fused"), ("lean", "fused"), ("default", "torch")])
 @pytest.mark.parametrize("change", [_nan_mean, _non_rigid_pose, _far_camera, _bad_opacity_and_reflection,
                                     _far_camera_and_nan_background, _nothing_visible])
-def test_bad_input_raises_and_warns_as_the_torch_backend(monkeypatch, forward, change):
+def test_bad_input_raises_and_warns_as_the_torch_backend(monkeypatch, forward, check, change):
     monkeypatch.setattr(triton_backend, "FORWARD", forward)
+    monkeypatch.setattr(triton_backend, "CHECK", check)  # the checks queued by one kernel, or by PyTorch
     outcomes = [_outcome(backend, *change(_scene(), torch.eye(4))) for backend in ("torch", "triton")]
     assert outcomes[0][0] is not None or outcomes[0][1]  # the change is bad input indeed
     assert outcomes[1] == outcomes[0]  # the same error, the same warnings, pointing at the same line (this file)
@@ -86,7 +87,7 @@ def test_a_failed_check_stops_the_render_at_the_one_read_before_its_buffers_are_
     g, c2w, _ = _nan_mean(_scene(), torch.eye(4))
     sized = []
     original = triton_binning._bin_fused
-    monkeypatch.setattr(triton_binning, "_bin_fused", lambda *args: sized.append(args[3]) or original(*args))
+    monkeypatch.setattr(triton_binning, "_bin_fused", lambda *args: sized.append(args[4]) or original(*args))
     reads = []
     read = projection.DeferredValues.read_with
     monkeypatch.setattr(projection.DeferredValues, "read_with", lambda self, n: reads.append(n) or read(self, n))

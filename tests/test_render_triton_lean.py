@@ -160,13 +160,13 @@ def test_the_lean_compositing_reads_the_projection_rows_in_place_and_falls_back_
     camera, settings = Equirect(8, 16), RasterSettings()
     proj = project_gaussians(*flatten_cameras(g, torch.eye(4, device=DEVICE))[:2], camera, settings,
                              project_dense_triton)
-    packed, lean, dtype = triton_backend._lean_packed(proj)
+    packed, lean, dtype = triton_backend._packed_rows(proj)
     reference = pack_projected(proj)
     assert lean == 1 and packed.shape == (len(proj.depth), 12) and dtype == F32
     columns = [0, 1, 2, 3, 4, 8, 9, 10, 11, 7]  # u v A B C opacity r g b depth: pack_projected's columns 0-9
     assert torch.equal(packed[:, columns], reference[:, :10])
     copied = replace(proj, uv=proj.uv.clone())  # not a view of the projection's rows: the 11-column layout
-    packed, lean, dtype = triton_backend._lean_packed(copied)
+    packed, lean, dtype = triton_backend._packed_rows(copied)
     assert lean == 0 and torch.equal(packed, reference)
 
 

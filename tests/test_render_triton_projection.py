@@ -159,6 +159,29 @@ def test_zero_quaternion_and_transparent_gaussians():
     _assert_match(ref, fast, width=32)
 
 
+def test_invisible_pairs_rows_are_inert_and_keeping_every_pair_equals_the_masked_reference():
+    # The kernel writes an invisible pair's row as projection._INERT_UV (u = v = -1, the rest 0), so keeping every
+    # pair needs no masking (project_dense_triton.writes_inert_rows); the reference's pairs are masked instead.
+    from cylindersplat.render.projection import project_gaussians
+
+    means = torch.tensor([[0.0, 0.0, 2.0], [1.0, 0.0, 1.0], [0.0, 0.0, 0.001], [0.0, 0.5, -1.0]])
+    g = Gaussians.from_rgb(means, torch.full((4, 3), 0.1), torch.tensor([[1.0, 0, 0, 0]]).expand(4, 4),
+                           torch.tensor([0.5, 1e-3, 0.5, 0.5]), torch.ones(4, 3)).to(DEVICE)
+    c2w = torch.eye(4, device=DEVICE)
+    batched = (t[None] for t in (g.means, g.scales, g.rotations, g.opacities))
+    geo, valid = project_dense_triton(*batched, c2w[None, None], Equirect(16, 32), SETTINGS)
+    assert valid[0, 0].tolist() == [True, False, False, True]  # transparent, then closer than the near plane
+    inert = torch.tensor([-1.0, -1.0, 0, 0, 0, 0, 0, 0], device=DEVICE)
+    assert torch.equal(geo[0, 0, 1], inert) and torch.equal(geo[0, 0, 2], inert)
+    assert project_dense_triton.writes_inert_rows
+    flat, flat_c2w, _ = flatten_cameras(g, c2w)
+    kept = project_gaussians(flat, flat_c2w, Equirect(16, 32), SETTINGS, project_dense_triton, every_pair=True)
+    masked = project_gaussians(flat.to(F64), flat_c2w.to(F64), Equirect(16, 32), SETTINGS, every_pair=True)
+    assert torch.equal(kept.uv[~valid.view(-1)], masked.uv[~valid.view(-1)].float())
+    assert torch.equal(kept.depth[~valid.view(-1)], masked.depth[~valid.view(-1)].float())
+    assert int(kept.visible) == int(masked.visible) == 2
+
+
 def test_batched_gaussians_and_several_cameras_sum_gradients_over_cameras():
     a, b = shell_scene(30, seed=26), shell_scene(30, seed=27)
     batched = Gaussians(**{k: torch.stack((getattr(a, k), getattr(b, k))) for k in a.tensors()})

@@ -11,7 +11,9 @@ binning, fragment expansion + sort, compositing, backward for the PyTorch refere
 compositing kernels). ``--ply-view N`` also times what a user waits for to see a scene: a PLY of ``N``
 Gaussians loaded and one 512x1024 view rendered (no gradients), per backend. A backend that runs out
 of memory is reported as such in the rows and the closing table (the others are still timed).
-``--variants BINNING,BACKWARD[,FORWARD[,COMPACTION]] ...`` times the Triton backend's variants side by side (issue
+``--launches`` also counts the kernels one forward and its backward launch (PyTorch operations and Triton kernels:
+on an H100 the Triton path is launch-bound, issue 35). ``--variants BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]]
+...`` times the Triton backend's variants side by side (issue
 35): one ``triton[binning,backward]`` row each (``triton[binning,backward,lean]`` with the lean forward, whose binning
 is always the fused one's; ``triton[binning,backward,default,nonzero]`` with the visible pairs compacted first,
 :data:`cylindersplat.render.triton_backend.COMPACTION`), then ``# agreement`` lines (each variant's image and
@@ -33,6 +35,7 @@ import time
 
 import torch
 
+from cylindersplat.benchmarks.launches import count_launches
 from cylindersplat.gaussians import load_ply, save_ply
 from cylindersplat.render import Equirect, render_cubemap, render_equirect, triton_backend, triton_binning
 from cylindersplat.render.projection import RasterSettings
@@ -82,7 +85,8 @@ def _forward_and_backward_ms(render, params, device, repeats: int) -> tuple[floa
     return _time(forward, device, repeats), _time(forward_backward, device, repeats)
 
 
-def bench(num: int, height: int, device: torch.device, backend: str, repeats: int, cubemap: bool, stages: bool) -> dict:
+def bench(num: int, height: int, device: torch.device, backend: str, repeats: int, cubemap: bool, stages: bool,
+          launches: bool = False) -> dict:
     g = random_indoor(num).to(device)
     params = [t.requires_grad_() for t in g.tensors().values()]
     c2w = torch.eye(4, device=device)
@@ -104,6 +108,10 @@ def bench(num: int, height: int, device: torch.device, backend: str, repeats: in
     measure("", lambda: render_equirect(g, c2w, height, width, backend=backend))
     if cubemap:
         measure("cubemap_", lambda: render_cubemap(g, c2w, height, width, backend=backend))
+    if launches and "error" not in row:
+        _free(params, device)  # no gradients to accumulate into: the backward counted is a first one
+        row["launches"] = launch_counts(lambda: render_equirect(g, c2w, height, width, backend=backend))
+        _free(params, device)
     if stages:
         try:
             row["stages_ms"] = stage_breakdown(g, c2w, height, width, device, repeats, backend)
@@ -111,6 +119,16 @@ def bench(num: int, height: int, device: torch.device, backend: str, repeats: in
             row["stages_error"] = "out of memory"
             _free(params, device)
     return row
+
+
+def launch_counts(render) -> dict:
+    """Kernels launched by one forward of ``render`` and by its backward (PyTorch operations and Triton kernels:
+    :func:`cylindersplat.benchmarks.launches.count_launches`), after one uncounted call."""
+    render()
+    outputs = []
+    forward = count_launches(lambda: outputs.append(render()))
+    backward = count_launches(lambda: (outputs[0].rgb.sum() + outputs[0].depth.sum()).backward())
+    return {"forward": forward.kernels, "forward_triton": sum(forward.triton.values()), "backward": backward.kernels}
 
 
 def _free(params, device) -> None:
@@ -229,17 +247,20 @@ def ply_view(num: int, device: torch.device, backends: list[str], folder: str, h
 
 
 def triton_variant_name(text: str) -> tuple[str, ...]:
-    """``"BINNING,BACKWARD[,FORWARD[,COMPACTION]]"`` (argparse type): the fields, each checked against the Triton
-    backend's variants; trailing defaults (FORWARD ``default``, COMPACTION ``none``) are left out."""
+    """``"BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]]"`` (argparse type): the fields, each checked against the
+    Triton backend's variants; trailing defaults (FORWARD ``default``, COMPACTION ``none``, CHECK ``fused``) are left
+    out."""
     binning, backward, *rest = text.split(",") + [""] * (text.count(",") < 1)
-    options = (triton_binning.BINNINGS, triton_backend.BACKWARDS, triton_backend.FORWARDS, triton_backend.COMPACTIONS)
+    options = (triton_binning.BINNINGS, triton_backend.BACKWARDS, triton_backend.FORWARDS, triton_backend.COMPACTIONS,
+               triton_backend.CHECKS)
     fields = (binning, backward, *rest)
     if len(fields) > len(options) or any(f not in choices for f, choices in zip(fields, options)):
         raise argparse.ArgumentTypeError(
-            f"{text!r} is not BINNING,BACKWARD[,FORWARD[,COMPACTION]] with BINNING one of "
+            f"{text!r} is not BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]] with BINNING one of "
             f"{', '.join(triton_binning.BINNINGS)}, BACKWARD one of {', '.join(triton_backend.BACKWARDS)}, FORWARD one "
-            f"of {', '.join(triton_backend.FORWARDS)} and COMPACTION one of {', '.join(triton_backend.COMPACTIONS)}")
-    defaults = (None, None, "default", "none")
+            f"of {', '.join(triton_backend.FORWARDS)}, COMPACTION one of {', '.join(triton_backend.COMPACTIONS)} and "
+            f"CHECK one of {', '.join(triton_backend.CHECKS)}")
+    defaults = (None, None, "default", "none", "fused")
     while len(fields) > 2 and fields[-1] == defaults[len(fields) - 1]:
         fields = fields[:-1]
     return fields
@@ -280,18 +301,21 @@ def variant_agreement(num: int, height: int, device: torch.device, variants: lis
 
 @contextlib.contextmanager
 def triton_variant(binning: str | None, backward: str | None, forward: str | None = None,
-                   compaction: str | None = None):
-    """The Triton backend with the given binning, backward, forward and compaction variants (None: the default)
-    while inside."""
-    saved = triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD, triton_backend.COMPACTION
+                   compaction: str | None = None, check: str | None = None):
+    """The Triton backend with the given binning, backward, forward, compaction and input-check variants (None: the
+    default) while inside."""
+    saved = (triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD, triton_backend.COMPACTION,
+             triton_backend.CHECK)
     triton_binning.BINNING = binning or saved[0]
     triton_backend.BACKWARD = backward or saved[1]
     triton_backend.FORWARD = forward or saved[2]
     triton_backend.COMPACTION = compaction or saved[3]
+    triton_backend.CHECK = check or saved[4]
     try:
         yield
     finally:
-        triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD, triton_backend.COMPACTION = saved
+        (triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD, triton_backend.COMPACTION,
+         triton_backend.CHECK) = saved
 
 
 def ratio_line(base: dict, row: dict, dev: str) -> str:
@@ -346,14 +370,19 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--compile", action="store_true", help="projection through torch.compile "
                                                                "(render.projection.compile_projection)")
     parser.add_argument("--variants", nargs="+", type=triton_variant_name, default=[],
-                        metavar="BINNING,BACKWARD[,FORWARD[,COMPACTION]]",
+                        metavar="BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]]",
                         help="Triton variants timed side by side, one row each: binning "
                              f"{'|'.join(triton_binning.BINNINGS)} (default {triton_binning.BINNING}), backward "
                              f"{'|'.join(triton_backend.BACKWARDS)} (default {triton_backend.BACKWARD}), forward "
                              f"{'|'.join(triton_backend.FORWARDS)} (default {triton_backend.FORWARD}; lean: the fused "
                              "binning without the host sync before compositing), compaction "
                              f"{'|'.join(triton_backend.COMPACTIONS)} (default {triton_backend.COMPACTION}; nonzero: "
-                             "only the visible pairs, one more host sync)")
+                             "only the visible pairs, one more host sync), input checks "
+                             f"{'|'.join(triton_backend.CHECKS)} (default {triton_backend.CHECK}; torch: some ninety "
+                             "PyTorch operations instead of one kernel)")
+    parser.add_argument("--launches", action="store_true",
+                        help="also count the kernels one forward and its backward launch (PyTorch operations and "
+                             "Triton kernels; on any device)")
     parser.add_argument("--ply-view", type=positive_int, nargs="+", default=[], metavar="N",
                         help="also time loading a PLY of N Gaussians and rendering one 512x1024 view, per backend")
     args = parser.parse_args(argv)
@@ -383,7 +412,7 @@ def main(argv: list[str] | None = None) -> None:
                 for variant in variants:
                     with triton_variant(*variant):
                         rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, args.cubemap,
-                                          args.stages))
+                                          args.stages, args.launches))
                         if variant[0] is not None:
                             rows[-1]["backend"] = f"triton[{','.join(variant)}]"
                         print(rows[-1])

@@ -111,12 +111,12 @@ class Gaussians:
         its pair count (:mod:`cylindersplat.render.api`)."""
         return self._checks()[1]
 
-    def _checks(self) -> tuple[list[str], Tensor]:
-        """Check the structure (raise ``ValueError``); the value checks' messages and device-side flags, in order."""
-        n = self.means.shape[-2] if self.means.ndim >= 2 else None
+    def check_structure(self) -> "Gaussians":
+        """The checks of :meth:`validate` that need no values (shapes, dtypes, devices): raise ``ValueError`` naming
+        the first inconsistency, without reading the device; return ``self``."""
         if self.means.ndim < 2 or self.means.shape[-1] != 3:
             raise ValueError(f"means must have shape (*B, N, 3), got {tuple(self.means.shape)}")
-        b = self.means.shape[:-2]
+        b, n = self.means.shape[:-2], self.means.shape[-2]
         expected = {
             "scales": (*b, n, 3),
             "rotations": (*b, n, 4),
@@ -134,6 +134,11 @@ class Gaussians:
                 raise ValueError(f"{name} must be a floating-point tensor, got {t.dtype}")
             if t.device != self.means.device:
                 raise ValueError(f"{name} is on {t.device} but means is on {self.means.device}")
+        return self
+
+    def _checks(self) -> tuple[list[str], Tensor]:
+        """Check the structure (raise ``ValueError``); the value checks' messages and device-side flags, in order."""
+        n = self.check_structure().means.shape[-2]
         # The value checks as one device-side vector; the first failing check, in this order, names the problem.
         problems = [f"{name} contains non-finite values (NaN or Inf)" for name in self.tensors()]
         flags = [~torch.isfinite(t).all() for t in self.tensors().values()]

@@ -9,6 +9,7 @@ from torch import Tensor
 __all__ = [
     "validate_c2w",
     "c2w_problem_flags",
+    "check_c2w_structure",
     "invert_rigid",
     "transform_points",
     "world_to_camera",
@@ -46,10 +47,7 @@ def c2w_problem_flags(c2w: Tensor, name: str = "c2w", atol: float = 1e-3) -> Ten
 def _c2w_checks(c2w: Tensor, name: str, atol: float) -> tuple[Tensor, Tensor]:
     """Check type and shape (raise); the value checks' device-side flags ``(4,)`` in :func:`validate_c2w`'s order,
     and the largest ``|R R^T - I|``."""
-    if not isinstance(c2w, Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(c2w).__name__}")
-    if c2w.ndim < 2 or c2w.shape[-2:] != (4, 4):
-        raise ValueError(f"{name} must have shape (..., 4, 4), got {tuple(c2w.shape)}")
+    check_c2w_structure(c2w, name)
     if c2w.numel() == 0:
         return torch.zeros(4, dtype=torch.bool, device=c2w.device), torch.zeros((), device=c2w.device)
     rot = c2w[..., :3, :3].double()
@@ -61,6 +59,14 @@ def _c2w_checks(c2w: Tensor, name: str, atol: float) -> tuple[Tensor, Tensor]:
     flags = torch.stack([~finite, finite & (err > atol), finite & (_det3(rot) < 0).any(),
                          finite & ((last - expected).abs().amax() > atol)])
     return flags, err
+
+
+def check_c2w_structure(c2w: Tensor, name: str = "c2w") -> None:
+    """The checks of :func:`validate_c2w` that need no values (type and shape): raise, without reading the device."""
+    if not isinstance(c2w, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(c2w).__name__}")
+    if c2w.ndim < 2 or c2w.shape[-2:] != (4, 4):
+        raise ValueError(f"{name} must have shape (..., 4, 4), got {tuple(c2w.shape)}")
 
 
 def _det3(m: Tensor) -> Tensor:

@@ -44,6 +44,7 @@ from .projection import (
     project_gaussians,
 )
 from .rasterize import rasterize
+from .triton_backend import queue_checks as triton_queue_checks
 from .triton_backend import takes_every_pair, triton_available, triton_backend
 from .triton_projection import project_dense_triton
 
@@ -61,18 +62,22 @@ class RenderOutput:
 
 
 Backend = Callable[[ProjectedGaussians, RasterSettings, "Tensor | None"], tuple[Tensor, Tensor, Tensor]]
+# (gaussians, c2w) -> device flags [any problem, cameras too far], or None: the PyTorch checks this time
+QueueChecks = Callable[[Gaussians, Tensor], "list[Tensor] | None"]
 
 _reference_backend: Backend = rasterize
 _BACKENDS: dict[str, Backend] = {"torch": _reference_backend}
 _PROJECTIONS: dict = {}  # backend -> its own dense projection (projection.project_dense's signature)
 _DEFERRING: dict = {}  # backend -> whether it takes every pair this render (it reads the deferred checks)
+_QUEUED_CHECKS: dict = {}  # backend -> how it queues the deferred input checks (default: _queue_checks_torch)
 _AUTO_ORDER: dict[str, list[str]] = {}  # device type -> fast backends "auto" tries there, in order
 _AUTO_DISABLED: set = set()  # fast backends that failed here; "auto" skips them
 _WARNED_NO_NUMBA: list[bool] = [False]
 
 
 def register_backend(name: str, fn: Backend, auto: bool = False, projection: DenseProjection | None = None,
-                     devices: tuple[str, ...] = ("cuda",), deferred_checks: Callable[[], bool] | None = None) -> None:
+                     devices: tuple[str, ...] = ("cuda",), deferred_checks: Callable[[], bool] | None = None,
+                     queue_checks: QueueChecks | None = None) -> None:
     """Make ``fn`` available as ``backend=name``.
 
     ``fn(projected, settings, background)`` gets :class:`ProjectedGaussians` of any camera model
@@ -88,6 +93,8 @@ def register_backend(name: str, fn: Backend, auto: bool = False, projection: Den
     brings along (:attr:`.projection.ProjectedGaussians.deferred`; a failed one stops the render there with the
     check's own error) instead of reading them first. Called once per render, it says whether the backend takes
     every pair from the projection, the invisible ones inert (no host read of the visible count), or the visible ones.
+    ``queue_checks`` (optional, with ``deferred_checks``) queues those checks the backend's way
+    (:func:`_queue_checks_torch`'s contract; e.g. one kernel launch), or returns None for PyTorch's (the default).
     """
     if not isinstance(name, str) or not name or name == "auto":
         raise ValueError(f"backend name must be a non-empty string other than 'auto', got {name!r}")
@@ -98,6 +105,8 @@ def register_backend(name: str, fn: Backend, auto: bool = False, projection: Den
         _PROJECTIONS[fn] = projection
     if deferred_checks is not None:
         _DEFERRING[fn] = deferred_checks
+    if queue_checks is not None:
+        _QUEUED_CHECKS[fn] = queue_checks
     for device_type in devices if auto else ():
         order = _AUTO_ORDER.setdefault(device_type, [])
         if name not in order:
@@ -106,7 +115,7 @@ def register_backend(name: str, fn: Backend, auto: bool = False, projection: Den
 
 if triton_available():
     register_backend("triton", triton_backend, auto=True, projection=project_dense_triton,
-                     deferred_checks=takes_every_pair)
+                     deferred_checks=takes_every_pair, queue_checks=triton_queue_checks)
 if numba_available():
     register_backend("numba", numba_backend, auto=True, projection=project_dense_numba, devices=("cpu",))
 
@@ -221,7 +230,7 @@ def render(
     deferred = _defers_checks(backend, gaussians.device)
     if deferred and isinstance(c2w, Tensor):
         c2w = c2w.to(device=gaussians.device)  # once: poses elsewhere (e.g. the CPU) are checked where they are used
-    checks = _queue_checks(gaussians, c2w) if deferred else _check_inputs(gaussians, c2w)
+    checks = _queue_checks(backend, gaussians, c2w) if deferred else _check_inputs(gaussians, c2w)
     settings = settings or RasterSettings()
     if not isinstance(settings, RasterSettings):
         raise TypeError(f"settings must be a RasterSettings, got {type(settings).__name__}")
@@ -278,9 +287,18 @@ def _check_inputs(gaussians: Gaussians, c2w: Tensor, background: Tensor | None =
         _check_background_finite(background)
 
 
-def _queue_checks(gaussians: Gaussians, c2w: Tensor) -> list[Tensor]:
+def _queue_checks(backend: str, gaussians: Gaussians, c2w: Tensor) -> list[Tensor]:
+    """The deferring backend's way of queuing the input checks (``register_backend``'s ``queue_checks``), else
+    :func:`_queue_checks_torch`."""
+    queue = _QUEUED_CHECKS.get(_pick_backend(backend, gaussians.device))
+    checks = None if queue is None else queue(gaussians, c2w)
+    return _queue_checks_torch(gaussians, c2w) if checks is None else checks
+
+
+def _queue_checks_torch(gaussians: Gaussians, c2w: Tensor) -> list[Tensor]:
     """:func:`_check_inputs` without waiting for the device: shapes are checked now (the same errors), the values
-    queued as device flags ``[any problem, cameras too far]`` (0-dim bool; :func:`_background` adds its own)."""
+    queued as device flags ``[any problem, cameras too far]`` (0-dim bool or integer, non-zero where a check fails;
+    :func:`_background` adds its own)."""
     return [torch.cat((gaussians.problem_flags(), c2w_problem_flags(c2w))).any(), camera_too_far(c2w)]
 
 

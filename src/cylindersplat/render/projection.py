@@ -273,24 +273,40 @@ def _view_colors(gaussians: Gaussians, c2w: Tensor, camera: Tensor, gauss: Tenso
     return eval_sh(sh.index_select(0, gauss), dirs)
 
 
+def _dense_view_colors(gaussians: Gaussians, c2w: Tensor, num_b: int, num_v: int, num_n: int) -> Tensor:
+    """RGB ``(B * V * N, 3)`` of every pair, camera-major (:func:`_view_colors`' values): degree 0 evaluated once per
+    Gaussian and broadcast over the cameras, higher degrees with the directions broadcast (no gathers)."""
+    sh = gaussians.sh.reshape(num_b, 1, num_n, *gaussians.sh.shape[-2:])
+    if sh.shape[-2] == 1:
+        rgb = eval_sh(sh, None)
+    else:
+        means = gaussians.means.reshape(num_b, 1, num_n, 3)
+        origins = c2w[..., :3, 3].reshape(num_b, num_v, 1, 3).to(means.dtype)
+        dirs = means - origins
+        dirs = dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True).clamp_min(1e-12)
+        rgb = eval_sh(sh, dirs)
+    return rgb.expand(num_b, num_v, num_n, 3).reshape(-1, 3)
+
+
 # An invisible pair's row where every pair is kept: u = v = -1 (outside the image: its pixel rows end before row 0),
 # the rest (conic, extent, depth) 0. It meets no tile, so no binning counts it and no compositing reads it.
 _INERT_UV = -1.0
 
 
 def _pairs(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, camera_model,
-           every_pair: bool = False) -> ProjectedGaussians:
+           every_pair: bool = False, inert_rows: bool = False) -> ProjectedGaussians:
     """The visible pairs (one index computation and gathers: every ``x[mask]`` would synchronise again), or with
-    ``every_pair`` all ``B * V * N`` of them, the invisible ones inert (:data:`_INERT_UV`), so that nothing waits
-    for the device to learn how many are visible."""
+    ``every_pair`` all ``B * V * N`` of them, the invisible ones inert (:data:`_INERT_UV`; ``inert_rows``: ``geo``
+    holds them so already), so that nothing waits for the device to learn how many are visible."""
     num_b, num_v, num_n = valid.shape
     geo = geo.reshape(-1, 8)
     visible = None
     if every_pair:
         index = torch.arange(valid.numel(), device=valid.device)
-        inert = torch.zeros(8, dtype=geo.dtype, device=geo.device)
-        inert[:2] = _INERT_UV  # filled on the device: no host-to-device copy
-        geo = torch.where(valid.reshape(-1, 1), geo, inert)
+        if not inert_rows:
+            inert = torch.zeros(8, dtype=geo.dtype, device=geo.device)
+            inert[:2] = _INERT_UV  # filled on the device: no host-to-device copy
+            geo = torch.where(valid.reshape(-1, 1), geo, inert)
         visible = valid.sum()
     else:
         index = valid.reshape(-1).nonzero().squeeze(1)
@@ -298,6 +314,12 @@ def _pairs(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, camera
     geo = geo.to(gaussians.dtype)
     gauss = index % num_n + (index // (num_v * num_n)) * num_n  # row of the (B*N) Gaussians
     camera = index // num_n
+    if every_pair:  # pair (b, v, n) is Gaussian (b, n): a broadcast over the cameras, no gather (a view for one)
+        opacity = gaussians.opacities.reshape(num_b, 1, num_n).expand(num_b, num_v, num_n).reshape(-1)
+        color = _dense_view_colors(gaussians, c2w, num_b, num_v, num_n)
+    else:
+        opacity = gaussians.opacities.reshape(-1).index_select(0, gauss)
+        color = _view_colors(gaussians, c2w, camera, gauss)
     return ProjectedGaussians(
         camera=camera,
         gaussian=gauss,
@@ -305,8 +327,8 @@ def _pairs(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, camera
         conic=geo[:, 2:5],
         extent=geo[:, 5:7],
         depth=geo[:, 7],
-        opacity=gaussians.opacities.reshape(-1).index_select(0, gauss),
-        color=_view_colors(gaussians, c2w, camera, gauss),
+        opacity=opacity,
+        color=color,
         num_cameras=num_b * num_v,
         height=camera_model.height,
         width=camera_model.width,
@@ -352,4 +374,4 @@ def project_gaussians(
     """
     g = gaussians
     geo, valid = (dense or _reference_dense())(g.means, g.scales, g.rotations, g.opacities, c2w, camera, settings)
-    return _pairs(geo, valid, gaussians, c2w, camera, every_pair)
+    return _pairs(geo, valid, gaussians, c2w, camera, every_pair, getattr(dense, "writes_inert_rows", False))

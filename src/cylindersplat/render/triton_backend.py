@@ -26,7 +26,7 @@ from .rasterize import TileBins, pack_projected, unpack_composited
 from .triton_binning import bin_to_tiles_by_key
 
 __all__ = ["triton_available", "triton_backend", "composite_triton", "BACKWARDS", "BACKWARD", "FORWARDS", "FORWARD",
-           "COMPACTIONS", "COMPACTION", "takes_every_pair"]
+           "COMPACTIONS", "COMPACTION", "CHECKS", "CHECK", "takes_every_pair", "queue_checks"]
 
 # The compositing backward's variant: "sums" (:func:`.triton_kernels.composite_backward_kernel`, one pair at a
 # time: ten block-wide sums and ten scalar atomics per pair), "joined" (the same with one block-wide sum of the
@@ -57,6 +57,13 @@ FORWARD = "default"
 COMPACTIONS = ("none", "nonzero")
 COMPACTION = "none"
 
+# How a render on this backend queues its input checks (read with the pair count): "fused" (one kernel launch,
+# :mod:`.triton_checks`) or "torch" (the PyTorch operations of ``api._queue_checks_torch``: some ninety launches for
+# the Gaussians' and the poses' value checks). The same flags. Not yet measured on a GPU; module-level: the benchmark
+# switches it.
+CHECKS = ("fused", "torch")
+CHECK = "fused"
+
 
 def triton_available() -> bool:
     return importlib.util.find_spec("triton") is not None
@@ -67,6 +74,18 @@ def takes_every_pair() -> bool:
     if COMPACTION not in COMPACTIONS:
         raise ValueError(f"unknown Triton compaction {COMPACTION!r}: choose one of {', '.join(COMPACTIONS)}")
     return COMPACTION == "none"
+
+
+def queue_checks(gaussians, c2w: Tensor) -> list[Tensor] | None:
+    """The render's deferred input checks the :data:`CHECK` way (``register_backend``'s ``queue_checks``): the
+    fused kernel's flags, or None for PyTorch's."""
+    if CHECK not in CHECKS:
+        raise ValueError(f"unknown Triton input check {CHECK!r}: choose one of {', '.join(CHECKS)}")
+    if CHECK == "torch":
+        return None
+    from .triton_checks import queue_input_checks
+
+    return queue_input_checks(gaussians, c2w)
 
 
 class _TritonComposite(torch.autograd.Function):
@@ -124,11 +143,11 @@ def composite_triton(
     # host on CUDA to size its output).
     tile_ids = torch.arange(num_tiles + 1, dtype=bins.tile.dtype, device=bins.tile.device)
     tile_start = torch.searchsorted(bins.tile.contiguous(), tile_ids)
-    packed = pack_projected(proj)
+    packed, layout, dtype = _packed_rows(proj)
     out = _TritonComposite.apply(
-        packed.float().contiguous(), bins.gaussian.contiguous(), bins.rows.contiguous(), bins.cols.contiguous(),
-        tile_start, c * h * w, h, w, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings,
-    ).to(packed.dtype)
+        packed, bins.gaussian.contiguous(), bins.rows.contiguous(), bins.cols.contiguous(),
+        tile_start, c * h * w, h, w, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings, layout,
+    ).to(dtype)
     return unpack_composited(out, proj, background)
 
 
@@ -164,26 +183,27 @@ def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background
 def composite_lean(proj: ProjectedGaussians, bins, settings: RasterSettings, background: Tensor | None = None):
     """Stage 4 of the ``"lean"`` forward on :class:`.triton_binning.LeanBins` (complete only where their pair
     count fits their capacity). Returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
-    packed, lean, dtype = _lean_packed(proj)
+    packed, layout, dtype = _packed_rows(proj)
     h, w, c = proj.height, proj.width, proj.num_cameras
     out = _TritonComposite.apply(packed, bins.gaussian, bins.rows, bins.cols, bins.tile_start, c * h * w, h, w,
-                                 bins.tiles_x, bins.tiles_y, proj.wrap_u, settings, lean)
+                                 bins.tiles_x, bins.tiles_y, proj.wrap_u, settings, layout)
     return unpack_composited(out.to(dtype), proj, background)
 
 
-def _lean_packed(proj: ProjectedGaussians) -> tuple[Tensor, int, torch.dtype]:
-    """The compositing kernels' rows, their layout (:mod:`.triton_kernels`, ``LEAN``) and the outputs' dtype:
+def _packed_rows(proj: ProjectedGaussians) -> tuple[Tensor, int, torch.dtype]:
+    """The compositing kernels' rows, their layout (:mod:`.triton_kernels`, ``LEAN``: both forwards use the
+    projection's rows in place where they can) and the outputs' dtype:
     where ``uv``, ``conic`` and ``depth`` are columns 0-1, 2-4 and 7 of one float32 ``(M, 8)`` tensor (the
     projection's rows, as :func:`.projection._pairs` makes them), that tensor with opacity and colour appended
     (``M x 12``, one concatenation; the gradient reaches the projection's rows whole, not column by column); else
     :func:`.rasterize.pack_projected`'s rows (``M x 11``)."""
-    base = proj.uv._base
+    base = proj.uv._base  # the projection's rows, (M, 8) or (B, V, N, 8)
     f32 = torch.float32
-    if (base is not None and base.dtype == f32 and base.ndim == 2 and base.shape[1] == 8 and base.is_contiguous()
-            and proj.conic._base is base and proj.depth._base is base and proj.opacity.dtype == f32
-            and proj.color.dtype == f32
+    if (base is not None and base.dtype == f32 and base.shape[-1:] == (8,) and base.numel() == 8 * len(proj.depth)
+            and base.is_contiguous() and proj.conic._base is base and proj.depth._base is base
+            and proj.opacity.dtype == f32 and proj.color.dtype == f32
             and [t.storage_offset() - base.storage_offset() for t in (proj.uv, proj.conic, proj.depth)] == [0, 2, 7]
             and proj.uv.stride() == (8, 1) and proj.conic.stride() == (8, 1) and proj.depth.stride() == (8,)):
-        return torch.cat((base, proj.opacity[:, None], proj.color), -1), 1, f32
+        return torch.cat((base.view(-1, 8), proj.opacity[:, None], proj.color), -1), 1, f32
     packed = pack_projected(proj)
     return packed.float().contiguous(), 0, packed.dtype

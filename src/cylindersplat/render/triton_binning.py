@@ -58,7 +58,8 @@ def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16, binning: 
         # Gaussians in depth order (ties by row): their counts and places in that order.
         by_depth = torch.sort(proj.depth.detach().float(), stable=True).indices
     if binning == "fused":
-        counts = _fused_counts(proj, by_depth, tile_size)
+        centres = _centres_and_extents(proj)  # once for the binning's three kernels
+        counts = _fused_counts(centres, by_depth, tile_size, proj)
     else:
         spans = tile_spans(proj, tile_size)
         counts = spans.count if by_depth is None else spans.count[by_depth]
@@ -68,7 +69,7 @@ def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16, binning: 
     if total == 0:
         return TileBins(*_pair_fields(0, proj.camera.device), tiles_x, tiles_y)
     if binning == "fused":
-        return _bin_fused(proj, by_depth, ends, total, tile_size)
+        return _bin_fused(proj, centres, by_depth, ends, total, tile_size)
     if binning == "depth_tile":
         return _bin_depth_then_tile(proj, spans, by_depth, ends - counts, total, tile_size)
     return _bin_key64(proj, spans, ends - counts, total, tile_size)
@@ -132,20 +133,20 @@ def _centres_and_extents(proj):
     return proj.uv.detach().to(dtype).contiguous(), proj.extent.detach().to(dtype).contiguous()
 
 
-def _fused_counts(proj, by_depth, tile_size):
-    """Pair counts of the Gaussians in depth order, from their centres and extents (one kernel)."""
+def _fused_counts(centres, by_depth, tile_size, proj):
+    """Pair counts of the Gaussians in depth order, from their ``centres`` and extents (one kernel)."""
     from . import triton_binning_kernels as kernels
 
     num = len(proj.depth)
     counts = torch.empty(num, dtype=torch.int64, device=proj.camera.device)
     if num:
         kernels.count_pairs_kernel[((num + _BLOCK - 1) // _BLOCK,)](
-            *_centres_and_extents(proj), by_depth, counts, num, proj.height, proj.width, TILE=tile_size,
+            *centres, by_depth, counts, num, proj.height, proj.width, TILE=tile_size,
             WRAP_U=bool(proj.wrap_u), BLOCK=_BLOCK)
     return counts
 
 
-def _bin_fused(proj, by_depth, ends, total, tile_size) -> TileBins:
+def _bin_fused(proj, centres, by_depth, ends, total, tile_size) -> TileBins:
     from . import triton_binning_kernels as kernels
 
     device = proj.camera.device
@@ -153,7 +154,7 @@ def _bin_fused(proj, by_depth, ends, total, tile_size) -> TileBins:
     tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
     tiles_per_camera = tiles_x * tiles_y
     keys, rank = _key_buffers(proj, total, proj.num_cameras * tiles_per_camera)
-    head = (*_centres_and_extents(proj), proj.camera, by_depth, ends)
+    head = (*centres, proj.camera, by_depth, ends)
     constants = dict(TILE=tile_size, WRAP_U=bool(proj.wrap_u), BLOCK=_BLOCK)
     kernels.emit_fused_keys_kernel[((num + _BLOCK - 1) // _BLOCK,)](
         *head, keys, rank, num, proj.height, proj.width, tiles_x, tiles_per_camera, **constants)

@@ -66,21 +66,23 @@ class _FusedProjection(torch.autograd.Function):
         num_views = ctx.num_views
         num_pairs = num_b * num_views * num_n
         (height, width, fx, fy, cx, cy, near, pole_eps, dilation, sigma_extent, _, max_u2, max_v2) = ctx.constants
-        grad_pairs = torch.empty(num_b, num_views, num_n, 10, dtype=torch.float32, device=means.device)
+        grads = [torch.empty(num_b, num_views, num_n, k, dtype=torch.float32, device=means.device) for k in (3, 3, 4)]
         if num_pairs > 0:
             grid = ((num_pairs + _BLOCK - 1) // _BLOCK,)
             kernels.project_backward_kernel[grid](
-                means, scales, quats, cams, valid, grad_geo.float().contiguous(), grad_pairs, num_pairs, num_views,
+                means, scales, quats, cams, valid, grad_geo.float().contiguous(), *grads, num_pairs, num_views,
                 num_n, height, width, fx, fy, cx, cy, near, pole_eps, dilation, sigma_extent, max_u2, max_v2,
                 MODEL=ctx.model, BLOCK=_BLOCK)
-        grad = grad_pairs.sum(1)  # over cameras: (B, N, 10)
-        return grad[..., 0:3], grad[..., 3:6], grad[..., 6:10], None, None, None, None, None
+        # Summed over the cameras; with one camera each is already a whole, contiguous gradient (no copy).
+        grads = [g[:, 0] if num_views == 1 else g.sum(1) for g in grads]
+        return *grads, None, None, None, None, None
 
 
 def project_dense_triton(
     means: Tensor, scales: Tensor, quats: Tensor, opacities: Tensor, c2w: Tensor, camera, settings: RasterSettings
 ) -> tuple[Tensor, Tensor]:
-    """:func:`.projection.project_dense` on the fused kernel: ``geo (B, V, N, 8)`` float32, ``valid (B, V, N)``."""
+    """:func:`.projection.project_dense` on the fused kernel: ``geo (B, V, N, 8)`` float32, ``valid (B, V, N)``; the
+    rows of invisible pairs are already inert (:attr:`writes_inert_rows`)."""
     if c2w.requires_grad:
         raise UnsupportedSettings("the fused projection kernel treats poses as constants; poses that require "
                                   "gradients are projected by the reference")
@@ -94,3 +96,6 @@ def project_dense_triton(
     return _FusedProjection.apply(means.to(f32).contiguous(), scales.to(f32).contiguous(), quats.to(f32).contiguous(),
                                   opacities.to(f32).contiguous(), cams.to(f32).contiguous(), num_v, model, constants)
 
+
+# The kernel writes an invisible pair's row inert (projection._INERT_UV), so keeping every pair needs no masking.
+project_dense_triton.writes_inert_rows = True

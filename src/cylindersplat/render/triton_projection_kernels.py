@@ -377,7 +377,7 @@ def project_forward_kernel(
     near, pole_eps, dilation, sigma_extent, alpha_min, max_u2, max_v2,
     MODEL: tl.constexpr, BLOCK: tl.constexpr,
 ):
-    """Per pair: ``geo = [u, v, A, B, C, e_u, e_v, depth]`` and ``valid`` (int8)."""
+    """Per pair: ``geo = [u, v, A, B, C, e_u, e_v, depth]`` (inert where not valid) and ``valid`` (int8)."""
     pair, mask, gaussian, camera = _pair_indices(num_pairs, num_views, num_gaussians, BLOCK)
     (c00, c01, c02, c10, c11, c12, c20, c21, c22, qw, qx, qy, qz, qn,
      r00, r01, r02, r10, r11, r12, r20, r21, r22, sx, sy, sz, px, py, pz,
@@ -396,26 +396,28 @@ def project_forward_kernel(
     valid = valid & (opacity >= alpha_min) & (v - ev < height) & (v + ev > 0.0)
     if MODEL != 0:  # images that do not wrap around
         valid = valid & (u - eu < width) & (u + eu > 0.0)
+    # An invisible pair's row is inert (projection._INERT_UV: u = v = -1, the rest 0): it meets no tile.
     out = geo_ptr + pair * 8
-    tl.store(out + 0, u, mask=mask)
-    tl.store(out + 1, v, mask=mask)
-    tl.store(out + 2, ca, mask=mask)
-    tl.store(out + 3, cb, mask=mask)
-    tl.store(out + 4, cc, mask=mask)
-    tl.store(out + 5, eu, mask=mask)
-    tl.store(out + 6, ev, mask=mask)
-    tl.store(out + 7, depth, mask=mask)
+    tl.store(out + 0, tl.where(valid, u, -1.0), mask=mask)
+    tl.store(out + 1, tl.where(valid, v, -1.0), mask=mask)
+    tl.store(out + 2, tl.where(valid, ca, 0.0), mask=mask)
+    tl.store(out + 3, tl.where(valid, cb, 0.0), mask=mask)
+    tl.store(out + 4, tl.where(valid, cc, 0.0), mask=mask)
+    tl.store(out + 5, tl.where(valid, eu, 0.0), mask=mask)
+    tl.store(out + 6, tl.where(valid, ev, 0.0), mask=mask)
+    tl.store(out + 7, tl.where(valid, depth, 0.0), mask=mask)
     tl.store(valid_ptr + pair, valid.to(tl.int8), mask=mask)
 
 
 @triton.jit
 def project_backward_kernel(
-    means_ptr, scales_ptr, quats_ptr, cams_ptr, valid_ptr, grad_geo_ptr, grad_ptr,
-    num_pairs, num_views, num_gaussians, height, width, fx, fy, cx, cy,
+    means_ptr, scales_ptr, quats_ptr, cams_ptr, valid_ptr, grad_geo_ptr, grad_means_ptr, grad_scales_ptr,
+    grad_quats_ptr, num_pairs, num_views, num_gaussians, height, width, fx, fy, cx, cy,
     near, pole_eps, dilation, sigma_extent, max_u2, max_v2,
     MODEL: tl.constexpr, BLOCK: tl.constexpr,
 ):
-    """Per pair: gradients ``[mean (3), scale (3), quaternion (4)]`` (zero for culled pairs)."""
+    """Per pair: gradients of the mean (3), scale (3) and quaternion (4), each in its own ``(pairs, k)`` buffer
+    (zero for culled pairs)."""
     pair, mask, gaussian, camera = _pair_indices(num_pairs, num_views, num_gaussians, BLOCK)
     (c00, c01, c02, c10, c11, c12, c20, c21, c22, qw, qx, qy, qz, qn,
      r00, r01, r02, r10, r11, r12, r20, r21, r22, sx, sy, sz, px, py, pz,
@@ -485,14 +487,16 @@ def project_backward_kernel(
     g_mx = c00 * g_px + c01 * g_py + c02 * g_pz
     g_my = c10 * g_px + c11 * g_py + c12 * g_pz
     g_mz = c20 * g_px + c21 * g_py + c22 * g_pz
-    out = grad_ptr + pair * 10
+    out = grad_means_ptr + pair * 3
     tl.store(out + 0, tl.where(valid, g_mx, 0.0), mask=mask)
     tl.store(out + 1, tl.where(valid, g_my, 0.0), mask=mask)
     tl.store(out + 2, tl.where(valid, g_mz, 0.0), mask=mask)
-    tl.store(out + 3, tl.where(valid, g_sx, 0.0), mask=mask)
-    tl.store(out + 4, tl.where(valid, g_sy, 0.0), mask=mask)
-    tl.store(out + 5, tl.where(valid, g_sz, 0.0), mask=mask)
-    tl.store(out + 6, tl.where(valid, g_qw, 0.0), mask=mask)
-    tl.store(out + 7, tl.where(valid, g_qx, 0.0), mask=mask)
-    tl.store(out + 8, tl.where(valid, g_qy, 0.0), mask=mask)
-    tl.store(out + 9, tl.where(valid, g_qz, 0.0), mask=mask)
+    out = grad_scales_ptr + pair * 3
+    tl.store(out + 0, tl.where(valid, g_sx, 0.0), mask=mask)
+    tl.store(out + 1, tl.where(valid, g_sy, 0.0), mask=mask)
+    tl.store(out + 2, tl.where(valid, g_sz, 0.0), mask=mask)
+    out = grad_quats_ptr + pair * 4
+    tl.store(out + 0, tl.where(valid, g_qw, 0.0), mask=mask)
+    tl.store(out + 1, tl.where(valid, g_qx, 0.0), mask=mask)
+    tl.store(out + 2, tl.where(valid, g_qy, 0.0), mask=mask)
+    tl.store(out + 3, tl.where(valid, g_qz, 0.0), mask=mask)
