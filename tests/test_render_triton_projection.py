@@ -182,6 +182,27 @@ def test_invisible_pairs_rows_are_inert_and_keeping_every_pair_equals_the_masked
     assert int(kept.visible) == int(masked.visible) == 2
 
 
+@pytest.mark.parametrize("num_b,num_v", [(1, 1), (1, 3), (2, 1), (2, 3)])
+def test_every_pair_kept_has_contiguous_indices_and_broadcast_values_equal_to_the_gathered_ones(num_b, num_v):
+    # Keeping every pair broadcasts cameras, Gaussian rows, opacities and colours instead of gathering them; the
+    # binning kernels read the camera of each pair by pointer, so it must be a whole contiguous tensor (one camera's
+    # broadcast would be a view of one element).
+    from cylindersplat.render.projection import project_gaussians
+
+    scenes = [shell_scene(12, seed=40 + b, sh_degree=1, dtype=torch.float32) for b in range(num_b)]
+    g = Gaussians(**{k: torch.stack([getattr(s, k) for s in scenes]) for k in scenes[0].tensors()}).to(DEVICE)
+    c2w = torch.stack([torch.stack([yaw_pose(0.5 * v, (0.1 * v, 0.0, 0.0)) for v in range(num_v)])] * num_b)
+    flat, flat_c2w, _ = flatten_cameras(g, c2w.float().to(DEVICE))
+    kept = project_gaussians(flat, flat_c2w, Equirect(8, 16), SETTINGS, project_dense_triton, every_pair=True)
+    index = torch.arange(num_b * num_v * 12, device=DEVICE)
+    assert kept.camera.is_contiguous() and torch.equal(kept.camera, index // 12)
+    assert kept.gaussian.is_contiguous() and torch.equal(kept.gaussian, index % 12 + index // (num_v * 12) * 12)
+    assert torch.equal(kept.opacity, flat.opacities.reshape(-1)[kept.gaussian])
+    visible = project_gaussians(flat, flat_c2w, Equirect(8, 16), SETTINGS, project_dense_triton)  # gathered
+    at = visible.camera * 12 + visible.gaussian % 12
+    assert torch.equal(kept.color[at], visible.color) and torch.equal(kept.opacity[at], visible.opacity)
+
+
 def test_batched_gaussians_and_several_cameras_sum_gradients_over_cameras():
     a, b = shell_scene(30, seed=26), shell_scene(30, seed=27)
     batched = Gaussians(**{k: torch.stack((getattr(a, k), getattr(b, k))) for k in a.tensors()})

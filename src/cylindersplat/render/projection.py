@@ -273,6 +273,17 @@ def _view_colors(gaussians: Gaussians, c2w: Tensor, camera: Tensor, gauss: Tenso
     return eval_sh(sh.index_select(0, gauss), dirs)
 
 
+def _dense_pair_indices(num_b: int, num_v: int, num_n: int, device) -> tuple[Tensor, Tensor]:
+    """Camera ``(B * V * N,)`` (over ``B * V``) and Gaussian row (over ``B * N``) of every pair, camera-major;
+    contiguous (the binning kernels read them by pointer: one camera's broadcast would be a view of one element)."""
+    cameras = torch.arange(num_b * num_v, device=device)[:, None]
+    camera = cameras.expand(num_b * num_v, num_n).contiguous().view(-1)
+    rows = torch.arange(num_n, device=device)
+    if num_b > 1:
+        rows = torch.arange(num_b, device=device)[:, None, None] * num_n + rows
+    return camera, rows.expand(num_b, num_v, num_n).contiguous().view(-1)
+
+
 def _dense_view_colors(gaussians: Gaussians, c2w: Tensor, num_b: int, num_v: int, num_n: int) -> Tensor:
     """RGB ``(B * V * N, 3)`` of every pair, camera-major (:func:`_view_colors`' values): degree 0 evaluated once per
     Gaussian and broadcast over the cameras, higher degrees with the directions broadcast (no gathers)."""
@@ -302,7 +313,6 @@ def _pairs(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, camera
     geo = geo.reshape(-1, 8)
     visible = None
     if every_pair:
-        index = torch.arange(valid.numel(), device=valid.device)
         if not inert_rows:
             inert = torch.zeros(8, dtype=geo.dtype, device=geo.device)
             inert[:2] = _INERT_UV  # filled on the device: no host-to-device copy
@@ -312,12 +322,13 @@ def _pairs(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, camera
         index = valid.reshape(-1).nonzero().squeeze(1)
         geo = geo.index_select(0, index)
     geo = geo.to(gaussians.dtype)
-    gauss = index % num_n + (index // (num_v * num_n)) * num_n  # row of the (B*N) Gaussians
-    camera = index // num_n
-    if every_pair:  # pair (b, v, n) is Gaussian (b, n): a broadcast over the cameras, no gather (a view for one)
+    if every_pair:  # pair (b, v, n) is Gaussian (b, n): broadcasts over the cameras, no gathers (views for one)
+        camera, gauss = _dense_pair_indices(num_b, num_v, num_n, valid.device)
         opacity = gaussians.opacities.reshape(num_b, 1, num_n).expand(num_b, num_v, num_n).reshape(-1)
         color = _dense_view_colors(gaussians, c2w, num_b, num_v, num_n)
     else:
+        gauss = index % num_n + (index // (num_v * num_n)) * num_n  # row of the (B*N) Gaussians
+        camera = index // num_n
         opacity = gaussians.opacities.reshape(-1).index_select(0, gauss)
         color = _view_colors(gaussians, c2w, camera, gauss)
     return ProjectedGaussians(
