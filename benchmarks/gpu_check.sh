@@ -133,7 +133,8 @@ else
   # The GPU kernels' tests only (slow-marked ones included: seconds on a GPU), not the reference's CPU tests.
   test_args=(tests/test_render_triton.py tests/test_render_triton_projection.py tests/test_render_binning.py
              tests/test_render_triton_sync.py tests/test_render_triton_lean.py tests/test_triton_compile.py
-             tests/test_render_deferred_checks.py "tests/test_render_layered.py::test_blending_is_the_normalised_weighted_mean_of_the_front_surface")
+             tests/test_render_deferred_checks.py tests/test_render_triton_checks.py
+             "tests/test_render_layered.py::test_blending_is_the_normalised_weighted_mean_of_the_front_surface")
   render_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --repeats 3)
   stages_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3)
   binning_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3 $binning_variants)
