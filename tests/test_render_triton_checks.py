@@ -183,6 +183,6 @@ def test_the_fused_checks_launch_one_kernel_where_pytorch_launches_dozens(monkey
     fused, fused_backward = _launches(monkeypatch, "fused", forward)
     torch_checks, torch_backward = _launches(monkeypatch, "torch", forward)
     assert fused.triton["input_checks_kernel"] == 1 and "input_checks_kernel" not in torch_checks.triton
-    assert torch_checks.kernels - fused.kernels >= 60  # 101 -> 29 (default), 97 -> 25 (lean) on 2026-11-26
-    assert fused.kernels <= 33  # the whole forward: checks, projection, binning, compositing (29 / 25 on 2026-11-26)
+    assert torch_checks.kernels - fused.kernels >= 60  # 98 -> 24 (default), 94 -> 20 (lean) on 2026-11-26
+    assert fused.kernels <= 28  # the whole forward: checks, projection, binning, compositing (24 / 20 on 2026-11-26)
     assert fused_backward.kernels == torch_backward.kernels <= 22  # 18 on 2026-11-26 (31 / 26 before)

@@ -35,7 +35,7 @@ from cylindersplat.render import (  # noqa: E402
 FLOAT_SCALARS = {"fx", "fy", "cx", "cy", "near", "pole_eps", "dilation", "sigma_extent", "alpha_min", "max_u2",
                  "max_v2",
                  "sigma2", "alpha_max", "t_min", "inv_atol", "max_distance"}
-POINTER_TYPES = {"valid_ptr": "*i8", "uv_ptr": "*fp32", "ext_ptr": "*fp32", "depth_bits_ptr": "*i32",
+POINTER_TYPES = {"valid_ptr": "*i1", "uv_ptr": "*fp32", "ext_ptr": "*fp32", "depth_bits_ptr": "*i32",
                  "pair_gaussian_ptr": "*i64", "rows_ptr": "*i64", "cols_ptr": "*i64", "tile_start_ptr": "*i64"}
 # Every pointer of the binning kernels is int64 but the depth bits, the tile keys and the depth ranks
 # (and the centres and extents the fused binning reads).
@@ -99,9 +99,9 @@ KERNELS = [
     (triton_binning_kernels.write_lean_pairs_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},
      {"sorted_key_ptr": "*i32", "rank_ptr": "*i32", "gaussian_ptr": "*i32", "rows_ptr": "*i32", "cols_ptr": "*i32"}),
     # the input checks: float32 Gaussians and poses, and float64 / bfloat16 ones
-    (triton_checks_kernels.input_checks_kernel, {"FLAT": 1024, "CAMERAS": 32}, {"flags_ptr": "*i32"}),
+    (triton_checks_kernels.input_checks_kernel, {"FLAT": 1024, "CAMERAS": 32}, {"flags_ptr": "*i64"}),
     (triton_checks_kernels.input_checks_kernel, {"FLAT": 1024, "CAMERAS": 32},
-     {"flags_ptr": "*i32", "means_ptr": "*fp64", "scales_ptr": "*bf16", "rotations_ptr": "*fp16", "c2w_ptr": "*fp64"}),
+     {"flags_ptr": "*i64", "means_ptr": "*fp64", "scales_ptr": "*bf16", "rotations_ptr": "*fp16", "c2w_ptr": "*fp64"}),
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 1}, LEAN_PAIRS),
     # the default forward's compositing on the projection's rows (LEAN layout) with int64 pair fields
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 1}),

@@ -28,13 +28,13 @@ POSE_ATOL = 1e-3  # as geometry.poses.c2w_problem_flags
 
 
 def queue_input_checks(gaussians: Gaussians, c2w: Tensor) -> list[Tensor]:
-    """Check the structure of ``gaussians`` and ``c2w`` now (raise); their values as int32 device flags ``[any
-    problem, cameras too far]`` (0-dim, unread), from one kernel launch."""
+    """Check the structure of ``gaussians`` and ``c2w`` now (raise); their values as int64 device flags ``[any
+    problem, cameras too far]`` (0-dim, unread; int64 as the values they are read with), from one kernel launch."""
     from . import triton_checks_kernels as kernels
 
     gaussians.check_structure()
     check_c2w_structure(c2w)
-    flags = torch.zeros(2, dtype=torch.int32, device=gaussians.device)
+    flags = torch.zeros(2, dtype=torch.int64, device=gaussians.device)
     flat = {name: t.reshape(-1) for name, t in gaussians.tensors().items()}  # a copy only where not contiguous
     num_gaussians = flat["opacities"].numel()
     poses = c2w.reshape(-1, 16)

@@ -71,8 +71,9 @@ def input_checks_kernel(
             pose_bad, pose_far = _pose_problems(c2w_ptr, first, num_cameras, inv_atol, max_distance, CAMERAS)
             bad = tl.maximum(bad, pose_bad)
             far = tl.maximum(far, pose_far)
-    tl.atomic_max(flags_ptr, bad, mask=bad > 0)
-    tl.atomic_max(flags_ptr + 1, far, mask=far > 0)
+    kind = flags_ptr.dtype.element_ty
+    tl.atomic_max(flags_ptr, bad.to(kind), mask=bad > 0)
+    tl.atomic_max(flags_ptr + 1, far.to(kind), mask=far > 0)
 
 
 @triton.jit

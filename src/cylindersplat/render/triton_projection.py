@@ -33,7 +33,7 @@ def _camera_constants(camera) -> tuple[int, tuple[float, float, float, float]]:
 
 class _FusedProjection(torch.autograd.Function):
     """means, scales ``(B, N, 3)``, quats ``(B, N, 4)``, opacities ``(B, N)`` (float32, contiguous),
-    cams ``(B * V, 12)`` (c2w rotation row-major, then translation) -> ``geo (B, V, N, 8)``,
+    cams ``(B * V, 16)`` (the c2w poses, row-major) -> ``geo (B, V, N, 8)``,
     ``valid (B, V, N)`` bool."""
 
     @staticmethod
@@ -43,7 +43,7 @@ class _FusedProjection(torch.autograd.Function):
         num_b, num_n = means.shape[:2]
         num_pairs = num_b * num_views * num_n
         geo = torch.empty(num_b, num_views, num_n, 8, dtype=torch.float32, device=means.device)
-        valid = torch.empty(num_b, num_views, num_n, dtype=torch.int8, device=means.device)
+        valid = torch.empty(num_b, num_views, num_n, dtype=torch.bool, device=means.device)
         (height, width, fx, fy, cx, cy, near, pole_eps, dilation, sigma_extent, alpha_min, max_u2, max_v2) = constants
         if num_pairs > 0:
             grid = ((num_pairs + _BLOCK - 1) // _BLOCK,)
@@ -53,9 +53,8 @@ class _FusedProjection(torch.autograd.Function):
                 MODEL=model, BLOCK=_BLOCK)
         ctx.save_for_backward(means, scales, quats, cams, valid)
         ctx.num_views, ctx.model, ctx.constants = num_views, model, constants
-        visible = valid.bool()
-        ctx.mark_non_differentiable(visible)
-        return geo, visible
+        ctx.mark_non_differentiable(valid)
+        return geo, valid
 
     @staticmethod
     def backward(ctx, grad_geo, _grad_valid):
@@ -91,7 +90,7 @@ def project_dense_triton(
     constants = (camera.height, camera.width, fx, fy, cx, cy, settings.near, settings.pole_eps, settings.dilation,
                  settings.sigma_extent, settings.alpha_min, max_u * max_u, max_v * max_v)
     num_b, num_v = c2w.shape[:2]
-    cams = torch.cat((c2w[..., :3, :3].reshape(num_b * num_v, 9), c2w[..., :3, 3].reshape(num_b * num_v, 3)), -1)
+    cams = c2w.reshape(num_b * num_v, 16)  # the kernel reads each 4x4 pose in place (no copy for float32 poses)
     f32 = torch.float32
     return _FusedProjection.apply(means.to(f32).contiguous(), scales.to(f32).contiguous(), quats.to(f32).contiguous(),
                                   opacities.to(f32).contiguous(), cams.to(f32).contiguous(), num_v, model, constants)

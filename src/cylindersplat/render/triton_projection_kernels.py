@@ -319,18 +319,18 @@ def _camera_frame(means_ptr, scales_ptr, quats_ptr, cams_ptr, gaussian, camera, 
     qx0 = tl.load(qb + 1, mask=mask, other=0.0)
     qy0 = tl.load(qb + 2, mask=mask, other=0.0)
     qz0 = tl.load(qb + 3, mask=mask, other=0.0)
-    cb = cams_ptr + camera * 12
+    cb = cams_ptr + camera * 16  # the camera's 4x4 c2w, row-major: rotation row i at 4i..4i+2, translation at 4i+3
     c00 = tl.load(cb + 0, mask=mask, other=1.0)
     c01 = tl.load(cb + 1, mask=mask, other=0.0)
     c02 = tl.load(cb + 2, mask=mask, other=0.0)
-    c10 = tl.load(cb + 3, mask=mask, other=0.0)
-    c11 = tl.load(cb + 4, mask=mask, other=1.0)
-    c12 = tl.load(cb + 5, mask=mask, other=0.0)
-    c20 = tl.load(cb + 6, mask=mask, other=0.0)
-    c21 = tl.load(cb + 7, mask=mask, other=0.0)
-    c22 = tl.load(cb + 8, mask=mask, other=1.0)
-    dx = mx - tl.load(cb + 9, mask=mask, other=0.0)
-    dy = my - tl.load(cb + 10, mask=mask, other=0.0)
+    c10 = tl.load(cb + 4, mask=mask, other=0.0)
+    c11 = tl.load(cb + 5, mask=mask, other=1.0)
+    c12 = tl.load(cb + 6, mask=mask, other=0.0)
+    c20 = tl.load(cb + 8, mask=mask, other=0.0)
+    c21 = tl.load(cb + 9, mask=mask, other=0.0)
+    c22 = tl.load(cb + 10, mask=mask, other=1.0)
+    dx = mx - tl.load(cb + 3, mask=mask, other=0.0)
+    dy = my - tl.load(cb + 7, mask=mask, other=0.0)
     dz = mz - tl.load(cb + 11, mask=mask, other=0.0)
     # p_i = sum_k Rc[k, i] d_k
     px = c00 * dx + c10 * dy + c20 * dz
@@ -377,7 +377,7 @@ def project_forward_kernel(
     near, pole_eps, dilation, sigma_extent, alpha_min, max_u2, max_v2,
     MODEL: tl.constexpr, BLOCK: tl.constexpr,
 ):
-    """Per pair: ``geo = [u, v, A, B, C, e_u, e_v, depth]`` (inert where not valid) and ``valid`` (int8)."""
+    """Per pair: ``geo = [u, v, A, B, C, e_u, e_v, depth]`` (inert where not valid) and ``valid`` (bool)."""
     pair, mask, gaussian, camera = _pair_indices(num_pairs, num_views, num_gaussians, BLOCK)
     (c00, c01, c02, c10, c11, c12, c20, c21, c22, qw, qx, qy, qz, qn,
      r00, r01, r02, r10, r11, r12, r20, r21, r22, sx, sy, sz, px, py, pz,
@@ -406,7 +406,7 @@ def project_forward_kernel(
     tl.store(out + 5, tl.where(valid, eu, 0.0), mask=mask)
     tl.store(out + 6, tl.where(valid, ev, 0.0), mask=mask)
     tl.store(out + 7, tl.where(valid, depth, 0.0), mask=mask)
-    tl.store(valid_ptr + pair, valid.to(tl.int8), mask=mask)
+    tl.store(valid_ptr + pair, valid.to(valid_ptr.dtype.element_ty), mask=mask)  # bool (or int8)
 
 
 @triton.jit
