@@ -236,3 +236,19 @@ def test_render_with_the_triton_backend_uses_the_kernel_and_falls_back_where_it_
     out = render(g, pose_grad, Equirect(8, 16), backend="triton")
     out.rgb.sum().backward()
     assert pose_grad.grad is not None and torch.isfinite(pose_grad.grad).all()
+
+
+def test_the_backward_reads_the_pairs_geo_gradient_in_place_where_its_rows_are_evenly_spaced():
+    from cylindersplat.render.triton_projection import _pair_rows
+
+    rows = torch.randn(2 * 3 * 5, 12)  # the compositing rows' gradient: geo in the first 8 columns
+    grad_geo = rows[:, :8].reshape(2, 3, 5, 8)
+    same, stride = _pair_rows(grad_geo)
+    assert same is grad_geo and stride == 12
+    contiguous = torch.randn(2, 3, 5, 8)
+    assert _pair_rows(contiguous) == (contiguous, 8)
+    uneven = torch.randn(2, 5, 3, 8).transpose(1, 2)  # pairs not evenly spaced: copied
+    copied, stride = _pair_rows(uneven)
+    assert stride == 8 and copied.is_contiguous() and torch.equal(copied, uneven)
+    half = torch.randn(1, 1, 4, 8, dtype=torch.float16)  # another dtype: converted
+    assert _pair_rows(half)[0].dtype == torch.float32

@@ -66,15 +66,31 @@ class _FusedProjection(torch.autograd.Function):
         num_pairs = num_b * num_views * num_n
         (height, width, fx, fy, cx, cy, near, pole_eps, dilation, sigma_extent, _, max_u2, max_v2) = ctx.constants
         grads = [torch.empty(num_b, num_views, num_n, k, dtype=torch.float32, device=means.device) for k in (3, 3, 4)]
+        grad_geo, row_stride = _pair_rows(grad_geo)
         if num_pairs > 0:
             grid = ((num_pairs + _BLOCK - 1) // _BLOCK,)
             kernels.project_backward_kernel[grid](
-                means, scales, quats, cams, valid, grad_geo.float().contiguous(), *grads, num_pairs, num_views,
+                means, scales, quats, cams, valid, grad_geo, *grads, row_stride, num_pairs, num_views,
                 num_n, height, width, fx, fy, cx, cy, near, pole_eps, dilation, sigma_extent, max_u2, max_v2,
                 MODEL=ctx.model, BLOCK=_BLOCK)
         # Summed over the cameras; with one camera each is already a whole, contiguous gradient (no copy).
         grads = [g[:, 0] if num_views == 1 else g.sum(1) for g in grads]
         return *grads, None, None, None, None, None
+
+
+def _pair_rows(grad_geo: Tensor) -> tuple[Tensor, int]:
+    """``grad_geo (B, V, N, 8)`` as float32 rows one pair apart, and that distance: read in place where its pairs
+    are evenly spaced rows of unit column stride (e.g. the first 8 columns of the compositing rows' gradient), else
+    a contiguous copy (8)."""
+    *lead, _ = grad_geo.shape
+    stride = grad_geo.stride(-2) if grad_geo.dim() > 1 else 8
+    expected = [stride]
+    for size in reversed(lead[1:]):
+        expected.insert(0, expected[0] * size)
+    if (grad_geo.dtype == torch.float32 and grad_geo.stride(-1) == 1 and stride >= 8
+            and all(grad_geo.stride(d) == e or grad_geo.shape[d] == 1 for d, e in enumerate(expected))):
+        return grad_geo, stride
+    return grad_geo.float().contiguous(), 8
 
 
 def project_dense_triton(

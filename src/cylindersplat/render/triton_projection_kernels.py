@@ -412,12 +412,13 @@ def project_forward_kernel(
 @triton.jit
 def project_backward_kernel(
     means_ptr, scales_ptr, quats_ptr, cams_ptr, valid_ptr, grad_geo_ptr, grad_means_ptr, grad_scales_ptr,
-    grad_quats_ptr, num_pairs, num_views, num_gaussians, height, width, fx, fy, cx, cy,
+    grad_quats_ptr, grad_geo_stride, num_pairs, num_views, num_gaussians, height, width, fx, fy, cx, cy,
     near, pole_eps, dilation, sigma_extent, max_u2, max_v2,
     MODEL: tl.constexpr, BLOCK: tl.constexpr,
 ):
     """Per pair: gradients of the mean (3), scale (3) and quaternion (4), each in its own ``(pairs, k)`` buffer
-    (zero for culled pairs)."""
+    (zero for culled pairs), from the pairs' ``geo`` gradients, rows ``grad_geo_stride`` apart (8, or 12 where they
+    are the first columns of the compositing rows' gradient)."""
     pair, mask, gaussian, camera = _pair_indices(num_pairs, num_views, num_gaussians, BLOCK)
     (c00, c01, c02, c10, c11, c12, c20, c21, c22, qw, qx, qy, qz, qn,
      r00, r01, r02, r10, r11, r12, r20, r21, r22, sx, sy, sz, px, py, pz,
@@ -436,7 +437,7 @@ def project_backward_kernel(
     tv0 = j10 * w00 + j11 * w10 + j12 * w20
     tv1 = j10 * w01 + j11 * w11 + j12 * w21
     tv2 = j10 * w02 + j11 * w12 + j12 * w22
-    gb = grad_geo_ptr + pair * 8
+    gb = grad_geo_ptr + pair * grad_geo_stride
     g_u = tl.load(gb + 0, mask=valid, other=0.0)
     g_v = tl.load(gb + 1, mask=valid, other=0.0)
     g_ca = tl.load(gb + 2, mask=valid, other=0.0)
