@@ -378,7 +378,7 @@ def main(argv: list[str] | None = None) -> None:
                              "binning without the host sync before compositing), compaction "
                              f"{'|'.join(triton_backend.COMPACTIONS)} (default {triton_backend.COMPACTION}; nonzero: "
                              "only the visible pairs, one more host sync), input checks "
-                             f"{'|'.join(triton_backend.CHECKS)} (default {triton_backend.CHECK}; torch: some ninety "
+                             f"{'|'.join(triton_backend.CHECKS)} (default {triton_backend.CHECK}; torch: some seventy "
                              "PyTorch operations instead of one kernel)")
     parser.add_argument("--launches", action="store_true",
                         help="also count the kernels one forward and its backward launch (PyTorch operations and "

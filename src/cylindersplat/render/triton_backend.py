@@ -58,7 +58,7 @@ COMPACTIONS = ("none", "nonzero")
 COMPACTION = "none"
 
 # How a render on this backend queues its input checks (read with the pair count): "fused" (one kernel launch,
-# :mod:`.triton_checks`) or "torch" (the PyTorch operations of ``api._queue_checks_torch``: some ninety launches for
+# :mod:`.triton_checks`) or "torch" (the PyTorch operations of ``api._queue_checks_torch``: some seventy launches for
 # the Gaussians' and the poses' value checks). The same flags. Not yet measured on a GPU; module-level: the benchmark
 # switches it.
 CHECKS = ("fused", "torch")

@@ -1,5 +1,5 @@
 """The Triton backend's deferred input checks (issue 35): :func:`.api.render`'s value checks of the Gaussians and
-the poses in one kernel launch (:mod:`.triton_checks_kernels`) instead of some ninety small PyTorch operations.
+the poses in one kernel launch (:mod:`.triton_checks_kernels`) instead of some seventy small PyTorch operations.
 
 :func:`queue_input_checks` has the contract of the torch checks it replaces (``api._queue_checks_torch``): the
 structure (types, shapes, dtypes, devices) is checked now with the same errors; the values come back as device
@@ -39,11 +39,11 @@ def queue_input_checks(gaussians: Gaussians, c2w: Tensor) -> list[Tensor]:
     num_gaussians = flat["opacities"].numel()
     poses = c2w.reshape(-1, 16)
     widest = max(4 * num_gaussians, flat["sh"].numel(), 1)
-    kernels.input_checks_kernel[(triton_cdiv(widest, _FLAT),)](
+    kernels.input_checks_kernel[(_cdiv(widest, _FLAT),)](
         flat["means"], flat["scales"], flat["rotations"], flat["opacities"], flat["sh"], poses, flags,
         num_gaussians, flat["sh"].numel(), len(poses), 1.0 / POSE_ATOL, MAX_TRANSLATION_M, FLAT=_FLAT, CAMERAS=_CAMERAS)
     return [flags[0], flags[1]]
 
 
-def triton_cdiv(a: int, b: int) -> int:
+def _cdiv(a: int, b: int) -> int:
     return (a + b - 1) // b
