@@ -56,6 +56,14 @@ if compgen -G "$wheels/*.whl" > /dev/null; then
       "$wheels"/*.whl && export PYTHONPATH=/tmp/cylindersplat_site:$PYTHONPATH
 fi
 
+# The kernel tests compile a hundred-odd Triton specialisations on a fresh machine (1-3 s each, most of the item's
+# time): with pytest-xdist carried (`python3 -m pip download --no-deps pytest-xdist execnet -d .whl`), they compile
+# in CHECK_TEST_WORKERS (8) processes at once.
+test_workers=()
+if [ "${CHECK_TEST_WORKERS:-8}" -gt 1 ] && $py -c "import xdist" 2> /dev/null; then
+  test_workers=(-n "${CHECK_TEST_WORKERS:-8}")
+fi
+
 if [ $smoke = 1 ]; then
   device=$($py -c "import torch; print('cuda' if torch.cuda.is_available() else 'cpu')")
   [ "$device" = cpu ] && export TRITON_INTERPRET=1
@@ -207,7 +215,8 @@ export py work out smoke base_dir base_call_seconds=0 base_scenes base_resolutio
 for item in $items; do
   case $item in
     tests)
-      run_item tests "${CHECK_LIMIT_TESTS:-150}" $py -m pytest -q -p no:cacheprovider "${test_args[@]}"
+      run_item tests "${CHECK_LIMIT_TESTS:-180}" $py -m pytest -q -p no:cacheprovider "${test_workers[@]}" \
+          "${test_args[@]}"
       tail -n 3 "$out/tests.log" | sed 's/^/    /' >> "$summary" ;;
     render)
       run_item render "${CHECK_LIMIT_RENDER:-120}" $py -m cylindersplat bench render "${render_args[@]}"
