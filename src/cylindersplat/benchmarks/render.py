@@ -11,7 +11,8 @@ binning, fragment expansion + sort, compositing, backward for the PyTorch refere
 compositing kernels). ``--ply-view N`` also times what a user waits for to see a scene: a PLY of ``N``
 Gaussians loaded and one 512x1024 view rendered (no gradients), per backend. A backend that runs out
 of memory is reported as such in the rows and the closing table (the others are still timed).
-``--launches`` also counts the kernels one forward and its backward launch (PyTorch operations and Triton kernels:
+``--stages`` starts with the render's input checks (``checks``: queued on the device for the Triton backend,
+:data:`cylindersplat.render.triton_backend.CHECK`). ``--launches`` also counts the kernels one forward and its backward launch (PyTorch operations and Triton kernels:
 on an H100 the Triton path is launch-bound, issue 35). ``--variants BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]]
 ...`` times the Triton backend's variants side by side (issue
 35): one ``triton[binning,backward]`` row each (``triton[binning,backward,lean]`` with the lean forward, whose binning
@@ -37,7 +38,7 @@ import torch
 
 from cylindersplat.benchmarks.launches import count_launches
 from cylindersplat.gaussians import load_ply, save_ply
-from cylindersplat.render import Equirect, render_cubemap, render_equirect, triton_backend, triton_binning
+from cylindersplat.render import Equirect, api, render_cubemap, render_equirect, triton_backend, triton_binning
 from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
 from cylindersplat.scenes import random_indoor
@@ -142,8 +143,8 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
     """Median time of each stage of one forward + backward (the reference's, or the Triton backend's)."""
     settings = RasterSettings()
     fast = backend == "triton"
-    names = (("project", "bin", "composite", "backward") if fast
-             else ("project", "bin", "fragments", "composite", "backward"))
+    names = (("checks", "project", "bin", "composite", "backward") if fast
+             else ("checks", "project", "bin", "fragments", "composite", "backward"))
     acc: dict[str, list[float]] = {k: [] for k in names}
     for it in range(repeats + 1):
         marks = [time.perf_counter()]
@@ -152,6 +153,9 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
             _sync(device)
             marks.append(time.perf_counter())
 
+        # The render's input checks: queued as the Triton backend queues them (triton_backend.CHECK), else read now.
+        api._queue_checks("triton", g, c2w) if fast else api._check_inputs(g, c2w)
+        mark()
         if fast:  # the Triton backend's own stages: fused projection kernel, key binning
             from cylindersplat.render.projection import flatten_cameras, project_gaussians
             from cylindersplat.render.triton_binning import bin_lean, bin_to_tiles_by_key, grow_capacity, lean_capacity
