@@ -12,15 +12,15 @@ compositing kernels). ``--ply-view N`` also times what a user waits for to see a
 Gaussians loaded and one 512x1024 view rendered (no gradients), per backend. A backend that runs out
 of memory is reported as such in the rows and the closing table (the others are still timed).
 ``--stages`` starts with the render's input checks (``checks``: queued on the device for the Triton backend,
-:data:`cylindersplat.render.triton_backend.CHECK`). ``--launches`` also counts the kernels one forward and its backward launch (PyTorch operations and Triton kernels:
-on an H100 the Triton path is launch-bound, issue 35). ``--variants BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]]
-...`` times the Triton backend's variants side by side (issue
-35): one ``triton[binning,backward]`` row each (``triton[binning,backward,lean]`` with the lean forward, whose binning
-is always the fused one's; ``triton[binning,backward,default,nonzero]`` with the visible pairs compacted first,
-:data:`cylindersplat.render.triton_backend.COMPACTION`), then ``# agreement`` lines (each variant's image and
+:data:`cylindersplat.render.triton_backend.CHECK`). ``--launches`` also counts the kernels one forward and its
+backward launch (PyTorch operations and Triton kernels: on an H100 the Triton path is launch-bound, issue 35).
+``--variants BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]] ...`` times the Triton backend's variants side by side
+(issue 35): one ``triton[binning,backward]`` row each (``triton[binning,backward,lean]`` with the lean forward, whose
+binning is always the fused one's; ``triton[binning,backward,default,nonzero]`` with the visible pairs compacted
+first, :data:`cylindersplat.render.triton_backend.COMPACTION`), then ``# agreement`` lines (each variant's image and
 gradients against the first's, at the timed size), e.g. ``--backend triton --stages --variants key64,sums fused,sums
-fused,joined fused,joined,lean fused,joined,default,nonzero`` (with ``--stages`` the binning variant shows in
-``bin``, the backward one in ``backward``).
+fused,joined fused,joined,lean fused,joined,default,nonzero`` (with ``--stages`` the binning variant shows in ``bin``,
+the backward one in ``backward``).
 """
 
 from __future__ import annotations
