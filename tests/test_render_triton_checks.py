@@ -13,7 +13,7 @@ import torch
 
 pytest.importorskip("triton")
 
-from cylindersplat.benchmarks.launches import count_launches  # noqa: E402
+from cylindersplat.benchmarks.launches import count_render_launches  # noqa: E402
 from cylindersplat.gaussians import Gaussians  # noqa: E402
 from cylindersplat.render import api, render_equirect, triton_backend  # noqa: E402
 from cylindersplat.render.triton_checks import queue_input_checks  # noqa: E402
@@ -170,12 +170,7 @@ def _launches(monkeypatch, check: str, forward: str):
     g = _scene(n=20)
     params = {k: v.clone().requires_grad_() for k, v in g.tensors().items()}
     c2w = torch.eye(4, device=DEVICE)
-    render_equirect(Gaussians(**params), c2w, 8, 16, backend="triton")  # first-call work (caches) not counted
-    outputs = []
-    forward_counts = count_launches(lambda: outputs.append(render_equirect(Gaussians(**params), c2w, 8, 16,
-                                                                           backend="triton")))
-    backward_counts = count_launches(lambda: (outputs[0].rgb.sum() + outputs[0].depth.sum()).backward())
-    return forward_counts, backward_counts
+    return count_render_launches(lambda: render_equirect(Gaussians(**params), c2w, 8, 16, backend="triton"))
 
 
 @pytest.mark.parametrize("forward", ["default", "lean"])

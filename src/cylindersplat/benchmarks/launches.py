@@ -18,7 +18,7 @@ from typing import Callable
 
 from torch.utils._python_dispatch import TorchDispatchMode
 
-__all__ = ["LaunchCount", "count_launches"]
+__all__ = ["LaunchCount", "count_launches", "count_render_launches"]
 
 # Operations that launch nothing: views and shape/metadata changes, uninitialised allocations, type queries.
 _NO_KERNEL = {"empty", "empty_like", "empty_strided", "new_empty", "new_empty_strided", "detach", "alias",
@@ -87,3 +87,13 @@ def count_launches(fn: Callable[[], object]) -> LaunchCount:
     with _triton_launches(counts, inside), _Counter(counts, inside):
         fn()
     return counts
+
+
+def count_render_launches(render: Callable[[], object]) -> tuple[LaunchCount, LaunchCount]:
+    """The launches of one forward of ``render`` (a call returning a ``RenderOutput``) and of its backward (of
+    ``rgb.sum() + depth.sum()``), after one uncounted call (first-call work: compilation, caches)."""
+    render()
+    outputs = []
+    forward = count_launches(lambda: outputs.append(render()))
+    backward = count_launches(lambda: (outputs[0].rgb.sum() + outputs[0].depth.sum()).backward())
+    return forward, backward

@@ -36,7 +36,7 @@ import time
 
 import torch
 
-from cylindersplat.benchmarks.launches import count_launches
+from cylindersplat.benchmarks.launches import count_render_launches
 from cylindersplat.gaussians import load_ply, save_ply
 from cylindersplat.render import Equirect, api, render_cubemap, render_equirect, triton_backend, triton_binning
 from cylindersplat.render.projection import RasterSettings
@@ -125,10 +125,7 @@ def bench(num: int, height: int, device: torch.device, backend: str, repeats: in
 def launch_counts(render) -> dict:
     """Kernels launched by one forward of ``render`` and by its backward (PyTorch operations and Triton kernels:
     :func:`cylindersplat.benchmarks.launches.count_launches`), after one uncounted call."""
-    render()
-    outputs = []
-    forward = count_launches(lambda: outputs.append(render()))
-    backward = count_launches(lambda: (outputs[0].rgb.sum() + outputs[0].depth.sum()).backward())
+    forward, backward = count_render_launches(render)
     return {"forward": forward.kernels, "forward_triton": sum(forward.triton.values()), "backward": backward.kernels}
 
 

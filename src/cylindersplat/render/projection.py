@@ -268,9 +268,13 @@ def _view_colors(gaussians: Gaussians, c2w: Tensor, camera: Tensor, gauss: Tenso
         return eval_sh(sh.index_select(0, gauss), None)
     means = gaussians.means.reshape(-1, 3).index_select(0, gauss)
     origins = c2w[..., :3, 3].reshape(-1, 3).to(means.dtype).index_select(0, camera)
+    return eval_sh(sh.index_select(0, gauss), _view_directions(means, origins))
+
+
+def _view_directions(means: Tensor, origins: Tensor) -> Tensor:
+    """Unit directions camera -> Gaussian (``means - origins``, broadcast)."""
     dirs = means - origins
-    dirs = dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True).clamp_min(1e-12)
-    return eval_sh(sh.index_select(0, gauss), dirs)
+    return dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def _dense_pair_indices(num_b: int, num_v: int, num_n: int, device) -> tuple[Tensor, Tensor]:
@@ -293,9 +297,7 @@ def _dense_view_colors(gaussians: Gaussians, c2w: Tensor, num_b: int, num_v: int
     else:
         means = gaussians.means.reshape(num_b, 1, num_n, 3)
         origins = c2w[..., :3, 3].reshape(num_b, num_v, 1, 3).to(means.dtype)
-        dirs = means - origins
-        dirs = dirs / torch.linalg.vector_norm(dirs, dim=-1, keepdim=True).clamp_min(1e-12)
-        rgb = eval_sh(sh, dirs)
+        rgb = eval_sh(sh, _view_directions(means, origins))
     return rgb.expand(num_b, num_v, num_n, 3).reshape(-1, 3)
 
 

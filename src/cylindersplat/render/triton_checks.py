@@ -30,6 +30,8 @@ POSE_ATOL = 1e-3  # as geometry.poses.c2w_problem_flags
 def queue_input_checks(gaussians: Gaussians, c2w: Tensor) -> list[Tensor]:
     """Check the structure of ``gaussians`` and ``c2w`` now (raise); their values as int64 device flags ``[any
     problem, cameras too far]`` (0-dim, unread; int64 as the values they are read with), from one kernel launch."""
+    import triton
+
     from . import triton_checks_kernels as kernels
 
     gaussians.check_structure()
@@ -39,11 +41,7 @@ def queue_input_checks(gaussians: Gaussians, c2w: Tensor) -> list[Tensor]:
     num_gaussians = flat["opacities"].numel()
     poses = c2w.reshape(-1, 16)
     widest = max(4 * num_gaussians, flat["sh"].numel(), 1)
-    kernels.input_checks_kernel[(_cdiv(widest, _FLAT),)](
+    kernels.input_checks_kernel[(triton.cdiv(widest, _FLAT),)](
         flat["means"], flat["scales"], flat["rotations"], flat["opacities"], flat["sh"], poses, flags,
         num_gaussians, flat["sh"].numel(), len(poses), 1.0 / POSE_ATOL, MAX_TRANSLATION_M, FLAT=_FLAT, CAMERAS=_CAMERAS)
     return [flags[0], flags[1]]
-
-
-def _cdiv(a: int, b: int) -> int:
-    return (a + b - 1) // b
