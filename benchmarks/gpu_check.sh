@@ -7,7 +7,8 @@
 #   render          rasterizer at 0.1 / 0.5 / 1.3 M Gaussians, 512x1024: reference and Triton (a reference out of
 #                   memory is a table cell, not a crash);
 #   stages          where the Triton path spends its time (projection, binning, compositing, backward);
-#   gsplat          our pinhole renderer against gsplat (speed and agreement); gsplat's wheel is carried in
+#   gsplat          our pinhole renderer against gsplat (speed and agreement; the Triton forwards with every pair
+#                   and with the visible pairs compacted, with their launch counts); gsplat's wheel is carried in
 #                   $CHECK_WHEELS (default .whl: `python3 -m pip download --no-deps gsplat==1.5.3 -d .whl`); its
 #                   CUDA code (a JIT build of about 75 s) is built in the background while the tests run;
 #   model           the paper config end to end (network + one render), 1-4 views;
@@ -120,13 +121,17 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
 binning_variants="--launches --variants fused,joined fused,joined,default,none,torch fused,joined,default,nonzero
                   fused,joined,lean fused,joined,lean,nonzero fused,chunked8,lean"
 profile_variants="--variants fused,joined fused,joined,default,nonzero fused,joined,lean"
+# Pinhole views beside gsplat: the forwards with every pair and with the visible ones compacted (most pairs of a 90°
+# view are invisible, so the compaction may pay there and not on panoramas), with their launch counts.
+gsplat_variants="--launches --variants fused,joined fused,joined,lean fused,joined,default,nonzero
+                 fused,joined,lean,nonzero"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
   render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
   stages_args=(--num 300 --height 8 --device "$device" --backend triton --stages --repeats 1)
   binning_args=(--num 40 --height 8 --device "$device" --backend triton --stages --repeats 1 $binning_variants)
   profile_args=(--num 40 --height 8 --device "$device" --backend triton --repeats 1 --profile $profile_variants)
-  gsplat_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
+  gsplat_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1 $gsplat_variants)
   model_args=(--config tiny_paper --height 64 --render --views 1 2 --repeats 1 --device "$device")
   train_args=(--config tiny --height 64 --steps 1 --warmup 0 --lpips off --device "$device")
   synth_args=(--scenes 4 --resolution 64x128)
@@ -147,7 +152,7 @@ else
   stages_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3)
   binning_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3 $binning_variants)
   profile_args=(--num 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile $profile_variants)
-  gsplat_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 3)
+  gsplat_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 3 $gsplat_variants)
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
   train_args=(--config paper --height 512 --steps 3)
   synth_args=(--scenes 12 --resolution 256x512)

@@ -1,13 +1,17 @@
 """The pieces of ``benchmarks/gpu_check.sh`` that run without a GPU: the gsplat comparison's own side
 (gsplat itself needs CUDA) and the training-run verdict."""
 
+import ast
 import importlib.util
 import json
 from pathlib import Path
 
+import pytest
 import torch
 
+from cylindersplat.benchmarks import gsplat_compare
 from cylindersplat.benchmarks.gsplat_compare import compare
+from cylindersplat.render import triton_backend
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -17,6 +21,34 @@ def test_gsplat_comparison_times_our_side_and_says_why_gsplat_is_missing():
     ours = [r for r in rows if r.get("renderer") == "cylindersplat-torch"]
     assert len(ours) == 1 and ours[0]["forward_ms"] > 0 and ours[0]["fwd_bwd_ms"] > 0
     assert any(r.get("renderer") == "gsplat" and "CUDA" in r["skipped"] for r in rows)
+
+
+def test_gsplat_comparison_times_each_triton_variant_with_its_launches(capsys):
+    """``--variants`` on pinhole views (issue 35: the lean forward and the compaction judged where most pairs are
+    invisible): one row per variant, each variant's own launch counts, the defaults back afterwards."""
+    gsplat_compare.main(["--num", "40", "--height", "8", "--device", "cpu", "--backend", "triton", "--repeats", "1",
+                         "--launches", "--variants", "fused,joined", "fused,joined,default,nonzero"])
+    rows = [ast.literal_eval(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
+    ours = {r["renderer"]: r for r in rows if "forward_ms" in r}
+    assert set(ours) == {"cylindersplat-triton[fused,joined]", "cylindersplat-triton[fused,joined,default,nonzero]"}
+    every_pair, compacted = ours.values()
+    # The compaction's nonzero (and its gathers) are launches the default does not make.
+    assert compacted["launches"]["forward"] > every_pair["launches"]["forward"]
+    assert every_pair["launches"]["forward_triton"] == compacted["launches"]["forward_triton"]
+    assert (triton_backend.FORWARD, triton_backend.COMPACTION) == ("default", "none")
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--variants", "fused,joined", "--backend", "torch"], "--variants needs --backend triton"),
+    (["--variants", "fused,wrong"], "BACKWARD one of"),
+    (["--num", "0"], "--num"),
+    (["--backend", "cuda"], "invalid choice"),
+])
+def test_gsplat_comparison_refuses_bad_arguments_in_one_line(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        gsplat_compare.main(["--device", "cpu", *argv])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and message in err and len(err.strip().splitlines()) == 1, err
 
 
 def _summary_module():

@@ -10,6 +10,11 @@ sorts by z-depth where we sort by radial distance, and culls at the image border
 images agree closely but not bit for bit: the agreement is printed (mean |difference|, PSNR of ours
 against gsplat's), not asserted.
 
+``--variants BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]] ...`` (with ``--backend triton``) times the Triton
+backend's variants beside gsplat, one ``cylindersplat-triton[...]`` row each, as ``bench render --variants`` does
+(issue 35: the lean forward and the compaction of the visible pairs, ``default,nonzero``, are to be judged on pinhole
+views too, where most pairs are invisible); ``--launches`` adds the kernels one forward and its backward launch.
+
 gsplat is an optional comparison, not a dependency: without it (or without CUDA, which its
 kernels need) only our side is timed and the row says why. On a machine without a package index,
 carry its wheel (``pip download --no-deps gsplat==1.5.3``: pure Python, its CUDA code is compiled at
@@ -20,6 +25,7 @@ gpu_check.sh`` does this from ``$CHECK_WHEELS`` (default ``.whl``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 
 import torch
@@ -28,8 +34,10 @@ from torch import Tensor
 from cylindersplat.render import Pinhole, render
 from cylindersplat.render.covariance import eval_sh
 from cylindersplat.scenes import random_indoor
+from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
+from cylindersplat.utils.arguments import device as device_name
 
-from .render import _forward_and_backward_ms, _peak_mb, _sync
+from .render import _forward_and_backward_ms, _peak_mb, _sync, launch_counts, triton_variant, triton_variant_name
 
 __all__ = ["main"]
 
@@ -60,7 +68,21 @@ def _import_gsplat(device: torch.device):
         return None, f"gsplat not installed ({exc}); carry its wheel (see this module's docstring)"
 
 
-def compare(num: int, height: int, device: torch.device, backends: list[str], repeats: int) -> list[dict]:
+def _our_renderers(backends: list[str], variants: list[tuple[str, ...]]) -> list[tuple[str, str, tuple | None]]:
+    """``(row name, backend, Triton variant or None)`` for each of our renderers timed: the Triton backend once per
+    variant."""
+    out = []
+    for backend in backends:
+        for variant in (variants if backend == "triton" and variants else [None]):
+            name = f"cylindersplat-{backend}" + (f"[{','.join(variant)}]" if variant else "")
+            out.append((name, backend, variant))
+    return out
+
+
+def compare(num: int, height: int, device: torch.device, backends: list[str], repeats: int,
+            variants: list[tuple[str, ...]] = (), launches: bool = False) -> list[dict]:
+    """Rows: each of our renderers (``backends``; the Triton one once per variant of ``variants``) and gsplat timed
+    on the same pinhole view, then each of ours' agreement with gsplat's image."""
     g = random_indoor(num).to(device)
     g = type(g).from_rgb(g.means, g.scales, g.rotations, g.opacities, eval_sh(g.sh[..., :1, :], None))
     params = [t.requires_grad_() for t in g.tensors().values()]
@@ -73,7 +95,8 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
         def __init__(self, rgb, depth):
             self.rgb, self.depth = rgb, depth
 
-    renders = {f"cylindersplat-{b}": (lambda b=b: render(g, c2w, camera, backend=b)) for b in backends}
+    renders = [(name, variant, lambda b=backend: render(g, c2w, camera, backend=b))
+               for name, backend, variant in _our_renderers(backends, list(variants))]
     gsplat, why_not = _import_gsplat(device)
     if gsplat is not None:
 
@@ -82,18 +105,26 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
             rgb, depth, _ = _gsplat_render(gsplat, g, colours, k, h, w)
             return _Out(rgb, depth)
 
-        renders["gsplat"] = gsplat_render
-    for name, fn in renders.items():
+        renders.append(("gsplat", None, gsplat_render))
+    for name, variant, fn in renders:
         row = {"num": num, "size": f"{h}x{w}", "device": str(device), "renderer": name}
         if device.type == "cuda":
             torch.cuda.reset_peak_memory_stats()
-        try:
-            row["forward_ms"], row["fwd_bwd_ms"] = _forward_and_backward_ms(fn, params, device, repeats)
-            row["peak_mb"] = _peak_mb(device)
-            with torch.no_grad():
-                images[name] = fn().rgb.float()
-        except (torch.OutOfMemoryError, MemoryError):
-            row["error"] = "out of memory"
+        # The variant holds for the backward too (it reads the backward variant when it runs).
+        with triton_variant(*variant) if variant else contextlib.nullcontext():
+            try:
+                row["forward_ms"], row["fwd_bwd_ms"] = _forward_and_backward_ms(fn, params, device, repeats)
+                row["peak_mb"] = _peak_mb(device)
+                with torch.no_grad():
+                    images[name] = fn().rgb.float()
+                if launches and name != "gsplat":  # gsplat's kernels are not PyTorch operations: not counted
+                    for p in params:
+                        p.grad = None
+                    row["launches"] = launch_counts(fn)
+            except (torch.OutOfMemoryError, MemoryError):
+                row["error"] = "out of memory"
+        for p in params:
+            p.grad = None
         _sync(device)
         rows.append(row)
     if gsplat is None:
@@ -110,19 +141,27 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="cylindersplat bench gsplat_compare", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--num", type=int, nargs="+", default=[100_000], help="numbers of Gaussians")
-    parser.add_argument("--height", type=int, default=512, help="image height (width = 2 x height)")
-    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
-    parser.add_argument("--backend", nargs="+", default=["triton"], help="our backends to time (triton, torch)")
-    parser.add_argument("--repeats", type=int, default=5)
+    parser = OneLineErrorParser(prog="cylindersplat bench gsplat_compare", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--num", type=positive_int, nargs="+", default=[100_000], help="numbers of Gaussians")
+    parser.add_argument("--height", type=positive_int, default=512, help="image height (width = 2 x height)")
+    parser.add_argument("--device", type=device_name, default="auto", help="auto (CUDA when present), cpu, cuda[:N]")
+    parser.add_argument("--backend", nargs="+", default=["triton"], choices=["triton", "torch", "numba", "auto"],
+                        help="our backends to time")
+    parser.add_argument("--repeats", type=positive_int, default=5)
+    parser.add_argument("--variants", nargs="+", type=triton_variant_name, default=[],
+                        metavar="BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]]",
+                        help="the Triton backend's variants, one row each (as `cylindersplat bench render --variants`)")
+    parser.add_argument("--launches", action="store_true",
+                        help="also count the kernels one forward and its backward of ours launch")
     args = parser.parse_args(argv)
+    if args.variants and "triton" not in args.backend:
+        parser.error("--variants needs --backend triton")
     device = torch.device(args.device)
     print(f"# pinhole {args.height}x{2 * args.height}, 90 deg horizontal FOV; torch {torch.__version__}"
           + (f"; GPU: {torch.cuda.get_device_name()}" if device.type == "cuda" else "; CPU"))
     for num in args.num:
-        rows = compare(num, args.height, device, args.backend, args.repeats)
+        rows = compare(num, args.height, device, args.backend, args.repeats, args.variants, args.launches)
         for row in rows:
             print(row)
         timed = {r["renderer"]: r for r in rows if "forward_ms" in r}
