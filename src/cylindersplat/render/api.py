@@ -304,9 +304,8 @@ def _queue_checks_torch(gaussians: Gaussians, c2w: Tensor) -> list[Tensor]:
 
 def _deferred_values(checks: list[Tensor], proj: ProjectedGaussians) -> DeferredValues:
     """What the backend reads with its pair count: ``[any input problem, cameras too far]`` and, where the
-    projection kept every pair, the number visible (int64 ``(2,)`` or ``(3,)``)."""
-    values = [checks[0], checks[1]] + ([proj.visible] if proj.visible is not None else [])
-    return DeferredValues(torch.stack([v.long() for v in values]))
+    projection kept every pair, the number visible (joined with the count at its read, not here)."""
+    return DeferredValues([checks[0], checks[1]] + ([proj.visible] if proj.visible is not None else []))
 
 
 def _warn_far(c2w: Tensor, far: bool | None = None, stacklevel: int = 4) -> None:

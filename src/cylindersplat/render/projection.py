@@ -98,23 +98,24 @@ class InputCheckFailed(Exception):
 
 class DeferredValues:
     """Device-side values a render reads together with its one host read (the backend's pair count) instead of on
-    their own (issue 35): int64 ``(K,)``, ``values[0]`` the flag of the input checks that stop the render (any
-    non-zero: :class:`InputCheckFailed` at the read), the rest read for the caller (:attr:`host`)."""
+    their own (issue 35): one-element integer or bool tensors, ``values[0]`` the flag of the input checks that stop
+    the render (any non-zero: :class:`InputCheckFailed` at the read), the rest read for the caller (:attr:`host`).
+    They are joined only at the read, with the count: one concatenation, one copy."""
 
-    def __init__(self, values: Tensor):
-        self.values = values
+    def __init__(self, values: list[Tensor]):
+        self.values = [v.reshape(1) for v in values]
         self.host: list[int] | None = None
 
     def read_with(self, count: Tensor) -> int:
         """The value of ``count`` (a one-element integer device tensor), read in one copy with :attr:`values`."""
-        count_value, *self.host = torch.cat((count.reshape(1).long(), self.values)).tolist()
+        count_value, *self.host = torch.cat((count.reshape(1).long(), *self.values)).tolist()
         self._stop_on_failed_checks()
         return count_value
 
     def read(self) -> list[int]:
         """:attr:`values` on the host: read now where no backend read them with its pair count."""
         if self.host is None:
-            self.host = self.values.tolist()
+            self.host = torch.cat(self.values).long().tolist()
         self._stop_on_failed_checks()
         return self.host
 

@@ -58,7 +58,7 @@ def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16, binning: 
         # Gaussians in depth order (ties by row): their counts and places in that order.
         by_depth = torch.sort(proj.depth.detach().float(), stable=True).indices
     if binning == "fused":
-        centres = _centres_and_extents(proj)  # once for the binning's three kernels
+        centres = _centres_and_extents(proj)  # once for the binning's three kernels (read in place)
         counts = _fused_counts(centres, by_depth, tile_size, proj)
     else:
         spans = tile_spans(proj, tile_size)
@@ -127,10 +127,14 @@ def _key_buffers(proj, total, num_tiles):
     return keys, torch.empty(total, dtype=torch.int32, device=proj.camera.device)
 
 
-def _centres_and_extents(proj):
-    """``uv`` and ``extent`` in the float type :func:`.rasterize.tile_spans` computes in (their promotion)."""
-    dtype = torch.promote_types(proj.uv.dtype, proj.extent.dtype)
-    return proj.uv.detach().to(dtype).contiguous(), proj.extent.detach().to(dtype).contiguous()
+def _centres_and_extents(proj) -> tuple[Tensor, Tensor, int, int]:
+    """``uv`` and ``extent`` in the float type :func:`.rasterize.tile_spans` computes in (their promotion), and their
+    row strides: read in place where they have that type and side-by-side columns (the Triton projection's rows)."""
+    uv, ext = proj.uv.detach(), proj.extent.detach()
+    dtype = torch.promote_types(uv.dtype, ext.dtype)
+    if uv.dtype == ext.dtype == dtype and uv.stride(-1) == ext.stride(-1) == 1 and len(uv) > 1:
+        return uv, ext, uv.stride(0), ext.stride(0)
+    return uv.to(dtype).contiguous(), ext.to(dtype).contiguous(), 2, 2
 
 
 def _fused_counts(centres, by_depth, tile_size, proj):
@@ -139,9 +143,10 @@ def _fused_counts(centres, by_depth, tile_size, proj):
 
     num = len(proj.depth)
     counts = torch.empty(num, dtype=torch.int64, device=proj.camera.device)
+    uv, ext, uv_stride, ext_stride = centres
     if num:
         kernels.count_pairs_kernel[((num + _BLOCK - 1) // _BLOCK,)](
-            *centres, by_depth, counts, num, proj.height, proj.width, TILE=tile_size,
+            uv, ext, by_depth, counts, num, proj.height, proj.width, uv_stride, ext_stride, TILE=tile_size,
             WRAP_U=bool(proj.wrap_u), BLOCK=_BLOCK)
     return counts
 
@@ -154,15 +159,17 @@ def _bin_fused(proj, centres, by_depth, ends, total, tile_size) -> TileBins:
     tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
     tiles_per_camera = tiles_x * tiles_y
     keys, rank = _key_buffers(proj, total, proj.num_cameras * tiles_per_camera)
-    head = (*centres, proj.camera, by_depth, ends)
+    uv, ext, uv_stride, ext_stride = centres
+    head = (uv, ext, proj.camera, by_depth, ends)
     constants = dict(TILE=tile_size, WRAP_U=bool(proj.wrap_u), BLOCK=_BLOCK)
     kernels.emit_fused_keys_kernel[((num + _BLOCK - 1) // _BLOCK,)](
-        *head, keys, rank, num, proj.height, proj.width, tiles_x, tiles_per_camera, **constants)
+        *head, keys, rank, num, proj.height, proj.width, uv_stride, ext_stride, tiles_x, tiles_per_camera,
+        **constants)
     order = torch.sort(keys, stable=True).indices  # by tile; within a tile, emission (= depth) order
     gaussian, tile, rows, cols, shift = _pair_fields(total, device)
     kernels.write_fused_pairs_kernel[((total + _BLOCK - 1) // _BLOCK,)](
-        *head, order, rank, gaussian, tile, rows, cols, shift, total, proj.height, proj.width, tiles_x,
-        tiles_per_camera, **constants)
+        *head, order, rank, gaussian, tile, rows, cols, shift, total, proj.height, proj.width, uv_stride, ext_stride,
+        tiles_x, tiles_per_camera, **constants)
     return TileBins(gaussian, tile, rows, cols, shift, tiles_x, tiles_y)
 
 

@@ -131,17 +131,11 @@ def write_sorted_pairs_kernel(
 
 
 @triton.jit
-def _spans_of(uv_ptr, ext_ptr, g, mask, height, width, TILE: tl.constexpr, WRAP_U: tl.constexpr):
-    """:func:`.rasterize.tile_spans` of Gaussians ``g``, computed from their centres and extents, the same
-    arithmetic in the same float type: ``(i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1)``."""
-    return _spans_strided(uv_ptr, ext_ptr, 2, 2, g, mask, height, width, TILE, WRAP_U)
-
-
-@triton.jit
 def _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask, height, width, TILE: tl.constexpr,
                    WRAP_U: tl.constexpr):
-    """:func:`_spans_of` with the centres and extents ``uv_stride`` / ``ext_stride`` elements apart (rows of a
-    wider tensor, e.g. the projection's ``(M, 8)`` rows, read in place)."""
+    """:func:`.rasterize.tile_spans` of Gaussians ``g``, computed from their centres and extents, the same
+    arithmetic in the same float type: ``(i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1)``. The centres and extents are
+    ``uv_stride`` / ``ext_stride`` elements apart (e.g. the projection's ``(M, 8)`` rows, read in place)."""
     u = tl.load(uv_ptr + uv_stride * g, mask=mask, other=0.0)
     v = tl.load(uv_ptr + uv_stride * g + 1, mask=mask, other=0.0)
     eu = tl.load(ext_ptr + ext_stride * g, mask=mask, other=0.0)
@@ -177,21 +171,23 @@ def _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask, height, widt
 
 @triton.jit
 def count_pairs_kernel(
-    uv_ptr, ext_ptr, by_depth_ptr, count_ptr, num_gaussians, height, width,
+    uv_ptr, ext_ptr, by_depth_ptr, count_ptr, num_gaussians, height, width, uv_stride, ext_stride,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
 ):
-    """The ``fused`` binning's first pass: the pair count of the Gaussian of depth rank ``i``."""
+    """The ``fused`` binning's first pass: the pair count of the Gaussian of depth rank ``i`` (centres and extents
+    ``uv_stride`` / ``ext_stride`` elements apart: read in place)."""
     i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
     mask = i < num_gaussians
     g = tl.load(by_depth_ptr + i, mask=mask, other=0)
-    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_of(uv_ptr, ext_ptr, g, mask, height, width, TILE, WRAP_U)
+    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
+                                                              height, width, TILE, WRAP_U)
     tl.store(count_ptr + i, ny * (nx0 + nx1), mask=mask)
 
 
 @triton.jit
 def emit_fused_keys_kernel(
     uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, key_ptr, rank_ptr,
-    num_gaussians, height, width, tiles_x, tiles_per_camera,
+    num_gaussians, height, width, uv_stride, ext_stride, tiles_x, tiles_per_camera,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
 ):
     """The ``fused`` binning's emission: :func:`emit_tile_keys_kernel` with the spans recomputed
@@ -200,7 +196,8 @@ def emit_fused_keys_kernel(
     mask = i < num_gaussians
     g = tl.load(by_depth_ptr + i, mask=mask, other=0)
     camera = tl.load(camera_ptr + g, mask=mask, other=0)
-    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_of(uv_ptr, ext_ptr, g, mask, height, width, TILE, WRAP_U)
+    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
+                                                              height, width, TILE, WRAP_U)
     count = ny * (nx0 + nx1)
     start = tl.load(end_ptr + i, mask=mask, other=0) - count
     for k in range(0, tl.max(count, axis=0)):
@@ -214,7 +211,7 @@ def emit_fused_keys_kernel(
 def write_fused_pairs_kernel(
     uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, order_ptr, rank_ptr,
     gaussian_ptr, tile_ptr, rows_ptr, cols_ptr, shift_ptr,
-    num_pairs, height, width, tiles_x, tiles_per_camera,
+    num_pairs, height, width, uv_stride, ext_stride, tiles_x, tiles_per_camera,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
 ):
     """The ``fused`` binning's pair fields: :func:`write_sorted_pairs_kernel` with the spans recomputed."""
@@ -224,7 +221,8 @@ def write_fused_pairs_kernel(
     i = tl.load(rank_ptr + at, mask=mask, other=0)
     g = tl.load(by_depth_ptr + i, mask=mask, other=0)
     camera = tl.load(camera_ptr + g, mask=mask, other=0)
-    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_of(uv_ptr, ext_ptr, g, mask, height, width, TILE, WRAP_U)
+    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
+                                                              height, width, TILE, WRAP_U)
     k = at - (tl.load(end_ptr + i, mask=mask, other=0) - ny * (nx0 + nx1))
     ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
     tl.store(gaussian_ptr + q, g.to(tl.int64), mask=mask)
