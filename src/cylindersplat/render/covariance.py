@@ -36,7 +36,7 @@ def eval_sh(sh: Float[Tensor, "*batch K 3"], dirs: Float[Tensor, "*batch 3"]) ->
     """Colour ``max(SH(dirs) + 0.5, 0)`` for unit view directions (camera -> Gaussian); ``dirs`` may be
     ``None`` for degree 0 (view-independent)."""
     k = sh.shape[-2]
-    out = _C0 * sh[..., 0, :]
+    out = _C0 * (sh.squeeze(-2) if k == 1 else sh[..., 0, :])  # degree 0: a view whose backward launches nothing
     if k > 1:
         x, y, z = (d[..., None] for d in dirs.unbind(-1))
         out = out - _C1 * y * sh[..., 1, :] + _C1 * z * sh[..., 2, :] - _C1 * x * sh[..., 3, :]

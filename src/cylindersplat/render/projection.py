@@ -281,8 +281,10 @@ def _view_directions(means: Tensor, origins: Tensor) -> Tensor:
 def _dense_pair_indices(num_b: int, num_v: int, num_n: int, device) -> tuple[Tensor, Tensor]:
     """Camera ``(B * V * N,)`` (over ``B * V``) and Gaussian row (over ``B * N``) of every pair, camera-major;
     contiguous (the binning kernels read them by pointer: one camera's broadcast would be a view of one element)."""
-    cameras = torch.arange(num_b * num_v, device=device)[:, None]
-    camera = cameras.expand(num_b * num_v, num_n).contiguous().view(-1)
+    if num_b * num_v == 1:
+        camera = torch.zeros(num_n, dtype=torch.int64, device=device)  # one launch, not a range and its copy
+    else:
+        camera = torch.arange(num_b * num_v, device=device)[:, None].expand(num_b * num_v, num_n).contiguous().view(-1)
     rows = torch.arange(num_n, device=device)
     if num_b > 1:
         rows = torch.arange(num_b, device=device)[:, None, None] * num_n + rows

@@ -54,12 +54,15 @@ class _FusedProjection(torch.autograd.Function):
         ctx.save_for_backward(means, scales, quats, cams, valid)
         ctx.num_views, ctx.model, ctx.constants = num_views, model, constants
         ctx.mark_non_differentiable(valid)
+        ctx.set_materialize_grads(False)  # no zeros made for valid's gradient (a launch in every backward)
         return geo, valid
 
     @staticmethod
     def backward(ctx, grad_geo, _grad_valid):
         from . import triton_projection_kernels as kernels
 
+        if grad_geo is None:  # the rows reached no loss
+            return (None,) * 8
         means, scales, quats, cams, valid = ctx.saved_tensors
         num_b, num_n = means.shape[:2]
         num_views = ctx.num_views
