@@ -14,15 +14,15 @@
 #   model           the paper config end to end (network + one render), 1-4 views;
 #   train           one training step of each curriculum stage at 512x1024, batch 1, bf16 autocast;
 #   run             a short training run of the paper config on procedural 256x512 data (loss must fall).
-# Not in the default run (name them): binning (the Triton binning, backward, forward and compaction variants side by
-# side, with stages, at 0.1 and 1.3 M Gaussians, 512x1024: `bench render --variants ...`, about two minutes; then a
-# profile of three of them at 1.3 M, kernel by kernel),
+# Not in the default run (name them): variants (the Triton forward, compaction and input-check variants side by
+# side, with stages and launch counts, at 0.1 and 1.3 M Gaussians, 512x1024: `bench render --variants ...`, about two
+# minutes; then a profile of three of them at 1.3 M, kernel by kernel; `binning` is its older name),
 # model_compiled (the model through torch.compile) and base (the `base`
 # preset trained for at most CHECK_BASE_MINUTES (20) in all, resumed by later calls from $CHECK_BASE_DIR,
 # default outputs/gpu_check_base; at its budget the trainer is interrupted cleanly - a checkpoint - and the
 # item ends with the run's summary line).
 # Usage: bash benchmarks/gpu_check.sh [--smoke] [--append] [OUT_DIR] [ITEMS]
-#   ITEMS (default: tests render stages gsplat model train run); also binning model_compiled base
+#   ITEMS (default: tests render stages gsplat model train run); also variants model_compiled base
 #   --smoke: every item at tiny sizes on whatever machine this is (Triton's CPU interpreter without a
 #   GPU; training runs use the reference renderer there; model_compiled is left out), to show that the
 #   script works end to end; its numbers mean nothing.
@@ -38,7 +38,7 @@ while [ $# -gt 0 ]; do
   case $1 in --smoke) smoke=1; shift ;; --append) append=1; shift ;; *) break ;; esac
 done
 out=$(realpath -m "${1:-outputs/gpu_check}")
-all_items="tests render stages binning gsplat model model_compiled train run base"
+all_items="tests render stages variants gsplat model model_compiled train run base"
 items=${2:-tests render stages gsplat model train run}
 total=${CHECK_TOTAL_SECONDS:-540}
 deadline=$((SECONDS + total))  # every item ends by then (the archive and summary take a few seconds more)
@@ -111,25 +111,22 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
 }
 
 # Item sizes: full (the issue's) or smoke (seconds on a CPU).
-# The default (fused,joined) beside the lean forward (no host sync before compositing: triton_backend.FORWARD),
-# with the joined and the chunked8 backward (--stages shows each in its own stage), and both forwards with the
+# The default forward beside the lean one (no host sync before compositing: triton_backend.FORWARD), both with the
 # visible pairs compacted first (",nonzero": triton_backend.COMPACTION; the default "none" bins every pair, the
 # invisible ones inert, and reads the device once per render), and the default with its input checks as PyTorch
-# operations (",torch": triton_backend.CHECK; the default "fused" is one kernel); --launches counts each variant's
-# kernel launches per forward and backward. The variants measured on
-# 2026-11-26 (key64 / depth_tile binning, sums / chunked4 backward): benchmarks/RESULTS.md.
-binning_variants="--launches --variants fused,joined fused,joined,default,none,torch fused,joined,default,nonzero
-                  fused,joined,lean fused,joined,lean,nonzero fused,chunked8,lean"
-profile_variants="--variants fused,joined fused,joined,default,nonzero fused,joined,lean"
+# operations (",none,torch": triton_backend.CHECK; the default "fused" is one kernel); --launches counts each
+# variant's kernel launches per forward and backward. The binning and backward variants measured on 2026-11-26 (and
+# removed since): benchmarks/RESULTS.md.
+variants="--launches --variants default default,none,torch default,nonzero lean lean,nonzero"
+profile_variants="--variants default default,nonzero lean"
 # Pinhole views beside gsplat: the forwards with every pair and with the visible ones compacted (most pairs of a 90°
 # view are invisible, so the compaction may pay there and not on panoramas), with their launch counts.
-gsplat_variants="--launches --variants fused,joined fused,joined,lean fused,joined,default,nonzero
-                 fused,joined,lean,nonzero"
+gsplat_variants="--launches --variants default lean default,nonzero lean,nonzero"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
   render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
   stages_args=(--num 300 --height 8 --device "$device" --backend triton --stages --repeats 1)
-  binning_args=(--num 40 --height 8 --device "$device" --backend triton --stages --repeats 1 $binning_variants)
+  variants_args=(--num 40 --height 8 --device "$device" --backend triton --stages --repeats 1 $variants)
   profile_args=(--num 40 --height 8 --device "$device" --backend triton --repeats 1 --profile $profile_variants)
   gsplat_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1 $gsplat_variants)
   model_args=(--config tiny_paper --height 64 --render --views 1 2 --repeats 1 --device "$device")
@@ -150,7 +147,7 @@ else
              "tests/test_render_layered.py::test_blending_is_the_normalised_weighted_mean_of_the_front_surface")
   render_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --repeats 3)
   stages_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3)
-  binning_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3 $binning_variants)
+  variants_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3 $variants)
   profile_args=(--num 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile $profile_variants)
   gsplat_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 3 $gsplat_variants)
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
@@ -229,12 +226,13 @@ for item in $items; do
     stages)
       run_item stages "${CHECK_LIMIT_STAGES:-60}" $py -m cylindersplat bench render "${stages_args[@]}"
       excerpt '^[{#]' "$out/stages.log" ;;
-    binning)
-      run_item binning "${CHECK_LIMIT_BINNING:-150}" $py -m cylindersplat bench render "${binning_args[@]}"
-      excerpt '^[{#|]' "$out/binning.log"
-      # Where the time goes, kernel by kernel (torch.profiler, device time): today's path and the fused one.
-      run_item binning_profile "${CHECK_LIMIT_BINNING_PROFILE:-75}" $py -m cylindersplat bench render "${profile_args[@]}"
-      excerpt '^[#]\|Self CUDA\|Self CPU\|^ *[a-zA-Z_].*%' "$out/binning_profile.log" ;;
+    variants|binning)  # (binning: its name until the binning variants were removed)
+      run_item variants "${CHECK_LIMIT_VARIANTS:-150}" $py -m cylindersplat bench render "${variants_args[@]}"
+      excerpt '^[{#|]' "$out/variants.log"
+      # Where the time goes, kernel by kernel (torch.profiler, device time): the default, compacted and lean forwards.
+      run_item variants_profile "${CHECK_LIMIT_VARIANTS_PROFILE:-75}" $py -m cylindersplat bench render \
+          "${profile_args[@]}"
+      excerpt '^[#]\|Self CUDA\|Self CPU\|^ *[a-zA-Z_].*%' "$out/variants_profile.log" ;;
     gsplat)
       if [ -n "$gsplat_build" ]; then  # its background build, within what is left of the budget
         while kill -0 "$gsplat_build" 2>/dev/null && [ "$(left_s)" -gt 15 ]; do sleep 2; done

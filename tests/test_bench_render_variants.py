@@ -1,4 +1,5 @@
-"""``bench render --variants``: the Triton binning and backward variants it times side by side (issue 35)."""
+"""``bench render --variants``: the Triton forward, compaction and input-check variants it times side by side
+(issue 35)."""
 
 import argparse
 import ast
@@ -6,58 +7,57 @@ import ast
 import pytest
 
 from cylindersplat.benchmarks import render as bench_render
-from cylindersplat.render import triton_backend, triton_binning
+from cylindersplat.render import triton_backend
 
 
 def test_variant_names_are_checked_against_the_backends_lists():
-    assert bench_render.triton_variant_name("fused,chunked8") == ("fused", "chunked8")
-    for bad in ("fused", "fused,", "radix,sums", "key64,warp", "key64,sums,x"):
-        with pytest.raises(argparse.ArgumentTypeError, match="BINNING one of key64, depth_tile, fused"):
+    assert bench_render.triton_variant_name("lean") == ("lean",)
+    assert bench_render.triton_variant_name("default,nonzero") == ("default", "nonzero")
+    assert bench_render.triton_variant_name("default,none,torch") == ("default", "none", "torch")
+    # Trailing defaults are left out: every spelling of one variant has one name (its row's).
+    assert bench_render.triton_variant_name("lean,none,fused") == ("lean",)
+    for bad, field in (("thin", "FORWARD one of default, lean"), ("", "FORWARD one of"),
+                       ("default,all", "COMPACTION one of none, nonzero"), ("lean,none,numpy", "CHECK one of fused"),
+                       ("lean,none,fused,x", "is not FORWARD[,COMPACTION[,CHECK]]"),
+                       ("fused,joined", "FORWARD one of")):  # the old BINNING,BACKWARD form
+        with pytest.raises(argparse.ArgumentTypeError, match=field.replace("[", r"\[")):
             bench_render.triton_variant_name(bad)
 
 
 def test_a_variant_holds_inside_and_the_defaults_come_back_even_after_an_error():
-    before = triton_binning.BINNING, triton_backend.BACKWARD
+    before = triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK
     with pytest.raises(RuntimeError):
-        with bench_render.triton_variant("depth_tile", "joined"):
-            assert (triton_binning.BINNING, triton_backend.BACKWARD) == ("depth_tile", "joined")
+        with bench_render.triton_variant("lean", "nonzero", "torch"):
+            assert (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK) == ("lean", "nonzero",
+                                                                                                "torch")
             raise RuntimeError("a failing row")
-    assert (triton_binning.BINNING, triton_backend.BACKWARD) == before
-    with bench_render.triton_variant(None, "chunked4"):
-        assert (triton_binning.BINNING, triton_backend.BACKWARD) == (before[0], "chunked4")
-    assert (triton_binning.BINNING, triton_backend.BACKWARD) == before
-
-
-def test_a_third_field_picks_the_forward_and_default_is_the_pair():
-    assert bench_render.triton_variant_name("fused,joined,lean") == ("fused", "joined", "lean")
-    assert bench_render.triton_variant_name("fused,joined,default") == ("fused", "joined")
-    with pytest.raises(argparse.ArgumentTypeError, match="FORWARD one of default, lean"):
-        bench_render.triton_variant_name("fused,joined,thin")
-    before = triton_backend.FORWARD
-    with bench_render.triton_variant("fused", "joined", "lean"):
-        assert triton_backend.FORWARD == "lean"
-    assert triton_backend.FORWARD == before
+    assert (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK) == before
+    with bench_render.triton_variant(None, "nonzero"):
+        assert (triton_backend.FORWARD, triton_backend.COMPACTION) == (before[0], "nonzero")
+    assert (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK) == before
 
 
 def test_the_lean_variant_is_timed_beside_the_default_with_its_agreement(capsys):
     bench_render.main(["--num", "30", "--height", "8", "--device", "cpu", "--backend", "triton", "--repeats", "1",
-                       "--stages", "--variants", "fused,joined", "fused,joined,lean"])
+                       "--stages", "--variants", "default", "lean"])
     out = capsys.readouterr().out
-    assert "'backend': 'triton[fused,joined,lean]'" in out and "'num_pairs'" in out
-    line = next(x for x in out.splitlines() if x.startswith("# agreement triton[fused,joined,lean] vs"))
+    assert "'backend': 'triton[lean]'" in out and "'num_pairs'" in out
+    line = next(x for x in out.splitlines() if x.startswith("# agreement triton[lean] vs triton[default]"))
     assert "rgb max |diff| 0.00e+00" in line, line
 
 
-def test_a_fifth_field_picks_the_input_checks_and_launches_are_counted(capsys):
-    assert bench_render.triton_variant_name("fused,joined,default,none,torch") == ("fused", "joined", "default",
-                                                                                  "none", "torch")
-    assert bench_render.triton_variant_name("fused,joined,default,none,fused") == ("fused", "joined")
-    with pytest.raises(argparse.ArgumentTypeError, match="CHECK one of fused, torch"):
-        bench_render.triton_variant_name("fused,joined,default,none,numpy")
+def test_the_input_checks_variant_and_launches_are_counted(capsys):
     bench_render.main(["--num", "30", "--height", "8", "--device", "cpu", "--backend", "triton", "--repeats", "1",
-                       "--launches", "--variants", "fused,joined", "fused,joined,default,none,torch"])
+                       "--launches", "--variants", "default", "default,none,torch"])
     rows = [ast.literal_eval(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]  # printed rows
     fused, torch_checks = (row["launches"] for row in rows)
     assert fused["forward_triton"] == torch_checks["forward_triton"] + 1  # the checks kernel
     assert torch_checks["forward"] - fused["forward"] >= 60 and fused["backward"] == torch_checks["backward"]
     assert triton_backend.CHECK == "fused"  # the default is back
+
+
+def test_bad_variants_stop_the_command_in_one_line(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        bench_render.main(["--device", "cpu", "--backend", "triton", "--variants", "default", "fused,sums"])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and "FORWARD one of default, lean" in err and len(err.strip().splitlines()) == 1

@@ -27,10 +27,10 @@ def test_gsplat_comparison_times_each_triton_variant_with_its_launches(capsys):
     """``--variants`` on pinhole views (issue 35: the lean forward and the compaction judged where most pairs are
     invisible): one row per variant, each variant's own launch counts, the defaults back afterwards."""
     gsplat_compare.main(["--num", "40", "--height", "8", "--device", "cpu", "--backend", "triton", "--repeats", "1",
-                         "--launches", "--variants", "fused,joined", "fused,joined,default,nonzero"])
+                         "--launches", "--variants", "default", "default,nonzero"])
     rows = [ast.literal_eval(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
     ours = {r["renderer"]: r for r in rows if "forward_ms" in r}
-    assert set(ours) == {"cylindersplat-triton[fused,joined]", "cylindersplat-triton[fused,joined,default,nonzero]"}
+    assert set(ours) == {"cylindersplat-triton[default]", "cylindersplat-triton[default,nonzero]"}
     every_pair, compacted = ours.values()
     # The compaction's nonzero (and its gathers) are launches the default does not make.
     assert compacted["launches"]["forward"] > every_pair["launches"]["forward"]
@@ -39,8 +39,8 @@ def test_gsplat_comparison_times_each_triton_variant_with_its_launches(capsys):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--variants", "fused,joined", "--backend", "torch"], "--variants needs --backend triton"),
-    (["--variants", "fused,wrong"], "BACKWARD one of"),
+    (["--variants", "lean", "--backend", "torch"], "--variants needs --backend triton"),
+    (["--variants", "default,wrong"], "COMPACTION one of"),
     (["--num", "0"], "--num"),
     (["--backend", "cuda"], "invalid choice"),
 ])

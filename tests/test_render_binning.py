@@ -15,7 +15,7 @@ from cylindersplat.gaussians import Gaussians  # noqa: E402
 from cylindersplat.geometry.cubemap import cubemap_face_c2w  # noqa: E402
 from cylindersplat.render import Equirect, Pinhole, RasterSettings, cubemap_face, triton_binning  # noqa: E402
 from cylindersplat.render.rasterize import bin_to_tiles  # noqa: E402
-from cylindersplat.render.triton_binning import BINNINGS, bin_to_tiles_by_key, tile_key_dtype  # noqa: E402
+from cylindersplat.render.triton_binning import bin_to_tiles_by_key, tile_key_dtype  # noqa: E402
 from render_scenes import shell_scene, yaw_pose  # noqa: E402
 
 F32 = torch.float32
@@ -47,13 +47,12 @@ def _project(camera, g, poses):
 
 
 def _assert_same(proj, tile_size):
-    """Every binning variant gives the reference's bins, field by field (values, dtypes, shapes)."""
+    """The Triton binning gives the reference's bins, field by field (values, dtypes, shapes)."""
     ref = bin_to_tiles(proj, tile_size)
-    for binning in BINNINGS:
-        fast = bin_to_tiles_by_key(proj, tile_size, binning=binning)
-        for name in FIELDS:
-            assert torch.equal(getattr(fast, name), getattr(ref, name)), (binning, name)
-        assert (fast.tiles_x, fast.tiles_y) == (ref.tiles_x, ref.tiles_y), binning
+    fast = bin_to_tiles_by_key(proj, tile_size)
+    for name in FIELDS:
+        assert torch.equal(getattr(fast, name), getattr(ref, name)), name
+    assert (fast.tiles_x, fast.tiles_y) == (ref.tiles_x, ref.tiles_y)
     # Both are the bounding boxes' tiles, in (tile, depth) order.
     assert set(zip(ref.gaussian.tolist(), ref.tile.tolist())) == _brute_force_pairs(proj, tile_size)
     key = ref.tile.double() * 1e6 + proj.depth[ref.gaussian].double()
@@ -112,11 +111,10 @@ def test_batched_cameras_and_empty_input():
     _assert_same(_project(Equirect(8, 16), batched, poses), 4)
     empty = _project(Equirect(8, 16), Gaussians.empty(), torch.eye(4))
     ref = bin_to_tiles(empty, 4)
-    for binning in BINNINGS:
-        bins = bin_to_tiles_by_key(empty, 4, binning=binning)
-        for name in FIELDS:
-            assert getattr(bins, name).shape == getattr(ref, name).shape and getattr(bins, name).numel() == 0, name
-            assert getattr(bins, name).dtype == getattr(ref, name).dtype, name
+    bins = bin_to_tiles_by_key(empty, 4)
+    for name in FIELDS:
+        assert getattr(bins, name).shape == getattr(ref, name).shape and getattr(bins, name).numel() == 0, name
+        assert getattr(bins, name).dtype == getattr(ref, name).dtype, name
 
 
 def test_tile_keys_are_the_narrowest_type_that_holds_every_tile_id():
@@ -131,12 +129,6 @@ def test_int32_tile_keys_give_the_same_bins(monkeypatch):
     g = shell_scene(60, seed=36, scale=(0.05, 0.6), dtype=F32)
     poses = torch.stack((yaw_pose(0.0, dtype=F32), yaw_pose(2.5, (0.1, 0.2, 0.0), dtype=F32)))
     _assert_same(_project(Equirect(16, 32), g, poses), 4)
-
-
-def test_unknown_binning_is_refused_by_name():
-    proj = _project(Equirect(8, 16), shell_scene(5, seed=37, dtype=F32), torch.eye(4))
-    with pytest.raises(ValueError, match="unknown Triton binning 'radix9'.*key64"):
-        bin_to_tiles_by_key(proj, 4, binning="radix9")
 
 
 def test_float64_projections_give_the_same_bins():

@@ -118,11 +118,9 @@ def _images_and_gradients(g, poses, camera, settings=None):
     return out, dict(zip(params, grads))
 
 
-@pytest.mark.parametrize("binning,forward", [("fused", "default"), ("key64", "default"), ("depth_tile", "default"),
-                                             ("fused", "lean")])
-def test_every_pair_gives_the_images_and_gradients_of_the_visible_pairs(monkeypatch, binning, forward):
+@pytest.mark.parametrize("forward", ["default", "lean"])
+def test_every_pair_gives_the_images_and_gradients_of_the_visible_pairs(monkeypatch, forward):
     # A pinhole camera (most pairs invisible: behind it or outside its view) and two panoramas.
-    monkeypatch.setattr(triton_binning, "BINNING", binning)
     monkeypatch.setattr(triton_backend, "FORWARD", forward)
     g = _scene(30, seed=33)
     panoramas = torch.stack([yaw_pose(0.3, dtype=F32), yaw_pose(2.0, (0.1, -0.2, 0.1), dtype=F32)])
@@ -178,19 +176,19 @@ def test_the_bench_times_the_compacted_variant_beside_the_default(capsys):
     from cylindersplat.benchmarks import render as bench_render
 
     name = bench_render.triton_variant_name
-    assert name("fused,joined,default,nonzero") == ("fused", "joined", "default", "nonzero")
-    assert name("fused,joined,lean,none") == ("fused", "joined", "lean")
-    assert name("fused,joined,default,none") == ("fused", "joined")
+    assert name("default,nonzero") == ("default", "nonzero")
+    assert name("lean,none") == ("lean",)
+    assert name("default,none") == ("default",)
     with pytest.raises(argparse.ArgumentTypeError, match="COMPACTION one of none, nonzero"):
-        name("fused,joined,lean,sparse")
-    with bench_render.triton_variant("fused", "joined", "default", "nonzero"):
+        name("lean,sparse")
+    with bench_render.triton_variant("default", "nonzero"):
         assert triton_backend.COMPACTION == "nonzero"
     assert triton_backend.COMPACTION == "none"
     bench_render.main(["--num", "30", "--height", "8", "--device", "cpu", "--backend", "triton", "--repeats", "1",
-                       "--stages", "--variants", "fused,joined", "fused,joined,default,nonzero"])
+                       "--stages", "--variants", "default", "default,nonzero"])
     out = capsys.readouterr().out
-    assert "'backend': 'triton[fused,joined,default,nonzero]'" in out
-    line = next(x for x in out.splitlines() if x.startswith("# agreement triton[fused,joined,default,nonzero] vs"))
+    assert "'backend': 'triton[default,nonzero]'" in out
+    line = next(x for x in out.splitlines() if x.startswith("# agreement triton[default,nonzero] vs"))
     assert "rgb max |diff| 0.00e+00" in line, line
 
 

@@ -87,16 +87,12 @@ def test_smaller_tiles_and_opaque_stacks_match_reference():
 
 
 
-@pytest.mark.parametrize("binning,backward", [("fused", "sums"), ("depth_tile", "joined"), ("key64", "chunked4"),
-                                              ("key64", "chunked8")])
-def test_binning_and_backward_variants_match_reference(monkeypatch, binning, backward):
-    # Each variant (issue 35) against the reference: close, wide footprints across the seam (some meet a tile
-    # twice: two lanes of one vector atomic on the same Gaussian), two cameras.
-    from cylindersplat.render import Equirect, triton_backend, triton_binning
+def test_footprints_that_meet_a_tile_twice_match_reference():
+    # Close, wide footprints across the seam (some meet a tile twice: two lanes of one vector atomic on the same
+    # Gaussian), two cameras.
+    from cylindersplat.render import Equirect
     from cylindersplat.render.rasterize import bin_to_tiles
 
-    monkeypatch.setattr(triton_binning, "BINNING", binning)
-    monkeypatch.setattr(triton_backend, "BACKWARD", backward)
     g = shell_scene(12, seed=32, scale=(0.3, 0.8), radius=(0.4, 1.0), dtype=F32)
     poses = torch.stack([yaw_pose(0.3, dtype=F32), yaw_pose(2.0, (0.1, -0.2, 0.1), dtype=F32)])
     settings = RasterSettings(tile_size=8)
@@ -105,16 +101,14 @@ def test_binning_and_backward_variants_match_reference(monkeypatch, binning, bac
     _assert_match(*_both(g, poses, 16, 32, settings=settings))
 
 
-def test_unknown_backward_is_refused_by_name(monkeypatch):
+def test_unknown_input_check_variant_is_refused_by_name(monkeypatch):
+    # (the forward's and the compaction's: test_render_triton_lean.py, test_render_deferred_checks.py)
     from cylindersplat.render import triton_backend
 
-    monkeypatch.setattr(triton_backend, "BACKWARD", "warp")
-    means = shell_scene(10, seed=9, dtype=F32).means.to(DEVICE).requires_grad_()
+    monkeypatch.setattr(triton_backend, "CHECK", "numpy")
     g = shell_scene(10, seed=9, dtype=F32).to(DEVICE)
-    out = render_equirect(Gaussians(means, g.scales, g.rotations, g.opacities, g.sh), torch.eye(4, device=DEVICE),
-                          8, 16, backend="triton")
-    with pytest.raises(ValueError, match="unknown Triton backward 'warp'.*joined"):
-        out.rgb.sum().backward()
+    with pytest.raises(ValueError, match="unknown Triton input check 'numpy': choose one of fused, torch"):
+        render_equirect(g, torch.eye(4, device=DEVICE), 8, 16, backend="triton")
 
 
 @pytest.mark.parametrize("name,g", list(degenerate_scenes()), ids=[n for n, _ in degenerate_scenes()])

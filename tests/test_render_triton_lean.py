@@ -110,9 +110,7 @@ def test_lean_forward_of_float64_gaussians_and_a_cubemap_face():
     _assert_same_as_default(shell_scene(15, seed=40, dtype=F32), yaw_pose(0.2, dtype=F32), cubemap_face(12, dtype=F32))
 
 
-@pytest.mark.parametrize("backward", ["sums", "chunked4"])
-def test_lean_forward_with_the_other_backwards(monkeypatch, backward):
-    monkeypatch.setattr(triton_backend, "BACKWARD", backward)
+def test_lean_forward_with_footprints_that_meet_a_tile_twice():
     g = shell_scene(12, seed=36, scale=(0.3, 0.8), radius=(0.4, 1.0), dtype=F32)
     _assert_same_as_default(g, yaw_pose(0.3, dtype=F32), Equirect(16, 32), settings=RasterSettings(tile_size=8))
 

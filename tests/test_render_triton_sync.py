@@ -48,23 +48,16 @@ def _forward_then_backward(params) -> tuple[list, list]:
     return forward_waits, backward_waits
 
 
-@pytest.mark.parametrize("binning,backward", [("key64", "sums"), ("depth_tile", "joined"), ("fused", "chunked8")])
-def test_the_triton_render_path_reads_the_device_once(monkeypatch, binning, backward):
-    from cylindersplat.render import triton_backend, triton_binning
-
-    monkeypatch.setattr(triton_binning, "BINNING", binning)  # every variant makes the same one read
-    monkeypatch.setattr(triton_backend, "BACKWARD", backward)
+def test_the_triton_render_path_reads_the_device_once():
     forward_waits, backward_waits = _forward_then_backward(_params())
     assert forward_waits == [ONE_READ]
     assert backward_waits == []
 
 
-@pytest.mark.parametrize("backward", ["joined", "chunked4"])
-def test_the_lean_forward_reads_the_device_once_after_compositing(monkeypatch, backward):
+def test_the_lean_forward_reads_the_device_once_after_compositing(monkeypatch):
     from cylindersplat.render import triton_backend, triton_binning
 
     monkeypatch.setattr(triton_backend, "FORWARD", "lean")
-    monkeypatch.setattr(triton_backend, "BACKWARD", backward)
     monkeypatch.setattr(triton_binning, "_CAPACITY", {})
     binnings = []
     original = triton_binning.bin_lean

@@ -39,8 +39,7 @@ POINTER_TYPES = {"valid_ptr": "*i1", "uv_ptr": "*fp32", "ext_ptr": "*fp32", "dep
                  "pair_gaussian_ptr": "*i64", "rows_ptr": "*i64", "cols_ptr": "*i64", "tile_start_ptr": "*i64"}
 # Every pointer of the binning kernels is int64 but the depth bits, the tile keys and the depth ranks
 # (and the centres and extents the fused binning reads).
-INT64_POINTER_KERNELS = {"emit_pairs_kernel", "emit_tile_keys_kernel", "write_sorted_pairs_kernel",
-                         "count_pairs_kernel", "emit_fused_keys_kernel", "write_fused_pairs_kernel",
+INT64_POINTER_KERNELS = {"count_pairs_kernel", "emit_fused_keys_kernel", "write_fused_pairs_kernel",
                          "count_lean_kernel", "emit_lean_keys_kernel", "write_lean_pairs_kernel"}
 # The lean forward's int32 pair fields (triton_backend.FORWARD = "lean"), as the lean binning writes them and the
 # compositing kernels read them.
@@ -71,12 +70,7 @@ KERNELS = [
     (triton_projection_kernels.project_forward_kernel, {"MODEL": 1, "BLOCK": 128}),
     (triton_projection_kernels.project_backward_kernel, {"MODEL": 0, "BLOCK": 128}),
     (triton_projection_kernels.project_backward_kernel, {"MODEL": 1, "BLOCK": 128}),
-    (triton_binning_kernels.emit_pairs_kernel, {"TILE": 16, "BLOCK": 128}),
-    # the depth_tile binning: int16 tile keys (under 32768 tiles) and int32 ones
-    (triton_binning_kernels.emit_tile_keys_kernel, {"TILE": 16, "BLOCK": 128}, {"key_ptr": "*i16", "rank_ptr": "*i32"}),
-    (triton_binning_kernels.emit_tile_keys_kernel, {"TILE": 16, "BLOCK": 128}, {"key_ptr": "*i32", "rank_ptr": "*i32"}),
-    (triton_binning_kernels.write_sorted_pairs_kernel, {"TILE": 16, "BLOCK": 128}, {"rank_ptr": "*i32"}),
-    # the fused binning, panorama (wrapped columns) and pinhole
+    # the binning (int16 tile keys under 32768 tiles, else int32), panorama (wrapped columns) and pinhole
     (triton_binning_kernels.count_pairs_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128}),
     (triton_binning_kernels.count_pairs_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},
      {"uv_ptr": "*fp64", "ext_ptr": "*fp64"}),  # float64 projections (the reference's, of float64 Gaussians)
@@ -105,17 +99,12 @@ KERNELS = [
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 1}, LEAN_PAIRS),
     # the default forward's compositing on the projection's rows (LEAN layout) with int64 pair fields
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 1}),
-    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, "JOINED": True, "LEAN": 1}),
-    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, "JOINED": True, "LEAN": 1}, LEAN_PAIRS),
-    (triton_kernels.composite_forward_chunked_kernel, {"TILE": 16, "WRAP_U": False, "CHUNK": 8, "LEAN": 1}, LEAN_PAIRS),
-    (triton_kernels.composite_backward_chunked_kernel, {"TILE": 16, "WRAP_U": True, "CHUNK": 8, "LEAN": 1}, LEAN_PAIRS),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, "LEAN": 1}),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 1}, LEAN_PAIRS),
+    # the packed rows of other projections (LEAN=0: pack_projected's layout)
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 0}),
-    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, "JOINED": False, "LEAN": 0}),
-    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, "JOINED": True, "LEAN": 0}),
-    (triton_kernels.composite_forward_chunked_kernel, {"TILE": 16, "WRAP_U": True, "CHUNK": 8, "LEAN": 0}),
-    (triton_kernels.composite_forward_chunked_kernel, {"TILE": 16, "WRAP_U": False, "CHUNK": 4, "LEAN": 0}),
-    (triton_kernels.composite_backward_chunked_kernel, {"TILE": 16, "WRAP_U": True, "CHUNK": 4, "LEAN": 0}),
-    (triton_kernels.composite_backward_chunked_kernel, {"TILE": 16, "WRAP_U": False, "CHUNK": 8, "LEAN": 0}),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, "LEAN": 0}),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 0}),
 ]
 
 

@@ -14,13 +14,12 @@ of memory is reported as such in the rows and the closing table (the others are 
 ``--stages`` starts with the render's input checks (``checks``: queued on the device for the Triton backend,
 :data:`cylindersplat.render.triton_backend.CHECK`). ``--launches`` also counts the kernels one forward and its
 backward launch (PyTorch operations and Triton kernels: on an H100 the Triton path is launch-bound, issue 35).
-``--variants BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]] ...`` times the Triton backend's variants side by side
-(issue 35): one ``triton[binning,backward]`` row each (``triton[binning,backward,lean]`` with the lean forward, whose
-binning is always the fused one's; ``triton[binning,backward,default,nonzero]`` with the visible pairs compacted
-first, :data:`cylindersplat.render.triton_backend.COMPACTION`), then ``# agreement`` lines (each variant's image and
-gradients against the first's, at the timed size), e.g. ``--backend triton --stages --variants key64,sums fused,sums
-fused,joined fused,joined,lean fused,joined,default,nonzero`` (with ``--stages`` the binning variant shows in ``bin``,
-the backward one in ``backward``).
+``--variants FORWARD[,COMPACTION[,CHECK]] ...`` times the Triton backend's variants side by side (issue 35): one
+``triton[...]`` row each - ``triton[lean]`` with the lean forward (:data:`cylindersplat.render.triton_backend.FORWARD`),
+``triton[default,nonzero]`` with the visible pairs compacted first (:data:`cylindersplat.render.triton_backend.
+COMPACTION`), ``triton[default,none,torch]`` with the input checks as PyTorch operations
+(:data:`cylindersplat.render.triton_backend.CHECK`) - then ``# agreement`` lines (each variant's image and gradients
+against the first's, at the timed size), e.g. ``--backend triton --stages --variants default lean default,nonzero``.
 """
 
 from __future__ import annotations
@@ -38,7 +37,7 @@ import torch
 
 from cylindersplat.benchmarks.launches import count_render_launches
 from cylindersplat.gaussians import load_ply, save_ply
-from cylindersplat.render import Equirect, api, render_cubemap, render_equirect, triton_backend, triton_binning
+from cylindersplat.render import Equirect, api, render_cubemap, render_equirect, triton_backend
 from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
 from cylindersplat.scenes import random_indoor
@@ -248,21 +247,17 @@ def ply_view(num: int, device: torch.device, backends: list[str], folder: str, h
 
 
 def triton_variant_name(text: str) -> tuple[str, ...]:
-    """``"BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]]"`` (argparse type): the fields, each checked against the
-    Triton backend's variants; trailing defaults (FORWARD ``default``, COMPACTION ``none``, CHECK ``fused``) are left
-    out."""
-    binning, backward, *rest = text.split(",") + [""] * (text.count(",") < 1)
-    options = (triton_binning.BINNINGS, triton_backend.BACKWARDS, triton_backend.FORWARDS, triton_backend.COMPACTIONS,
-               triton_backend.CHECKS)
-    fields = (binning, backward, *rest)
+    """``"FORWARD[,COMPACTION[,CHECK]]"`` (argparse type): the fields, each checked against the Triton backend's
+    variants; trailing defaults (COMPACTION ``none``, CHECK ``fused``) are left out."""
+    fields = tuple(text.split(","))
+    options = (triton_backend.FORWARDS, triton_backend.COMPACTIONS, triton_backend.CHECKS)
     if len(fields) > len(options) or any(f not in choices for f, choices in zip(fields, options)):
         raise argparse.ArgumentTypeError(
-            f"{text!r} is not BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]] with BINNING one of "
-            f"{', '.join(triton_binning.BINNINGS)}, BACKWARD one of {', '.join(triton_backend.BACKWARDS)}, FORWARD one "
-            f"of {', '.join(triton_backend.FORWARDS)}, COMPACTION one of {', '.join(triton_backend.COMPACTIONS)} and "
-            f"CHECK one of {', '.join(triton_backend.CHECKS)}")
-    defaults = (None, None, "default", "none", "fused")
-    while len(fields) > 2 and fields[-1] == defaults[len(fields) - 1]:
+            f"{text!r} is not FORWARD[,COMPACTION[,CHECK]] with FORWARD one of {', '.join(triton_backend.FORWARDS)}, "
+            f"COMPACTION one of {', '.join(triton_backend.COMPACTIONS)} and CHECK one of "
+            f"{', '.join(triton_backend.CHECKS)}")
+    defaults = (None, "none", "fused")
+    while len(fields) > 1 and fields[-1] == defaults[len(fields) - 1]:
         fields = fields[:-1]
     return fields
 
@@ -301,22 +296,17 @@ def variant_agreement(num: int, height: int, device: torch.device, variants: lis
 
 
 @contextlib.contextmanager
-def triton_variant(binning: str | None, backward: str | None, forward: str | None = None,
-                   compaction: str | None = None, check: str | None = None):
-    """The Triton backend with the given binning, backward, forward, compaction and input-check variants (None: the
-    default) while inside."""
-    saved = (triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD, triton_backend.COMPACTION,
-             triton_backend.CHECK)
-    triton_binning.BINNING = binning or saved[0]
-    triton_backend.BACKWARD = backward or saved[1]
-    triton_backend.FORWARD = forward or saved[2]
-    triton_backend.COMPACTION = compaction or saved[3]
-    triton_backend.CHECK = check or saved[4]
+def triton_variant(forward: str | None = None, compaction: str | None = None, check: str | None = None):
+    """The Triton backend with the given forward, compaction and input-check variants (None: the default) while
+    inside."""
+    saved = (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK)
+    triton_backend.FORWARD = forward or saved[0]
+    triton_backend.COMPACTION = compaction or saved[1]
+    triton_backend.CHECK = check or saved[2]
     try:
         yield
     finally:
-        (triton_binning.BINNING, triton_backend.BACKWARD, triton_backend.FORWARD, triton_backend.COMPACTION,
-         triton_backend.CHECK) = saved
+        triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK = saved
 
 
 def ratio_line(base: dict, row: dict, dev: str) -> str:
@@ -371,12 +361,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--compile", action="store_true", help="projection through torch.compile "
                                                                "(render.projection.compile_projection)")
     parser.add_argument("--variants", nargs="+", type=triton_variant_name, default=[],
-                        metavar="BINNING,BACKWARD[,FORWARD[,COMPACTION[,CHECK]]]",
-                        help="Triton variants timed side by side, one row each: binning "
-                             f"{'|'.join(triton_binning.BINNINGS)} (default {triton_binning.BINNING}), backward "
-                             f"{'|'.join(triton_backend.BACKWARDS)} (default {triton_backend.BACKWARD}), forward "
-                             f"{'|'.join(triton_backend.FORWARDS)} (default {triton_backend.FORWARD}; lean: the fused "
-                             "binning without the host sync before compositing), compaction "
+                        metavar="FORWARD[,COMPACTION[,CHECK]]",
+                        help="Triton variants timed side by side, one row each: forward "
+                             f"{'|'.join(triton_backend.FORWARDS)} (default {triton_backend.FORWARD}; lean: no host "
+                             "sync before compositing), compaction "
                              f"{'|'.join(triton_backend.COMPACTIONS)} (default {triton_backend.COMPACTION}; nonzero: "
                              "only the visible pairs, one more host sync), input checks "
                              f"{'|'.join(triton_backend.CHECKS)} (default {triton_backend.CHECK}; torch: some seventy "
@@ -409,12 +397,12 @@ def main(argv: list[str] | None = None) -> None:
                 if backend == "triton" and torch.device(dev).type != "cuda" and not interpreted:
                     print(f"# skipping triton on {dev}: needs CUDA (or TRITON_INTERPRET=1, very slow)")
                     continue
-                variants = args.variants if backend == "triton" and args.variants else [(None, None)]
+                variants = args.variants if backend == "triton" and args.variants else [None]
                 for variant in variants:
-                    with triton_variant(*variant):
+                    with triton_variant(*(variant or ())):
                         rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, args.cubemap,
                                           args.stages, args.launches))
-                        if variant[0] is not None:
+                        if variant is not None:
                             rows[-1]["backend"] = f"triton[{','.join(variant)}]"
                         print(rows[-1])
                         if args.profile:

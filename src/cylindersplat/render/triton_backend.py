@@ -1,14 +1,15 @@
-"""The fast backend: tile binning in PyTorch, Triton per-tile compositing (fwd + bwd), any camera model.
+"""The fast backend: tile binning and per-tile compositing (fwd + bwd) as Triton kernels, any camera model.
 
 Needs no compile step from the user: Triton ships with CUDA builds of PyTorch and compiles the
 kernels (:mod:`.triton_kernels`) at first use. The backend also brings its own projection, a fused
 float32 kernel with an analytic backward (:mod:`.triton_projection`, registered beside it in
 :mod:`.api`) for the equirect and pinhole camera models; other camera models are projected by the
-reference. Tile binning is the reference's by counts, prefix sum, key emission and one sort
-(:mod:`.triton_binning`). Compositing follows the reference's rules; gradients reach the projected Gaussians
-through the compositing kernels' backward. The binning and the backward come in variants that give the same
-results (:data:`.triton_binning.BINNINGS`, :data:`BACKWARDS`), timed side by side by ``bench render
---variants`` until one is made the default.
+reference. Tile binning is a depth sort, per-Gaussian counts, a prefix sum, key emission and one stable sort by
+tile (:mod:`.triton_binning`). Compositing follows the reference's rules; gradients reach the projected Gaussians
+through the compositing kernels' backward. The forward path, the projection's compaction and the input checks come
+in variants that give the same results (:data:`FORWARDS`, :data:`COMPACTIONS`, :data:`CHECKS`), timed side by side
+by ``bench render --variants`` until one is made the default. (The binning and the backward had variants too until
+an H100 chose between them on 2026-11-26: benchmarks/RESULTS.md.)
 
 On a CPU, ``TRITON_INTERPRET=1`` (set before the first render) runs the same kernels in Triton's
 interpreter; that is how the test suite checks them on machines without a GPU.
@@ -25,22 +26,11 @@ from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings,
 from .rasterize import TileBins, pack_projected, unpack_composited
 from .triton_binning import bin_to_tiles_by_key
 
-__all__ = ["triton_available", "triton_backend", "composite_triton", "BACKWARDS", "BACKWARD", "FORWARDS", "FORWARD",
-           "COMPACTIONS", "COMPACTION", "CHECKS", "CHECK", "takes_every_pair", "queue_checks"]
+__all__ = ["triton_available", "triton_backend", "composite_triton", "FORWARDS", "FORWARD", "COMPACTIONS",
+           "COMPACTION", "CHECKS", "CHECK", "takes_every_pair", "queue_checks"]
 
-# The compositing backward's variant: "sums" (:func:`.triton_kernels.composite_backward_kernel`, one pair at a
-# time: ten block-wide sums and ten scalar atomics per pair), "joined" (the same with one block-wide sum of the
-# ten joined and one vector atomic) or "chunked4" / "chunked8" (the forward and the backward compositing 4 or 8
-# pairs at a time, scans along the pairs: :func:`.triton_kernels.composite_forward_chunked_kernel` and
-# :func:`.triton_kernels.composite_backward_chunked_kernel`). The same images and gradients (to float32
-# rounding). "joined" is the default: on an H100 (benchmarks/RESULTS.md, 2026-11-26) its backward took 2.2 / 2.1 ms
-# at 0.1 / 1.3 M Gaussians against 6.2 / 3.4 ms for "sums" and 3.0-4.0 ms for the chunked ones. Module-level: the
-# benchmark switches it.
-BACKWARDS = ("sums", "joined", "chunked4", "chunked8")
-BACKWARD = "joined"
-
-# The forward path's variant: "default" (the binning of :data:`.triton_binning.BINNING`, which reads the pair count
-# on the host before sizing its buffers, then compositing) or "lean" (:func:`_lean_backend`: the fused binning's
+# The forward path's variant: "default" (:func:`.triton_binning.bin_to_tiles_by_key`, which reads the pair count on
+# the host before sizing its buffers, then compositing) or "lean" (:func:`_lean_backend`: the fused binning's
 # kernels in buffers of a cached, growing capacity, no host synchronisation before the compositing is queued; the
 # pair count is read once after it, and the binning and compositing rerun with a larger capacity where the pairs
 # did not fit). The same images and gradients. Module-level: the benchmark switches it.
@@ -99,11 +89,7 @@ class _TritonComposite(torch.autograd.Function):
         grid = (len(tile_start) - 1,)
         args = (height, width, tiles_x, tiles_x * tiles_y, settings.sigma_extent**2, settings.alpha_max,
                 settings.alpha_min, settings.transmittance_min)
-        if grid[0] > 0 and BACKWARD.startswith("chunked"):  # forward and backward judge termination alike
-            kernels.composite_forward_chunked_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out, *args,
-                                                           TILE=settings.tile_size, WRAP_U=bool(wrap_u),
-                                                           CHUNK=int(BACKWARD[len("chunked"):]), LEAN=lean)
-        elif grid[0] > 0:
+        if grid[0] > 0:
             kernels.composite_forward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out, *args,
                                                    TILE=settings.tile_size, WRAP_U=bool(wrap_u), LEAN=lean)
         ctx.save_for_backward(packed, pair_gaussian, rows, cols, tile_start, out)
@@ -114,19 +100,13 @@ class _TritonComposite(torch.autograd.Function):
     def backward(ctx, grad_out):
         from . import triton_kernels as kernels
 
-        if BACKWARD not in BACKWARDS:
-            raise ValueError(f"unknown Triton backward {BACKWARD!r}: choose one of {', '.join(BACKWARDS)}")
         packed, pair_gaussian, rows, cols, tile_start, out = ctx.saved_tensors
         grad_packed = torch.zeros_like(packed)
         grid = (len(tile_start) - 1,)
         args = (packed, pair_gaussian, rows, cols, tile_start, out, grad_out.float().contiguous(), grad_packed,
                 *ctx.args)
-        if grid[0] > 0 and BACKWARD.startswith("chunked"):
-            kernels.composite_backward_chunked_kernel[grid](*args, TILE=ctx.tile, WRAP_U=ctx.wrap_u,
-                                                            CHUNK=int(BACKWARD[len("chunked"):]), LEAN=ctx.lean)
-        elif grid[0] > 0:
-            kernels.composite_backward_kernel[grid](*args, TILE=ctx.tile, WRAP_U=ctx.wrap_u,
-                                                    JOINED=BACKWARD == "joined", LEAN=ctx.lean)
+        if grid[0] > 0:
+            kernels.composite_backward_kernel[grid](*args, TILE=ctx.tile, WRAP_U=ctx.wrap_u, LEAN=ctx.lean)
         return (grad_packed,) + (None,) * 12
 
 

@@ -1,31 +1,22 @@
-"""The fast backend's tile binning: per-Gaussian tile counts, prefix sum, key emission, one sort.
+"""The fast backend's tile binning: a depth sort, per-Gaussian tile counts, a prefix sum, key emission, one sort.
 
-The arrangement gsplat uses: :func:`.rasterize.tile_spans` counts each Gaussian's tiles, an exclusive
-prefix sum gives every Gaussian its place, a Triton kernel (:mod:`.triton_binning_kernels`) writes
-each pair's key, and one stable sort of the keys (a radix sort on CUDA) orders the pairs by (tile,
-depth) - no depth ranking, no second sort. Three variants (:data:`BINNINGS`), all equal to
-:func:`.rasterize.bin_to_tiles` field by field wherever the depths are float32 (the Triton projection's
-are):
+The arrangement gsplat uses (counts, an exclusive prefix sum that gives every Gaussian its place, key emission,
+one radix sort), with the Gaussians sorted by depth first so that the keys need only the tile: the Gaussians are
+sorted once by depth (a stable sort of ``M`` float32 keys: ties by row), their pairs emitted in that order with the
+tile id as key, in the narrowest integer type that holds the tile count (int16 below 32768 tiles, else int32), and
+one *stable* sort of those keys puts a pair's place in its tile at its Gaussian's depth rank (ties by row; a
+Gaussian that meets one tile twice across the seam keeps its emission order) - the reference's order
+(:func:`.rasterize.bin_to_tiles`, field by field wherever the depths are float32, as the Triton projection's are),
+from 16 (or 32) key bits instead of 64. Three kernels (:mod:`.triton_binning_kernels`) each recompute a Gaussian's
+tile spans from its centre and extent (:func:`.rasterize.tile_spans`' arithmetic in the same float type): the
+counts, the emission (the key and the Gaussian's depth rank) and the pair fields, written once straight into their
+sorted places (no gathers). On an H100 (benchmarks/RESULTS.md, 2026-11-26) this took 1.4 ms for 1.3 M Gaussians
+(4.9 M tile pairs) against 9.1 ms for one radix sort of 64-bit ``tile << 32 | depth`` keys and 3.6 ms with
+:func:`.rasterize.tile_spans`' thirty small PyTorch operations instead of the recomputation, variants removed since.
 
-- ``"key64"``: pairs emitted Gaussian-major by row, with the 64-bit key ``tile << 32 | bits(float32
-  depth)``. Ties in float32 depth keep the emission order (by Gaussian row), as the reference's ranking
-  does. A radix sort over all 64 key bits, then five gathers of the pair fields.
-- ``"depth_tile"``: the Gaussians sorted once by depth (a stable sort of ``M`` float32 keys: ties by
-  row), their pairs emitted in that order with only the tile id as key, in the narrowest integer type
-  that holds the tile count (int16 below 32768 tiles, else int32), and one *stable* sort of those keys:
-  a pair's place in its tile is then its Gaussian's depth rank (ties by row; a Gaussian that meets one
-  tile twice across the seam keeps its emission order) - the reference's order, from 16 (or 32) key
-  bits instead of 64. The emission writes only the key and the Gaussian's depth rank; a second kernel
-  writes the pair fields once, straight into their sorted places (no gathers).
-- ``"fused"``: ``"depth_tile"`` without :func:`.rasterize.tile_spans` (some thirty small PyTorch operations):
-  each of its three kernels recomputes a Gaussian's tile spans from its centre and extent (the same
-  arithmetic in the same float type), so the whole binning is a depth sort, a count kernel, a prefix
-  sum, the emission, the tile sort and the writing kernel.
-
-:data:`BINNING` is the default: ``"fused"``, measured on an H100 (benchmarks/RESULTS.md, 2026-11-26) at 1.4 ms for
-1.3 M Gaussians (4.9 M tile pairs) against 9.1 ms for ``"key64"`` and 3.6 ms for ``"depth_tile"``, with the same
-bins; ``binning=`` picks one per call. Each makes one host synchronisation: the pair count that sizes the buffers,
-read with the render's deferred input checks (:func:`.projection.read_count`).
+:func:`bin_to_tiles_by_key` makes one host synchronisation: the pair count that sizes the buffers, read with the
+render's deferred input checks (:func:`.projection.read_count`). :func:`bin_lean` (the lean forward) makes none
+before the compositing is queued.
 """
 
 from __future__ import annotations
@@ -37,81 +28,33 @@ import torch
 from torch import Tensor
 
 from .projection import ProjectedGaussians, read_count
-from .rasterize import TileBins, tile_spans
+from .rasterize import TileBins
 
-__all__ = ["BINNINGS", "BINNING", "bin_to_tiles_by_key", "bin_lean", "LeanBins"]
+__all__ = ["bin_to_tiles_by_key", "bin_lean", "LeanBins", "tile_key_dtype"]
 
-BINNINGS = ("key64", "depth_tile", "fused")
-BINNING = "fused"  # the default variant (module-level: the benchmark switches it)
 _BLOCK = 128
 
 
-def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16, binning: str | None = None) -> TileBins:
-    """:func:`.rasterize.bin_to_tiles` by per-Gaussian counts, a prefix sum, key emission and one sort.
-
-    ``binning``: one of :data:`BINNINGS` (default :data:`BINNING`); every variant gives the same bins."""
-    binning = BINNING if binning is None else binning
-    if binning not in BINNINGS:
-        raise ValueError(f"unknown Triton binning {binning!r}: choose one of {', '.join(BINNINGS)}")
-    spans = by_depth = None
-    if binning != "key64" and len(proj.depth):
+def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16) -> TileBins:
+    """:func:`.rasterize.bin_to_tiles` by a depth sort, per-Gaussian counts, a prefix sum, key emission and one
+    sort by tile."""
+    by_depth = None
+    if len(proj.depth):
         # Gaussians in depth order (ties by row): their counts and places in that order.
         by_depth = torch.sort(proj.depth.detach().float(), stable=True).indices
-    if binning == "fused":
-        centres = _centres_and_extents(proj)  # once for the binning's three kernels (read in place)
-        counts = _fused_counts(centres, by_depth, tile_size, proj)
-    else:
-        spans = tile_spans(proj, tile_size)
-        counts = spans.count if by_depth is None else spans.count[by_depth]
+    centres = _centres_and_extents(proj)  # once for the binning's three kernels (read in place)
+    counts = _fused_counts(centres, by_depth, tile_size, proj)
     ends = torch.cumsum(counts, 0)
     total = read_count(proj, ends[-1:]) if len(counts) else 0  # the one host synchronisation: the output size
     tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
     if total == 0:
         return TileBins(*_pair_fields(0, proj.camera.device), tiles_x, tiles_y)
-    if binning == "fused":
-        return _bin_fused(proj, centres, by_depth, ends, total, tile_size)
-    if binning == "depth_tile":
-        return _bin_depth_then_tile(proj, spans, by_depth, ends - counts, total, tile_size)
-    return _bin_key64(proj, spans, ends - counts, total, tile_size)
-
-
-def _bin_key64(proj, spans, offsets, total, tile_size) -> TileBins:
-    from . import triton_binning_kernels as kernels
-
-    device = proj.camera.device
-    keys, gaussian, rows, cols, shift = _pair_fields(total, device)  # the tile slot holds the 64-bit sort keys
-    depth_bits = proj.depth.detach().float().contiguous().view(torch.int32)
-    num = len(offsets)
-    kernels.emit_pairs_kernel[((num + _BLOCK - 1) // _BLOCK,)](
-        proj.camera, depth_bits, spans.i0, spans.i1, spans.j0, spans.a0, spans.b0, spans.a1, spans.b1, spans.ny,
-        spans.nx0, spans.nx1, offsets, keys, gaussian, rows, cols, shift, num, proj.width, spans.tiles_x,
-        spans.tiles_x * spans.tiles_y, TILE=tile_size, BLOCK=_BLOCK)
-    keys, order = torch.sort(keys, stable=True)
-    return TileBins(gaussian[order], keys >> 32, rows[order], cols[order], shift[order], spans.tiles_x, spans.tiles_y)
+    return _bin_fused(proj, centres, by_depth, ends, total, tile_size)
 
 
 def tile_key_dtype(num_tiles: int) -> torch.dtype:
     """The narrowest signed integer type that holds every tile id ``0 .. num_tiles - 1``."""
     return torch.int16 if num_tiles <= 2**15 else torch.int32
-
-
-def _bin_depth_then_tile(proj, spans, by_depth, offsets, total, tile_size) -> TileBins:
-    from . import triton_binning_kernels as kernels
-
-    device = proj.camera.device
-    num = len(offsets)
-    tiles_per_camera = spans.tiles_x * spans.tiles_y
-    keys, rank = _key_buffers(proj, total, proj.num_cameras * tiles_per_camera)  # rank: its Gaussian's depth rank
-    args = (proj.camera, spans.i0, spans.i1, spans.j0, spans.a0, spans.b0, spans.a1, spans.b1, spans.ny, spans.nx0,
-            spans.nx1, by_depth, offsets)
-    kernels.emit_tile_keys_kernel[((num + _BLOCK - 1) // _BLOCK,)](
-        *args, keys, rank, num, spans.tiles_x, tiles_per_camera, TILE=tile_size, BLOCK=_BLOCK)
-    order = torch.sort(keys, stable=True).indices  # by tile; within a tile, emission (= depth) order
-    gaussian, tile, rows, cols, shift = _pair_fields(total, device)
-    kernels.write_sorted_pairs_kernel[((total + _BLOCK - 1) // _BLOCK,)](
-        *args, order, rank, gaussian, tile, rows, cols, shift, total, proj.width, spans.tiles_x, tiles_per_camera,
-        TILE=tile_size, BLOCK=_BLOCK)
-    return TileBins(gaussian, tile, rows, cols, shift, spans.tiles_x, spans.tiles_y)
 
 
 def _pair_fields(total: int, device) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
@@ -220,7 +163,7 @@ def _strided_rows(x: torch.Tensor) -> tuple[torch.Tensor, int]:
 
 
 def bin_lean(proj: ProjectedGaussians, tile_size: int, capacity: int) -> LeanBins:
-    """The ``"fused"`` binning without a host synchronisation: the centres and extents read in place, buffers of
+    """:func:`bin_to_tiles_by_key` without a host synchronisation: the centres and extents read in place, buffers of
     ``capacity`` pairs (the padding sorts last), int32 pair fields and the tiles' first places written by the last
     kernel. Two sorts and four launches: depth sort, count (and the key buffer's fill), prefix sum, emission, tile
     sort, writing."""

@@ -1,11 +1,11 @@
-"""Triton kernel of the fast backend's tile binning: (Gaussian, tile) pair emission with sort keys.
+"""Triton kernels of the fast backend's tile binning (:mod:`.triton_binning`): per-Gaussian pair counts, (Gaussian,
+tile) pair emission with tile keys, and the pair fields written in sorted order.
 
-Imported lazily by :mod:`.triton_binning` (``TRITON_INTERPRET=1`` must be set before the first import
-to select Triton's CPU interpreter). One lane per projected Gaussian writes its pairs at its offset
-(the exclusive prefix sum of the per-Gaussian counts), Gaussian-major like the reference emission
-(:func:`.rasterize._emit_pairs`), with the rules of :class:`.rasterize.TileSpans`; the key of a pair
-is ``tile << 32 | bits(float32 depth)`` (radial depths are positive, so their bit patterns sort like
-the numbers).
+Imported lazily by :mod:`.triton_binning` (``TRITON_INTERPRET=1`` must be set before the first import to select
+Triton's CPU interpreter). One lane per projected Gaussian (in depth order) recomputes its tile spans from its centre
+and extent with the rules of :class:`.rasterize.TileSpans` (:func:`_spans_strided`) and writes its pairs at its
+offset (the exclusive prefix sum of the counts), Gaussian-major like the reference emission
+(:func:`.rasterize._emit_pairs`); after the sort by tile, one lane per sorted place writes that pair's fields.
 """
 
 from __future__ import annotations
@@ -28,47 +28,6 @@ def _store_pair_rect(rows_ptr, cols_ptr, at, i0, i1, a0, b0, a1, b1, ty, tx, sec
 
 
 @triton.jit
-def emit_pairs_kernel(
-    camera_ptr, depth_bits_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr,
-    offset_ptr, key_ptr, gaussian_ptr, rows_ptr, cols_ptr, shift_ptr,
-    num_gaussians, width, tiles_x, tiles_per_camera,
-    TILE: tl.constexpr, BLOCK: tl.constexpr,
-):
-    g = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
-    mask = g < num_gaussians
-    camera, i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _load_spans(
-        g, mask, camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr)
-    depth_bits = tl.load(depth_bits_ptr + g, mask=mask, other=0).to(tl.int64)
-    start = tl.load(offset_ptr + g, mask=mask, other=0)
-    count = ny * (nx0 + nx1)
-    for k in range(0, tl.max(count, axis=0)):
-        on = mask & (k < count)
-        ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
-        at = start + k
-        tl.store(key_ptr + at, (tile.to(tl.int64) << 32) | depth_bits, mask=on)
-        tl.store(gaussian_ptr + at, g.to(tl.int64), mask=on)
-        _store_pair_rect(rows_ptr, cols_ptr, at, i0, i1, a0, b0, a1, b1, ty, tx, second, on, TILE)
-        tl.store(shift_ptr + at, a0 - j0 - tl.where(second, width, 0), mask=on)
-
-
-@triton.jit
-def _load_spans(g, mask, camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr):
-    """The tile spans (:class:`.rasterize.TileSpans`) of Gaussians ``g``."""
-    camera = tl.load(camera_ptr + g, mask=mask, other=0)
-    i0 = tl.load(i0_ptr + g, mask=mask, other=0)
-    i1 = tl.load(i1_ptr + g, mask=mask, other=0)
-    j0 = tl.load(j0_ptr + g, mask=mask, other=0)
-    a0 = tl.load(a0_ptr + g, mask=mask, other=0)
-    b0 = tl.load(b0_ptr + g, mask=mask, other=0)
-    a1 = tl.load(a1_ptr + g, mask=mask, other=0)
-    b1 = tl.load(b1_ptr + g, mask=mask, other=0)
-    ny = tl.load(ny_ptr + g, mask=mask, other=0)
-    nx0 = tl.load(nx0_ptr + g, mask=mask, other=0)
-    nx1 = tl.load(nx1_ptr + g, mask=mask, other=0)
-    return camera, i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1
-
-
-@triton.jit
 def _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE: tl.constexpr):
     """Tile row, tile column, second-interval flag and global tile id of a Gaussian's ``k``-th pair."""
     nx = nx0 + nx1
@@ -81,53 +40,6 @@ def _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE:
     second = col >= nx0
     tx = tl.where(second, a1 // TILE + col - nx0, a0 // TILE + col)
     return ty, tx, second, camera * tiles_per_camera + ty * tiles_x + tx
-
-
-@triton.jit
-def emit_tile_keys_kernel(
-    camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr,
-    by_depth_ptr, offset_ptr, key_ptr, rank_ptr,
-    num_gaussians, tiles_x, tiles_per_camera,
-    TILE: tl.constexpr, BLOCK: tl.constexpr,
-):
-    """The ``depth_tile`` binning's emission: lane ``i`` takes the Gaussian of depth rank ``i`` and writes
-    its pairs' tile ids (the sort keys, int16 or int32) and ``i`` at its offset."""
-    i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
-    mask = i < num_gaussians
-    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
-    camera, i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _load_spans(
-        g, mask, camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr)
-    start = tl.load(offset_ptr + i, mask=mask, other=0)
-    count = ny * (nx0 + nx1)
-    for k in range(0, tl.max(count, axis=0)):
-        on = mask & (k < count)
-        ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
-        tl.store(key_ptr + start + k, tile.to(key_ptr.dtype.element_ty), mask=on)
-        tl.store(rank_ptr + start + k, i.to(tl.int32), mask=on)
-
-
-@triton.jit
-def write_sorted_pairs_kernel(
-    camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr,
-    by_depth_ptr, offset_ptr, order_ptr, rank_ptr, gaussian_ptr, tile_ptr, rows_ptr, cols_ptr, shift_ptr,
-    num_pairs, width, tiles_x, tiles_per_camera,
-    TILE: tl.constexpr, BLOCK: tl.constexpr,
-):
-    """The ``depth_tile`` binning's pair fields, one lane per sorted place ``q``: the pair emitted at
-    ``order[q]`` is the ``k``-th of the Gaussian of depth rank ``rank[order[q]]``."""
-    q = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
-    mask = q < num_pairs
-    at = tl.load(order_ptr + q, mask=mask, other=0)
-    i = tl.load(rank_ptr + at, mask=mask, other=0)
-    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
-    k = at - tl.load(offset_ptr + i, mask=mask, other=0)
-    camera, i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _load_spans(
-        g, mask, camera_ptr, i0_ptr, i1_ptr, j0_ptr, a0_ptr, b0_ptr, a1_ptr, b1_ptr, ny_ptr, nx0_ptr, nx1_ptr)
-    ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
-    tl.store(gaussian_ptr + q, g.to(tl.int64), mask=mask)
-    tl.store(tile_ptr + q, tile.to(tl.int64), mask=mask)
-    _store_pair_rect(rows_ptr, cols_ptr, q, i0, i1, a0, b0, a1, b1, ty, tx, second, mask, TILE)
-    tl.store(shift_ptr + q, a0 - j0 - tl.where(second, width, 0), mask=mask)
 
 
 @triton.jit
@@ -174,7 +86,7 @@ def count_pairs_kernel(
     uv_ptr, ext_ptr, by_depth_ptr, count_ptr, num_gaussians, height, width, uv_stride, ext_stride,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
 ):
-    """The ``fused`` binning's first pass: the pair count of the Gaussian of depth rank ``i`` (centres and extents
+    """The binning's first pass: the pair count of the Gaussian of depth rank ``i`` (centres and extents
     ``uv_stride`` / ``ext_stride`` elements apart: read in place)."""
     i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
     mask = i < num_gaussians
@@ -190,8 +102,9 @@ def emit_fused_keys_kernel(
     num_gaussians, height, width, uv_stride, ext_stride, tiles_x, tiles_per_camera,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
 ):
-    """The ``fused`` binning's emission: :func:`emit_tile_keys_kernel` with the spans recomputed
-    (``end``: the inclusive prefix sum of the counts in depth order)."""
+    """The emission: lane ``i`` takes the Gaussian of depth rank ``i`` and writes its pairs' tile ids (the sort
+    keys, int16 or int32) and ``i`` at its offset (``end``: the inclusive prefix sum of the counts in depth
+    order)."""
     i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
     mask = i < num_gaussians
     g = tl.load(by_depth_ptr + i, mask=mask, other=0)
@@ -214,7 +127,8 @@ def write_fused_pairs_kernel(
     num_pairs, height, width, uv_stride, ext_stride, tiles_x, tiles_per_camera,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
 ):
-    """The ``fused`` binning's pair fields: :func:`write_sorted_pairs_kernel` with the spans recomputed."""
+    """The pair fields, one lane per sorted place ``q``: the pair emitted at ``order[q]`` is the ``k``-th of the
+    Gaussian of depth rank ``rank[order[q]]``."""
     q = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
     mask = q < num_pairs
     at = tl.load(order_ptr + q, mask=mask, other=0)
@@ -231,10 +145,10 @@ def write_fused_pairs_kernel(
     tl.store(shift_ptr + q, a0 - j0 - tl.where(second, width, 0), mask=mask)
 
 
-# The lean binning (:func:`.triton_binning.bin_lean`): the fused binning's three kernels reading the centres and
-# extents in place (strided), into buffers of a cached capacity that the device-side pair count may exceed
-# (nothing is written past it: the caller reruns with a larger one), with int32 pair fields and the tiles'
-# first places written by the last kernel (no tile ids, no column shifts, no searchsorted).
+# The lean binning (:func:`.triton_binning.bin_lean`): the binning's three kernels into buffers of a cached capacity
+# that the device-side pair count may exceed (nothing is written past it: the caller reruns with a larger one), with
+# int32 pair fields and the tiles' first places written by the last kernel (no tile ids, no column shifts, no
+# searchsorted).
 
 
 @triton.jit

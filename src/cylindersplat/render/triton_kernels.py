@@ -93,35 +93,20 @@ def _transmittance_step(trans, alpha, support, alive, t_min):
 
 
 @triton.jit
-def _add_gradients(gp, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, o, JOINED: tl.constexpr, LEAN: tl.constexpr):
+def _add_gradients(gp, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, o, LEAN: tl.constexpr):
     """``gp[j] += sum(x_j)`` over the tile's pixels (``/ max(o, 1e-30)`` for ``j = 5``, the opacity), for the
-    ten packed parameters of one Gaussian.
-
-    ``JOINED=False``: ten block-wide sums and ten scalar atomics. ``JOINED=True``: the ten per-pixel
-    values joined into one ``(pixels, 2, 2, 2, 2)`` tensor (registers, no data movement), one block-wide
-    sum of it (one pass through shared memory instead of ten, each with its barriers) and one vector
-    atomic of the ten sums (six padding lanes masked off). ``gp``: the Gaussian's packed gradient row (columns by
-    :func:`_column`)."""
-    if JOINED:
-        z = tl.zeros_like(x0)
-        low = tl.join(tl.join(tl.join(x0, x1), tl.join(x2, x3)), tl.join(tl.join(x4, x5), tl.join(x6, x7)))
-        high = tl.join(tl.join(tl.join(x8, x9), tl.join(z, z)), tl.join(tl.join(z, z), tl.join(z, z)))
-        sums = tl.sum(tl.join(low, high), axis=0)  # sums[s1, s2, s3, s4] = sum of x_(s1 + 2 s2 + 4 s3 + 8 s4)
-        bit = tl.arange(0, 2)
-        j = (bit[:, None, None, None] + 2 * bit[None, :, None, None] + 4 * bit[None, None, :, None]
-             + 8 * bit[None, None, None, :])
-        tl.atomic_add(gp + _column(j, LEAN), sums / tl.where(j == 5, tl.maximum(o, 1e-30), 1.0), mask=j < 10)
-    else:
-        tl.atomic_add(gp + 0, tl.sum(x0, axis=0))
-        tl.atomic_add(gp + 1, tl.sum(x1, axis=0))
-        tl.atomic_add(gp + 2, tl.sum(x2, axis=0))
-        tl.atomic_add(gp + 3, tl.sum(x3, axis=0))
-        tl.atomic_add(gp + 4, tl.sum(x4, axis=0))
-        tl.atomic_add(gp + 5 + 3 * LEAN, tl.sum(x5, axis=0) / tl.maximum(o, 1e-30))
-        tl.atomic_add(gp + 6 + 3 * LEAN, tl.sum(x6, axis=0))
-        tl.atomic_add(gp + 7 + 3 * LEAN, tl.sum(x7, axis=0))
-        tl.atomic_add(gp + 8 + 3 * LEAN, tl.sum(x8, axis=0))
-        tl.atomic_add(gp + 9 - 2 * LEAN, tl.sum(x9, axis=0))
+    ten packed parameters of one Gaussian: the ten per-pixel values joined into one ``(pixels, 2, 2, 2, 2)`` tensor
+    (registers, no data movement), one block-wide sum of it (one pass through shared memory instead of ten, each with
+    its barriers) and one vector atomic of the ten sums (six padding lanes masked off). ``gp``: the Gaussian's packed
+    gradient row (columns by :func:`_column`)."""
+    z = tl.zeros_like(x0)
+    low = tl.join(tl.join(tl.join(x0, x1), tl.join(x2, x3)), tl.join(tl.join(x4, x5), tl.join(x6, x7)))
+    high = tl.join(tl.join(tl.join(x8, x9), tl.join(z, z)), tl.join(tl.join(z, z), tl.join(z, z)))
+    sums = tl.sum(tl.join(low, high), axis=0)  # sums[s1, s2, s3, s4] = sum of x_(s1 + 2 s2 + 4 s3 + 8 s4)
+    bit = tl.arange(0, 2)
+    j = (bit[:, None, None, None] + 2 * bit[None, :, None, None] + 4 * bit[None, None, :, None]
+         + 8 * bit[None, None, None, :])
+    tl.atomic_add(gp + _column(j, LEAN), sums / tl.where(j == 5, tl.maximum(o, 1e-30), 1.0), mask=j < 10)
 
 
 @triton.jit
@@ -192,13 +177,13 @@ def composite_backward_kernel(
     packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr, grad_out_ptr, grad_packed_ptr,
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, JOINED: tl.constexpr, LEAN: tl.constexpr,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, LEAN: tl.constexpr,
 ):
     """Front to back again: ``dL/dalpha_i = T_i s_i - (S - P_i) / (1 - alpha_i)`` with ``s_i = g . f_i``,
     ``S = g . out`` (all contributions) and ``P_i`` the running sum of ``s_k w_k`` up to ``i``.
     Per-pair gradients are summed over the tile's pixels and added atomically per Gaussian
-    (:func:`_add_gradients`). ``JOINED``: fewer block-wide sums per pair (the ten gradients in one, and the
-    counts of used and still-alive pixels in one), the same arithmetic per pixel."""
+    (:func:`_add_gradients`): two block-wide sums per pair (the ten gradients in one, and the counts of used and
+    still-alive pixels in one)."""
     tile = tl.program_id(0)
     row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
@@ -217,11 +202,8 @@ def composite_backward_kernel(
         cr, cg, cb, cd = _colour(packed_ptr, g, LEAN)
         s = g_r * cr + g_g * cg + g_b * cb + g_d * cd + g_a
         prefix += s * w
-        if JOINED:  # both counts from one block-wide sum
-            n_use, n_alive_next = tl.split(tl.sum(tl.join(use.to(tl.int32), next_alive.to(tl.int32)), axis=0))
-        else:
-            n_use = tl.sum(use.to(tl.int32), axis=0)
-            n_alive_next = tl.sum(next_alive.to(tl.int32), axis=0)
+        # both counts from one block-wide sum
+        n_use, n_alive_next = tl.split(tl.sum(tl.join(use.to(tl.int32), next_alive.to(tl.int32)), axis=0))
         # Pairs that touch none of the tile's pixels (bounding box only) add nothing: skip their atomics.
         if n_use > 0:
             d_alpha = trans * s - (total - prefix) / (1.0 - alpha)
@@ -233,149 +215,8 @@ def composite_backward_kernel(
             _add_gradients(grad_packed_ptr + g * (11 + LEAN),
                            -2.0 * d_mahal * (a * du + b * dv), -2.0 * d_mahal * (b * du + c * dv),
                            d_mahal * du * du, 2.0 * d_mahal * du * dv, d_mahal * dv * dv,
-                           tl.where(on, d_alpha * alpha, 0.0), g_r * w, g_g * w, g_b * w, g_d * w, o, JOINED, LEAN)
+                           tl.where(on, d_alpha * alpha, 0.0), g_r * w, g_g * w, g_b * w, g_d * w, o, LEAN)
         trans = next_trans
         alive = next_alive
         n_alive = n_alive_next
         p += 1
-
-
-@triton.jit
-def _chunk(packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, p0, end, row, col, width, trans, alive,
-           sigma2, alpha_max, alpha_min, t_min, WRAP_U: tl.constexpr, CHUNK: tl.constexpr, LEAN: tl.constexpr):
-    """Pairs ``p0 .. p0 + CHUNK - 1`` (those before ``end``) at the tile's pixels: pairs along axis 0,
-    pixels along axis 1, :func:`_fragment`'s arithmetic, and the transmittance by a product scan along
-    the pairs.
-
-    The termination rule is :func:`_transmittance_step`'s: the transmittance only falls along the pairs,
-    so the fragment that brings it below ``t_min`` and every later one fail ``T_after >= t_min``. The
-    products are associated differently from a running product (float32 rounding: a fragment within an
-    ulp of ``t_min`` may be judged differently; the chunked forward and backward judge alike).
-    Returns the pairs' Gaussians and parameters, the fragments' offsets, alpha and weights, and the
-    pixels' transmittance and liveness after the chunk."""
-    p = p0 + tl.arange(0, CHUNK)
-    valid = p < end
-    g = tl.load(pair_gaussian_ptr + p, mask=valid, other=0)
-    base = packed_ptr + g * (11 + LEAN)
-    u = tl.load(base + 0, mask=valid, other=0.0)[:, None]
-    v = tl.load(base + 1, mask=valid, other=0.0)[:, None]
-    a = tl.load(base + 2, mask=valid, other=0.0)[:, None]
-    b = tl.load(base + 3, mask=valid, other=0.0)[:, None]
-    c = tl.load(base + 4, mask=valid, other=0.0)[:, None]
-    o = tl.load(base + 5 + 3 * LEAN, mask=valid, other=0.0)
-    r0 = tl.load(rows_ptr + 2 * p, mask=valid, other=1)[:, None]  # (1, 0): an empty range past the end
-    r1 = tl.load(rows_ptr + 2 * p + 1, mask=valid, other=0)[:, None]
-    c0 = tl.load(cols_ptr + 2 * p, mask=valid, other=0)[:, None]
-    c1 = tl.load(cols_ptr + 2 * p + 1, mask=valid, other=0)[:, None]
-    du = col[None, :].to(tl.float32) + 0.5 - u
-    if WRAP_U:
-        half = width * 0.5
-        du = du + half
-        du = du - width * tl.floor(du / width) - half
-    dv = row[None, :].to(tl.float32) + 0.5 - v
-    mahal = a * du * du + 2.0 * b * du * dv + c * dv * dv
-    raw = o[:, None] * tl.exp(-0.5 * mahal)
-    alpha = tl.minimum(raw, alpha_max)
-    frag = ((row[None, :] >= r0) & (row[None, :] <= r1) & (col[None, :] >= c0) & (col[None, :] <= c1)
-            & (mahal <= sigma2) & (alpha >= alpha_min) & alive[None, :])
-    keep = tl.where(frag, 1.0 - alpha, 1.0)
-    after = trans[None, :] * tl.cumprod(keep, axis=0)  # T after pair k, inclusive
-    before = after / keep  # keep >= 1 - alpha_max > 0
-    use = frag & (after >= t_min)
-    w = tl.where(use, alpha * before, 0.0)
-    # After the chunk: T after the last used fragment; alive unless a fragment was dropped.
-    trans_next = tl.min(tl.where(use, after, trans[None, :]), axis=0)
-    alive_next = alive & (tl.max((frag & (after < t_min)).to(tl.int32), axis=0) == 0)
-    return g, valid, a, b, c, o, du, dv, alpha, raw, before, use, w, trans_next, alive_next
-
-
-@triton.jit
-def composite_forward_chunked_kernel(
-    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr,
-    height, width, tiles_x, tiles_per_camera,
-    sigma2, alpha_max, alpha_min, t_min,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, CHUNK: tl.constexpr, LEAN: tl.constexpr,
-):
-    """:func:`composite_forward_kernel` over ``CHUNK`` pairs at a time (:func:`_chunk`)."""
-    tile = tl.program_id(0)
-    row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
-    start = tl.load(tile_start_ptr + tile)
-    end = tl.load(tile_start_ptr + tile + 1)
-    trans = tl.where(inside, 1.0, 0.0)
-    alive = inside
-    acc_r = tl.zeros([TILE * TILE], dtype=tl.float32)
-    acc_g = tl.zeros([TILE * TILE], dtype=tl.float32)
-    acc_b = tl.zeros([TILE * TILE], dtype=tl.float32)
-    acc_d = tl.zeros([TILE * TILE], dtype=tl.float32)
-    acc_a = tl.zeros([TILE * TILE], dtype=tl.float32)
-    p0 = start
-    n_alive = tl.sum(alive.to(tl.int32), axis=0)
-    while (p0 < end) & (n_alive > 0):
-        g, valid, a, b, c, o, du, dv, alpha, raw, before, use, w, trans, alive = _chunk(
-            packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, p0, end, row, col, width, trans, alive,
-            sigma2, alpha_max, alpha_min, t_min, WRAP_U, CHUNK, LEAN)
-        base = packed_ptr + g * (11 + LEAN)
-        acc_r += tl.sum(w * tl.load(base + 6 + 3 * LEAN, mask=valid, other=0.0)[:, None], axis=0)
-        acc_g += tl.sum(w * tl.load(base + 7 + 3 * LEAN, mask=valid, other=0.0)[:, None], axis=0)
-        acc_b += tl.sum(w * tl.load(base + 8 + 3 * LEAN, mask=valid, other=0.0)[:, None], axis=0)
-        acc_d += tl.sum(w * tl.load(base + 9 - 2 * LEAN, mask=valid, other=0.0)[:, None], axis=0)
-        acc_a += tl.sum(w, axis=0)
-        n_alive = tl.sum(alive.to(tl.int32), axis=0)
-        p0 += CHUNK
-    _store_pixels(out_ptr, pixel, inside, acc_r, acc_g, acc_b, acc_d, acc_a)
-
-
-@triton.jit
-def composite_backward_chunked_kernel(
-    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr, grad_out_ptr, grad_packed_ptr,
-    height, width, tiles_x, tiles_per_camera,
-    sigma2, alpha_max, alpha_min, t_min,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, CHUNK: tl.constexpr, LEAN: tl.constexpr,
-):
-    """:func:`composite_backward_kernel` over ``CHUNK`` pairs at a time (:func:`_chunk`): the running sum
-    ``P`` by a sum scan along the pairs, the per-pair gradients by sums over the pixels and ``CHUNK``-wide
-    atomics - a tile's serial steps (each with its block-wide sums and memory round trips) fall
-    ``CHUNK``-fold."""
-    tile = tl.program_id(0)
-    row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
-    start = tl.load(tile_start_ptr + tile)
-    end = tl.load(tile_start_ptr + tile + 1)
-    g_r, g_g, g_b, g_d, g_a, total = _output_gradients(grad_out_ptr, out_ptr, pixel, inside)
-    trans = tl.where(inside, 1.0, 0.0)
-    alive = inside
-    prefix = tl.zeros([TILE * TILE], dtype=tl.float32)
-    p0 = start
-    n_alive = tl.sum(alive.to(tl.int32), axis=0)
-    while (p0 < end) & (n_alive > 0):
-        g, valid, a, b, c, o, du, dv, alpha, raw, before, use, w, trans, alive = _chunk(
-            packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, p0, end, row, col, width, trans, alive,
-            sigma2, alpha_max, alpha_min, t_min, WRAP_U, CHUNK, LEAN)
-        base = packed_ptr + g * (11 + LEAN)
-        s = (g_r[None, :] * tl.load(base + 6 + 3 * LEAN, mask=valid, other=0.0)[:, None]
-             + g_g[None, :] * tl.load(base + 7 + 3 * LEAN, mask=valid, other=0.0)[:, None]
-             + g_b[None, :] * tl.load(base + 8 + 3 * LEAN, mask=valid, other=0.0)[:, None]
-             + g_d[None, :] * tl.load(base + 9 - 2 * LEAN, mask=valid, other=0.0)[:, None] + g_a[None, :])
-        sw = s * w
-        running = prefix[None, :] + tl.cumsum(sw, axis=0)  # P through pair k, inclusive
-        d_alpha = before * s - (total[None, :] - running) / (1.0 - alpha)
-        on = use & (raw < alpha_max)
-        # where(), not a product with 0: alpha, du, dv are garbage (even NaN) outside the support.
-        d_mahal = tl.where(on, -0.5 * alpha * d_alpha, 0.0)
-        du = tl.where(on, du, 0.0)
-        dv = tl.where(on, dv, 0.0)
-        used = (tl.max(use.to(tl.int32), axis=1) > 0) & valid  # pairs that touch a pixel: their atomics
-        gp = grad_packed_ptr + g * (11 + LEAN)
-        tl.atomic_add(gp + 0, tl.sum(-2.0 * d_mahal * (a * du + b * dv), axis=1), mask=used)
-        tl.atomic_add(gp + 1, tl.sum(-2.0 * d_mahal * (b * du + c * dv), axis=1), mask=used)
-        tl.atomic_add(gp + 2, tl.sum(d_mahal * du * du, axis=1), mask=used)
-        tl.atomic_add(gp + 3, tl.sum(2.0 * d_mahal * du * dv, axis=1), mask=used)
-        tl.atomic_add(gp + 4, tl.sum(d_mahal * dv * dv, axis=1), mask=used)
-        tl.atomic_add(gp + 5 + 3 * LEAN, tl.sum(tl.where(on, d_alpha * alpha, 0.0), axis=1) / tl.maximum(o, 1e-30),
-                      mask=used)
-        tl.atomic_add(gp + 6 + 3 * LEAN, tl.sum(g_r[None, :] * w, axis=1), mask=used)
-        tl.atomic_add(gp + 7 + 3 * LEAN, tl.sum(g_g[None, :] * w, axis=1), mask=used)
-        tl.atomic_add(gp + 8 + 3 * LEAN, tl.sum(g_b[None, :] * w, axis=1), mask=used)
-        tl.atomic_add(gp + 9 - 2 * LEAN, tl.sum(g_d[None, :] * w, axis=1), mask=used)
-        prefix += tl.sum(sw, axis=0)
-        n_alive = tl.sum(alive.to(tl.int32), axis=0)
-        p0 += CHUNK
