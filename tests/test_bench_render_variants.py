@@ -61,3 +61,24 @@ def test_bad_variants_stop_the_command_in_one_line(capsys):
         bench_render.main(["--device", "cpu", "--backend", "triton", "--variants", "default", "fused,sums"])
     err = capsys.readouterr().err
     assert exit_info.value.code == 2 and "FORWARD one of default, lean" in err and len(err.strip().splitlines()) == 1
+
+
+def test_stages_time_the_numba_backends_own_stages():
+    """``--stages`` with the numba backend times its own projection, binning and compositing, not the reference's
+    (which it did until session 19): no fragment stage, and the reference's pair count."""
+    import torch
+
+    from cylindersplat.render.numba_backend import numba_available
+    from cylindersplat.scenes import random_indoor
+
+    if not numba_available():
+        pytest.skip("numba is not installed")
+    g = random_indoor(300)
+    for t in g.tensors().values():
+        t.requires_grad_()
+    c2w = torch.eye(4)
+    stages = {b: bench_render.stage_breakdown(g, c2w, 8, 16, torch.device("cpu"), 1, b) for b in ("numba", "torch")}
+    assert list(stages["numba"]) == ["checks", "project", "bin", "composite", "backward", "num_pairs"]
+    assert "fragments" in stages["torch"] and stages["numba"]["num_pairs"] == stages["torch"]["num_pairs"] > 0
+    assert bench_render._stage_kind("auto", torch.device("cpu")) == "numba"
+    assert bench_render._stage_kind("auto", torch.device("cuda")) == "triton"

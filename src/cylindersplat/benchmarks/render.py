@@ -8,7 +8,8 @@ Scenes come from :func:`cylindersplat.scenes.random_indoor` (Gaussians on the wa
 room plus 20% scattered inside). ``--stages`` also prints where the time goes: projection, tile
 binning, fragment expansion + sort, compositing, backward for the PyTorch reference; with
 ``--backend triton`` the Triton backend's own stages (fused projection kernel, key binning,
-compositing kernels). ``--ply-view N`` also times what a user waits for to see a scene: a PLY of ``N``
+compositing kernels), with ``--backend numba`` (or ``auto`` on the CPU) the numba backend's (fused projection,
+counting sort by tile, compositing). ``--ply-view N`` also times what a user waits for to see a scene: a PLY of ``N``
 Gaussians loaded and one 512x1024 view rendered (no gradients), per backend. A backend that runs out
 of memory is reported as such in the rows and the closing table (the others are still timed).
 ``--stages`` starts with the render's input checks (``checks``: queued on the device for the Triton backend,
@@ -38,6 +39,7 @@ import torch
 from cylindersplat.benchmarks.launches import count_render_launches
 from cylindersplat.gaussians import load_ply, save_ply
 from cylindersplat.render import Equirect, api, render_cubemap, render_equirect, triton_backend
+from cylindersplat.render.numba_backend import numba_available
 from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
 from cylindersplat.scenes import random_indoor
@@ -135,11 +137,21 @@ def _free(params, device) -> None:
         torch.cuda.empty_cache()
 
 
+def _stage_kind(backend: str, device: torch.device) -> str:
+    """Whose stages ``--stages`` times for ``backend``: ``"triton"``, ``"numba"`` or the reference's (``"torch"``);
+    ``"auto"`` as the render picks (Triton on CUDA, numba on the CPU where installed)."""
+    if backend == "auto":
+        return "triton" if device.type == "cuda" else ("numba" if numba_available() else "torch")
+    return backend if backend in ("triton", "numba") else "torch"
+
+
 def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = "torch") -> dict:
-    """Median time of each stage of one forward + backward (the reference's, or the Triton backend's)."""
+    """Median time of each stage of one forward + backward: the reference's, the Triton backend's or the numba
+    backend's (each backend's own projection, binning and compositing)."""
     settings = RasterSettings()
-    fast = backend == "triton"
-    names = (("checks", "project", "bin", "composite", "backward") if fast
+    kind = _stage_kind(backend, device)
+    fast = kind == "triton"
+    names = (("checks", "project", "bin", "composite", "backward") if kind != "torch"
              else ("checks", "project", "bin", "fragments", "composite", "backward"))
     acc: dict[str, list[float]] = {k: [] for k in names}
     for it in range(repeats + 1):
@@ -152,6 +164,7 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
         # The render's input checks: queued as the Triton backend queues them (triton_backend.CHECK), else read now.
         api._queue_checks("triton", g, c2w) if fast else api._check_inputs(g, c2w)
         mark()
+        lean = False
         if fast:  # the Triton backend's own stages: fused projection kernel, key binning
             from cylindersplat.render.projection import flatten_cameras, project_gaussians
             from cylindersplat.render.triton_binning import bin_lean, bin_to_tiles_by_key, grow_capacity, lean_capacity
@@ -168,16 +181,29 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
                     bins = bin_lean(proj, settings.tile_size, grow_capacity(key, int(bins.total)))
             else:
                 bins = bin_to_tiles_by_key(proj, settings.tile_size)
+        elif kind == "numba":  # the numba backend's: fused float64 projection, counting sort by tile
+            from cylindersplat.render.numba_backend import bin_pairs_numba
+            from cylindersplat.render.numba_projection import project_dense_numba
+            from cylindersplat.render.projection import flatten_cameras, project_gaussians
+
+            proj = project_gaussians(*flatten_cameras(g, c2w)[:2], Equirect(height, width), settings,
+                                     project_dense_numba)
+            mark()
+            bins = bin_pairs_numba(proj, settings.tile_size)
         else:
             proj = Equirect(height, width).project(g, c2w, settings)
             mark()
             bins = bin_to_tiles(proj, settings.tile_size)
         mark()
+        num_fragments = None
         if fast:
             from cylindersplat.render.triton_backend import composite_lean, composite_triton
 
             rgb, depth, _ = (composite_lean if lean else composite_triton)(proj, bins, settings)
-            num_fragments = None
+        elif kind == "numba":
+            from cylindersplat.render.numba_backend import composite_numba
+
+            rgb, depth, _ = composite_numba(proj, bins, settings)
         else:
             fg, fp = expand_fragments(proj, bins, settings.sigma_extent)
             mark()
@@ -192,7 +218,7 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
             for k, (a, b) in zip(acc, zip(marks[:-1], marks[1:])):
                 acc[k].append((b - a) * 1000)
     out = {k: round(statistics.median(v), 2) for k, v in acc.items()}
-    out["num_pairs"] = int(bins.total) if fast and lean else len(bins.tile)
+    out["num_pairs"] = (int(bins.total) if lean else len(bins.pairs) if kind == "numba" else len(bins.tile))
     if num_fragments is not None:
         out["num_fragments"] = num_fragments
     return out
