@@ -19,8 +19,8 @@ DEVICE = "cuda" if torch.cuda.is_available() else "cpu"
 F32 = torch.float32
 
 
-def _both(g, poses, h, w, background=(0.2, 0.3, 0.4), settings=None):
-    """Render with both backends; return outputs and gradients of a fixed random loss."""
+def _both(g, poses, h, w, background=(0.2, 0.3, 0.4), settings=None, outputs=("rgb", "depth", "alpha")):
+    """Render with both backends; return outputs and gradients of a fixed random loss on ``outputs``."""
     results = []
     for backend in ("torch", "triton"):
         params = {k: v.detach().to(DEVICE).clone().requires_grad_() for k, v in g.tensors().items()}
@@ -28,7 +28,8 @@ def _both(g, poses, h, w, background=(0.2, 0.3, 0.4), settings=None):
                               settings=settings)
         gen = torch.Generator().manual_seed(5)
         weights = [torch.randn(t.shape, generator=gen).to(DEVICE) for t in (out.rgb, out.depth, out.alpha)]
-        loss = sum((wt * t).sum() for wt, t in zip(weights, (out.rgb, out.depth, out.alpha)))
+        loss = sum((wt * getattr(out, name)).sum() for wt, name in zip(weights, ("rgb", "depth", "alpha"))
+                   if name in outputs)
         grads = torch.autograd.grad(loss, list(params.values()), allow_unused=True)
         results.append((out, dict(zip(params, grads))))
     return results
@@ -43,6 +44,21 @@ def _assert_match(ref, fast, atol=2e-4, grad_rtol=2e-3):
         assert torch.isfinite(g_fast).all(), name
         scale = g_ref.abs().max().clamp_min(1e-6)
         assert (g_fast - g_ref).abs().max() <= grad_rtol * scale + 1e-6, (name, (g_fast - g_ref).abs().max(), scale)
+
+
+@pytest.mark.parametrize("outputs", [("rgb",), ("depth",), ("alpha",), ("rgb", "alpha")])
+def test_a_loss_on_some_outputs_gets_the_references_gradients(outputs):
+    # The outputs without a gradient reach the backward as None (read as zero, not made): each on its own.
+    g = shell_scene(30, seed=41, dtype=F32)
+    poses = torch.stack([yaw_pose(0.0, dtype=F32), yaw_pose(1.5, (0.1, 0.0, 0.2), dtype=F32)])
+    _assert_match(*_both(g, poses, 16, 32, background=None, outputs=outputs))
+
+
+def test_outputs_are_planar_contiguous_tensors():
+    g = shell_scene(10, seed=42, dtype=F32).to(DEVICE)
+    out = render_equirect(g, torch.eye(4, device=DEVICE), 8, 16, backend="triton")
+    assert out.rgb.shape == (3, 8, 16) and out.rgb.is_contiguous() and out.depth.is_contiguous()
+    assert out.alpha.is_contiguous()
 
 
 def test_auto_picks_triton_on_cuda_and_not_on_the_cpu():

@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings, read_count
-from .rasterize import TileBins, pack_projected, unpack_composited
+from .rasterize import TileBins, pack_projected
 from .triton_binning import bin_to_tiles_by_key
 
 __all__ = ["triton_available", "triton_backend", "composite_triton", "FORWARDS", "FORWARD", "COMPACTIONS",
@@ -79,35 +79,52 @@ def queue_checks(gaussians, c2w: Tensor) -> list[Tensor] | None:
 
 
 class _TritonComposite(torch.autograd.Function):
+    """Compositing on Triton: packed rows and bins -> ``rgb (C, 3, H, W)``, ``depth (C, H, W)``, ``alpha (C, H, W)``
+    (float32, each its own contiguous tensor)."""
+
     @staticmethod
-    def forward(ctx, packed, pair_gaussian, rows, cols, tile_start, num_pixels, height, width, tiles_x, tiles_y, wrap_u,
-                settings, lean=0):
+    def forward(ctx, packed, pair_gaussian, rows, cols, tile_start, num_cameras, height, width, tiles_x, tiles_y,
+                wrap_u, settings, lean=0):
         from . import triton_kernels as kernels
 
         # Every pixel is written: one program per tile of every camera, empty tiles included.
-        out = torch.empty(num_pixels, 5, dtype=torch.float32, device=packed.device)
+        empty = dict(dtype=torch.float32, device=packed.device)
+        rgb = torch.empty(num_cameras, 3, height, width, **empty)
+        depth, alpha = (torch.empty(num_cameras, height, width, **empty) for _ in range(2))
         grid = (len(tile_start) - 1,)
         args = (height, width, tiles_x, tiles_x * tiles_y, settings.sigma_extent**2, settings.alpha_max,
                 settings.alpha_min, settings.transmittance_min)
         if grid[0] > 0:
-            kernels.composite_forward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, out, *args,
-                                                   TILE=settings.tile_size, WRAP_U=bool(wrap_u), LEAN=lean)
-        ctx.save_for_backward(packed, pair_gaussian, rows, cols, tile_start, out)
+            kernels.composite_forward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha,
+                                                   *args, TILE=settings.tile_size, WRAP_U=bool(wrap_u), LEAN=lean)
+        ctx.save_for_backward(packed, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha)
         ctx.args, ctx.tile, ctx.wrap_u, ctx.lean = args, settings.tile_size, bool(wrap_u), lean
-        return out
+        ctx.set_materialize_grads(False)  # an output without a gradient (often alpha) is read as zero, not made
+        return rgb, depth, alpha
 
     @staticmethod
-    def backward(ctx, grad_out):
+    def backward(ctx, grad_rgb, grad_depth, grad_alpha):
         from . import triton_kernels as kernels
 
-        packed, pair_gaussian, rows, cols, tile_start, out = ctx.saved_tensors
+        packed, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha = ctx.saved_tensors
         grad_packed = torch.zeros_like(packed)
         grid = (len(tile_start) - 1,)
-        args = (packed, pair_gaussian, rows, cols, tile_start, out, grad_out.float().contiguous(), grad_packed,
-                *ctx.args)
-        if grid[0] > 0:
-            kernels.composite_backward_kernel[grid](*args, TILE=ctx.tile, WRAP_U=ctx.wrap_u, LEAN=ctx.lean)
+        grads = [out if grad is None else grad.float().contiguous()  # (a placeholder where None: never read)
+                 for grad, out in ((grad_rgb, rgb), (grad_depth, depth), (grad_alpha, alpha))]
+        has = [int(grad is not None) for grad in (grad_rgb, grad_depth, grad_alpha)]
+        if grid[0] > 0 and any(has):
+            kernels.composite_backward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha,
+                                                    *grads, grad_packed, *has, *ctx.args, TILE=ctx.tile,
+                                                    WRAP_U=ctx.wrap_u, LEAN=ctx.lean)
         return (grad_packed,) + (None,) * 12
+
+
+def _finish(rgb: Tensor, depth: Tensor, alpha: Tensor, dtype: torch.dtype, background: Tensor | None):
+    """The compositing's outputs in the render's dtype, over ``background`` (``(3,)`` or ``(C, 3)``) where given."""
+    rgb, depth, alpha = rgb.to(dtype), depth.to(dtype), alpha.to(dtype)
+    if background is not None:
+        rgb = rgb + (1 - alpha)[:, None] * background.to(rgb.dtype).view(-1, 3, 1, 1)
+    return rgb, depth, alpha
 
 
 def composite_triton(
@@ -126,9 +143,9 @@ def composite_triton(
     packed, layout, dtype = _packed_rows(proj)
     out = _TritonComposite.apply(
         packed, bins.gaussian.contiguous(), bins.rows.contiguous(), bins.cols.contiguous(),
-        tile_start, c * h * w, h, w, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings, layout,
-    ).to(dtype)
-    return unpack_composited(out, proj, background)
+        tile_start, c, h, w, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings, layout,
+    )
+    return _finish(*out, dtype, background)
 
 
 def triton_backend(proj: ProjectedGaussians, settings: RasterSettings, background: Tensor | None = None):
@@ -164,10 +181,9 @@ def composite_lean(proj: ProjectedGaussians, bins, settings: RasterSettings, bac
     """Stage 4 of the ``"lean"`` forward on :class:`.triton_binning.LeanBins` (complete only where their pair
     count fits their capacity). Returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
     packed, layout, dtype = _packed_rows(proj)
-    h, w, c = proj.height, proj.width, proj.num_cameras
-    out = _TritonComposite.apply(packed, bins.gaussian, bins.rows, bins.cols, bins.tile_start, c * h * w, h, w,
-                                 bins.tiles_x, bins.tiles_y, proj.wrap_u, settings, layout)
-    return unpack_composited(out.to(dtype), proj, background)
+    out = _TritonComposite.apply(packed, bins.gaussian, bins.rows, bins.cols, bins.tile_start, proj.num_cameras,
+                                 proj.height, proj.width, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings, layout)
+    return _finish(*out, dtype, background)
 
 
 def _packed_rows(proj: ProjectedGaussians) -> tuple[Tensor, int, torch.dtype]:

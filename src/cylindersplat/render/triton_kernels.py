@@ -11,10 +11,11 @@ depth order. The rules are the reference's (:mod:`.rasterize`): a pixel gets a f
 all later ones are dropped. A tile stops early once all its pixels have terminated.
 
 Packed Gaussian rows (``M x 11``, float32): ``[u, v, A, B, C, opacity, r, g, b, depth, 1]``; with the
-constant ``LEAN=1`` (the lean forward, :data:`.triton_backend.FORWARD`) ``M x 12``: the projection's rows
-``[u, v, A, B, C, extent u, extent v, depth]`` followed by ``[opacity, r, g, b]`` - one concatenation of the
-projection's output, whose gradient goes back to it whole. :func:`_column` maps the ten parameters to their
-columns.
+constant ``LEAN=1`` (the Triton projection's rows, either forward of :data:`.triton_backend.FORWARD`) ``M x 12``: the
+projection's rows ``[u, v, A, B, C, extent u, extent v, depth]`` followed by ``[opacity, r, g, b]`` - one
+concatenation of the projection's output, whose gradient goes back to it whole. :func:`_column` maps the ten
+parameters to their columns. The outputs are the render's own tensors: rgb planar ``(C, 3, H, W)``, depth and alpha
+``(C, H, W)``, float32 and contiguous (no slices of an interleaved buffer: their gradients come back as they are).
 """
 
 from __future__ import annotations
@@ -110,19 +111,26 @@ def _add_gradients(gp, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, o, LEAN: tl.const
 
 
 @triton.jit
-def _store_pixels(out_ptr, pixel, inside, acc_r, acc_g, acc_b, acc_d, acc_a):
-    """A forward kernel's output per pixel: rgb, depth and alpha (= 1 - final transmittance), 5 values."""
-    optr = out_ptr + pixel * 5
-    tl.store(optr + 0, acc_r, mask=inside)
-    tl.store(optr + 1, acc_g, mask=inside)
-    tl.store(optr + 2, acc_b, mask=inside)
-    tl.store(optr + 3, acc_d, mask=inside)
-    tl.store(optr + 4, acc_a, mask=inside)
+def _rgb_offset(pixel, tile, tiles_per_camera, plane):
+    """Where a pixel's red value lies in the planar ``(C, 3, H, W)`` colour image (green one ``plane`` later, blue
+    two): ``pixel`` counts ``(C, H, W)``."""
+    return pixel + 2 * (tile // tiles_per_camera) * plane
+
+
+@triton.jit
+def _store_pixels(rgb_ptr, depth_ptr, alpha_ptr, pixel, rgb_at, plane, inside, acc_r, acc_g, acc_b, acc_d, acc_a):
+    """A forward kernel's output per pixel: rgb (planar, ``(C, 3, H, W)``), depth and alpha (= 1 - final
+    transmittance, ``(C, H, W)``)."""
+    tl.store(rgb_ptr + rgb_at, acc_r, mask=inside)
+    tl.store(rgb_ptr + rgb_at + plane, acc_g, mask=inside)
+    tl.store(rgb_ptr + rgb_at + 2 * plane, acc_b, mask=inside)
+    tl.store(depth_ptr + pixel, acc_d, mask=inside)
+    tl.store(alpha_ptr + pixel, acc_a, mask=inside)
 
 
 @triton.jit
 def composite_forward_kernel(
-    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr,
+    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, rgb_ptr, depth_ptr, alpha_ptr,
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, LEAN: tl.constexpr,
@@ -153,28 +161,35 @@ def composite_forward_kernel(
         acc_a += w
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
         p += 1
-    _store_pixels(out_ptr, pixel, inside, acc_r, acc_g, acc_b, acc_d, acc_a)
+    plane = height * width
+    _store_pixels(rgb_ptr, depth_ptr, alpha_ptr, pixel, _rgb_offset(pixel, tile, tiles_per_camera, plane), plane,
+                  inside, acc_r, acc_g, acc_b, acc_d, acc_a)
 
 
 @triton.jit
-def _output_gradients(grad_out_ptr, out_ptr, pixel, inside):
-    """The pixels' output gradients ``g`` (rgb, depth, alpha) and ``S = g . out`` (all contributions)."""
-    gptr = grad_out_ptr + pixel * 5
-    g_r = tl.load(gptr + 0, mask=inside, other=0.0)
-    g_g = tl.load(gptr + 1, mask=inside, other=0.0)
-    g_b = tl.load(gptr + 2, mask=inside, other=0.0)
-    g_d = tl.load(gptr + 3, mask=inside, other=0.0)
-    g_a = tl.load(gptr + 4, mask=inside, other=0.0)
-    optr = out_ptr + pixel * 5
-    total = (g_r * tl.load(optr + 0, mask=inside, other=0.0) + g_g * tl.load(optr + 1, mask=inside, other=0.0)
-             + g_b * tl.load(optr + 2, mask=inside, other=0.0) + g_d * tl.load(optr + 3, mask=inside, other=0.0)
-             + g_a * tl.load(optr + 4, mask=inside, other=0.0))
+def _output_gradients(rgb_ptr, depth_ptr, alpha_ptr, grad_rgb_ptr, grad_depth_ptr, grad_alpha_ptr, has_rgb, has_depth,
+                      has_alpha, pixel, rgb_at, plane, inside):
+    """The pixels' output gradients ``g`` (rgb, depth, alpha; zero for an output without one: ``has_*`` 0) and
+    ``S = g . out`` (all contributions). The gradients lie as the outputs do (planar rgb, contiguous)."""
+    none = tl.zeros_like(pixel)  # (the flags as blocks: a scalar flag in a mask is refused by the interpreter)
+    on_rgb = inside & (none + has_rgb != 0)
+    g_r = tl.load(grad_rgb_ptr + rgb_at, mask=on_rgb, other=0.0)
+    g_g = tl.load(grad_rgb_ptr + rgb_at + plane, mask=on_rgb, other=0.0)
+    g_b = tl.load(grad_rgb_ptr + rgb_at + 2 * plane, mask=on_rgb, other=0.0)
+    g_d = tl.load(grad_depth_ptr + pixel, mask=inside & (none + has_depth != 0), other=0.0)
+    g_a = tl.load(grad_alpha_ptr + pixel, mask=inside & (none + has_alpha != 0), other=0.0)
+    total = (g_r * tl.load(rgb_ptr + rgb_at, mask=inside, other=0.0)
+             + g_g * tl.load(rgb_ptr + rgb_at + plane, mask=inside, other=0.0)
+             + g_b * tl.load(rgb_ptr + rgb_at + 2 * plane, mask=inside, other=0.0)
+             + g_d * tl.load(depth_ptr + pixel, mask=inside, other=0.0)
+             + g_a * tl.load(alpha_ptr + pixel, mask=inside, other=0.0))
     return g_r, g_g, g_b, g_d, g_a, total
 
 
-@triton.jit
+@triton.jit(do_not_specialize=["has_rgb", "has_depth", "has_alpha"])  # one compilation whichever outputs have one
 def composite_backward_kernel(
-    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, out_ptr, grad_out_ptr, grad_packed_ptr,
+    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, rgb_ptr, depth_ptr, alpha_ptr, grad_rgb_ptr,
+    grad_depth_ptr, grad_alpha_ptr, grad_packed_ptr, has_rgb, has_depth, has_alpha,
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, LEAN: tl.constexpr,
@@ -188,7 +203,10 @@ def composite_backward_kernel(
     row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
     end = tl.load(tile_start_ptr + tile + 1)
-    g_r, g_g, g_b, g_d, g_a, total = _output_gradients(grad_out_ptr, out_ptr, pixel, inside)
+    plane = height * width
+    g_r, g_g, g_b, g_d, g_a, total = _output_gradients(
+        rgb_ptr, depth_ptr, alpha_ptr, grad_rgb_ptr, grad_depth_ptr, grad_alpha_ptr, has_rgb, has_depth, has_alpha,
+        pixel, _rgb_offset(pixel, tile, tiles_per_camera, plane), plane, inside)
     trans = tl.where(inside, 1.0, 0.0)
     alive = inside
     prefix = tl.zeros([TILE * TILE], dtype=tl.float32)
