@@ -125,7 +125,8 @@ def bin_pairs(order, spans, camera, num_cameras, tiles_x, tiles_y, tile):
     sorted_spans = np.empty((len(order), spans.shape[1]), np.int64)
     sorted_camera = np.empty(len(order), np.int64)
     for idx in range(len(order)):
-        sorted_spans[idx] = spans[order[idx]]
+        for j in range(spans.shape[1]):  # (element loops: row slices cost more than their copies, gather_pairs)
+            sorted_spans[idx, j] = spans[order[idx], j]
         sorted_camera[idx] = camera[order[idx]]
     _visit_pairs(sorted_spans, sorted_camera, per_camera, tiles_x, tile, start, none, none, none, False)
     for t in range(len(start) - 1):
@@ -370,14 +371,18 @@ def composite_backward(packed, pairs, tile_start, spans, centers, consts, height
 def gather_pairs(packed, spans, pairs):
     """Each pair's packed row and spans in pair order, and pairs renumbered to them (``2 * p + interval``): the
     compositing loops then read memory in order instead of jumping between Gaussians (about a fifth faster)."""
-    num = len(pairs)
-    pair_packed = np.empty((num, packed.shape[1]), packed.dtype)
-    pair_spans = np.empty((num, spans.shape[1]), np.int64)
+    num, columns, span_columns = len(pairs), packed.shape[1], spans.shape[1]
+    pair_packed = np.empty((num, columns), packed.dtype)
+    pair_spans = np.empty((num, span_columns), np.int64)
     local = np.empty(num, np.int64)
     for p in prange(num):
         g = pairs[p] >> 1
-        pair_packed[p] = packed[g]
-        pair_spans[p] = spans[g]
+        # Element loops, not row slices (``pair_packed[p] = packed[g]``): 4x faster here (1.9 against 8 ms for 0.2 M
+        # pairs of 11 columns), the slices' views cost more than their copies.
+        for j in range(columns):
+            pair_packed[p, j] = packed[g, j]
+        for j in range(span_columns):
+            pair_spans[p, j] = spans[g, j]
         local[p] = 2 * p + (pairs[p] & 1)
     return pair_packed, pair_spans, local
 
