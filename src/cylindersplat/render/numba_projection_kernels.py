@@ -22,15 +22,18 @@ from numba import njit, prange
 
 _AXIS_EPS = 1e-12  # as geometry.equirect.ray_to_uv: (angle from the vertical axis)^2 below which u is fixed
 _PI = math.pi
+# Gaussians per parallel iteration: each iteration allocates its small work arrays once, not once per Gaussian (a
+# heap allocation per array per Gaussian cost about as much as the arithmetic).
+_CHUNK = 256
 
 
 @njit(cache=True)
-def _rotation(qw, qx, qy, qz):
-    """Normalised quaternion (zero -> zero rotation, as geometry.rotations), its norm and matrix R (row-major)."""
+def _rotation(qw, qx, qy, qz, rot):
+    """Normalised quaternion (zero -> zero rotation, as geometry.rotations), its norm and matrix R (row-major, written
+    into ``rot`` (9,) and returned)."""
     norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     inv = 1.0 / max(norm, 1e-12)
     w, x, y, z = qw * inv, qx * inv, qy * inv, qz * inv
-    rot = np.empty(9)
     rot[0] = 1.0 - 2.0 * (y * y + z * z)
     rot[1] = 2.0 * (x * y - w * z)
     rot[2] = 2.0 * (x * z + w * y)
@@ -254,25 +257,27 @@ def project_forward(means, scales, quats, opacities, cams, num_views, model, con
     height, width, alpha_min = consts[0], consts[1], consts[10]
     geo = np.empty((num_b, num_views, num_n, 8))
     valid = np.empty((num_b, num_views, num_n), np.bool_)
-    for i in prange(num_b * num_n):
-        b, n = i // num_n, i % num_n
-        _, _, _, _, _, rot = _rotation(quats[b, n, 0], quats[b, n, 1], quats[b, n, 2], quats[b, n, 3])
-        wm, jac, t = np.empty(9), np.empty(6), np.empty(6)
-        for view in range(num_views):
-            px, py, pz = _camera_frame(means, scales, cams, b, n, b * num_views + view, rot, wm)
-            u, v, depth, ok = _pixel_map(px, py, pz, consts, model, jac)
-            _times_wm(jac, wm, t)
-            out = geo[b, view, n]
-            if _footprint_det(t, consts[8]) <= 1e-12:  # projection.MIN_FOOTPRINT_DET: zero area draws nothing
-                out[:] = 0.0
-                valid[b, view, n] = False
-                continue
-            ca, cb, cc, eu, ev = _footprint(t, consts)
-            ok = ok and opacities[b, n] >= alpha_min and v - ev < height and v + ev > 0.0
-            if model != 0:  # images that do not wrap around
-                ok = ok and u - eu < width and u + eu > 0.0
-            out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7] = u, v, ca, cb, cc, eu, ev, depth
-            valid[b, view, n] = ok
+    num = num_b * num_n
+    for chunk in prange((num + _CHUNK - 1) // _CHUNK):
+        rot, wm, jac, t = np.empty(9), np.empty(9), np.empty(6), np.empty(6)
+        for i in range(chunk * _CHUNK, min(num, chunk * _CHUNK + _CHUNK)):
+            b, n = i // num_n, i % num_n
+            _rotation(quats[b, n, 0], quats[b, n, 1], quats[b, n, 2], quats[b, n, 3], rot)
+            for view in range(num_views):
+                px, py, pz = _camera_frame(means, scales, cams, b, n, b * num_views + view, rot, wm)
+                u, v, depth, ok = _pixel_map(px, py, pz, consts, model, jac)
+                _times_wm(jac, wm, t)
+                out = geo[b, view, n]
+                if _footprint_det(t, consts[8]) <= 1e-12:  # projection.MIN_FOOTPRINT_DET: zero area draws nothing
+                    out[:] = 0.0
+                    valid[b, view, n] = False
+                    continue
+                ca, cb, cc, eu, ev = _footprint(t, consts)
+                ok = ok and opacities[b, n] >= alpha_min and v - ev < height and v + ev > 0.0
+                if model != 0:  # images that do not wrap around
+                    ok = ok and u - eu < width and u + eu > 0.0
+                out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7] = u, v, ca, cb, cc, eu, ev, depth
+                valid[b, view, n] = ok
     return geo, valid
 
 
@@ -281,45 +286,47 @@ def project_backward(means, scales, quats, cams, valid, grad_geo, num_views, mod
     """Gradients ``(B, N, 10)``: ``[mean (3), scale (3), quaternion (4)]`` summed over cameras (culled pairs: 0)."""
     num_b, num_n = means.shape[0], means.shape[1]
     grads = np.zeros((num_b, num_n, 10))
-    for i in prange(num_b * num_n):
-        b, n = i // num_n, i % num_n
-        qw, qx, qy, qz, qn, rot = _rotation(quats[b, n, 0], quats[b, n, 1], quats[b, n, 2], quats[b, n, 3])
-        wm, jac, t, g_t, g_wm, g_rot = np.empty(9), np.empty(6), np.empty(6), np.empty(6), np.empty(9), np.empty(9)
-        for view in range(num_views):
-            if not valid[b, view, n]:
-                continue
-            cam = b * num_views + view
-            px, py, pz = _camera_frame(means, scales, cams, b, n, cam, rot, wm)
-            _pixel_map(px, py, pz, consts, model, jac)
-            _times_wm(jac, wm, t)
-            gg = grad_geo[b, view, n]
-            _footprint_vjp(t, consts, gg[2], gg[3], gg[4], gg[5], gg[6], g_t)
-            # T = J WM:  dJ[r, i] = sum_j dT[r, j] WM[i, j];  dWM[i, j] = sum_r J[r, i] dT[r, j]
-            g_jac = np.empty(6)
-            for r in range(2):
+    num = num_b * num_n
+    for chunk in prange((num + _CHUNK - 1) // _CHUNK):
+        rot, wm, jac, t, g_t, g_wm, g_rot, g_jac = (np.empty(9), np.empty(9), np.empty(6), np.empty(6), np.empty(6),
+                                                     np.empty(9), np.empty(9), np.empty(6))
+        for i in range(chunk * _CHUNK, min(num, chunk * _CHUNK + _CHUNK)):
+            b, n = i // num_n, i % num_n
+            qw, qx, qy, qz, qn, _ = _rotation(quats[b, n, 0], quats[b, n, 1], quats[b, n, 2], quats[b, n, 3], rot)
+            for view in range(num_views):
+                if not valid[b, view, n]:
+                    continue
+                cam = b * num_views + view
+                px, py, pz = _camera_frame(means, scales, cams, b, n, cam, rot, wm)
+                _pixel_map(px, py, pz, consts, model, jac)
+                _times_wm(jac, wm, t)
+                gg = grad_geo[b, view, n]
+                _footprint_vjp(t, consts, gg[2], gg[3], gg[4], gg[5], gg[6], g_t)
+                # T = J WM:  dJ[r, i] = sum_j dT[r, j] WM[i, j];  dWM[i, j] = sum_r J[r, i] dT[r, j]
+                for r in range(2):
+                    for k in range(3):
+                        g_jac[3 * r + k] = (g_t[3 * r] * wm[3 * k] + g_t[3 * r + 1] * wm[3 * k + 1]
+                                            + g_t[3 * r + 2] * wm[3 * k + 2])
+                if model == 0:
+                    g_px, g_py, g_pz = _equirect_map_vjp(px, py, pz, consts, gg[0], gg[1], gg[7], g_jac)
+                else:
+                    g_px, g_py, g_pz = _pinhole_map_vjp(px, py, pz, consts, gg[0], gg[1], gg[7], g_jac)
                 for k in range(3):
-                    g_jac[3 * r + k] = (g_t[3 * r] * wm[3 * k] + g_t[3 * r + 1] * wm[3 * k + 1]
-                                        + g_t[3 * r + 2] * wm[3 * k + 2])
-            if model == 0:
-                g_px, g_py, g_pz = _equirect_map_vjp(px, py, pz, consts, gg[0], gg[1], gg[7], g_jac)
-            else:
-                g_px, g_py, g_pz = _pinhole_map_vjp(px, py, pz, consts, gg[0], gg[1], gg[7], g_jac)
-            for k in range(3):
-                for j in range(3):
-                    g_wm[3 * k + j] = jac[k] * g_t[j] + jac[3 + k] * g_t[3 + j]
-            # WM = Rc^T R diag(s):  d(R diag(s))[k, j] = sum_i Rc[k, i] dWM[i, j]
-            c = cams[cam]
-            for k in range(3):
-                for j in range(3):
-                    gm = c[3 * k] * g_wm[j] + c[3 * k + 1] * g_wm[3 + j] + c[3 * k + 2] * g_wm[6 + j]
-                    grads[b, n, 3 + j] += gm * rot[3 * k + j]
-                    g_rot[3 * k + j] = gm * scales[b, n, j]
-            g_qw, g_qx, g_qy, g_qz = _rotation_vjp(qw, qx, qy, qz, qn, g_rot)
-            grads[b, n, 6] += g_qw
-            grads[b, n, 7] += g_qx
-            grads[b, n, 8] += g_qy
-            grads[b, n, 9] += g_qz
-            # p = W (mu - t):  d mu = Rc dp
-            for k in range(3):
-                grads[b, n, k] += c[3 * k] * g_px + c[3 * k + 1] * g_py + c[3 * k + 2] * g_pz
+                    for j in range(3):
+                        g_wm[3 * k + j] = jac[k] * g_t[j] + jac[3 + k] * g_t[3 + j]
+                # WM = Rc^T R diag(s):  d(R diag(s))[k, j] = sum_i Rc[k, i] dWM[i, j]
+                c = cams[cam]
+                for k in range(3):
+                    for j in range(3):
+                        gm = c[3 * k] * g_wm[j] + c[3 * k + 1] * g_wm[3 + j] + c[3 * k + 2] * g_wm[6 + j]
+                        grads[b, n, 3 + j] += gm * rot[3 * k + j]
+                        g_rot[3 * k + j] = gm * scales[b, n, j]
+                g_qw, g_qx, g_qy, g_qz = _rotation_vjp(qw, qx, qy, qz, qn, g_rot)
+                grads[b, n, 6] += g_qw
+                grads[b, n, 7] += g_qx
+                grads[b, n, 8] += g_qy
+                grads[b, n, 9] += g_qz
+                # p = W (mu - t):  d mu = Rc dp
+                for k in range(3):
+                    grads[b, n, k] += c[3 * k] * g_px + c[3 * k + 1] * g_py + c[3 * k + 2] * g_pz
     return grads
