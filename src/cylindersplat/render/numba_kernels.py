@@ -90,10 +90,11 @@ def tile_spans(uv, extent, height, width, tile, wrap_u, half):
 
 
 @njit(cache=True)
-def _visit_pairs(spans, camera, per_camera, tiles_x, tile, start, pairs, fill, order, emit):
-    """Walk every pair of the Gaussians ``spans``/``camera`` (in depth order): count them per tile (``emit``
-    False) or write them as ``2 * order[idx] + interval`` (``emit`` True)."""
-    for idx in range(len(spans)):
+def _visit_pairs(spans, camera, per_camera, tiles_x, tile, lo, hi, counts, pairs, fill, order, emit):
+    """Walk every pair of the Gaussians ``lo .. hi - 1`` of ``spans``/``camera`` (in depth order): count them per
+    tile into ``counts`` (``emit`` False) or write them as ``2 * order[idx] + interval`` at ``fill`` (``emit``
+    True)."""
+    for idx in range(lo, hi):
         i0, i1 = spans[idx, 0], spans[idx, 1]
         if i1 < i0:
             continue
@@ -109,31 +110,50 @@ def _visit_pairs(spans, camera, per_camera, tiles_x, tile, start, pairs, fill, o
                         pairs[fill[t]] = 2 * order[idx] + interval
                         fill[t] += 1
                     else:
-                        start[t + 1] += 1
+                        counts[t] += 1
 
 
-@njit(cache=True)
+# Runs of the depth order counted and emitted in parallel (each run's pairs go after the previous runs' in every
+# tile, so the pairs come out as the serial counting sort puts them).
+_BIN_RUNS = 8
+
+
+@njit(parallel=True, cache=True)
 def bin_pairs(order, spans, camera, num_cameras, tiles_x, tiles_y, tile):
     """Pairs sorted by (tile, depth): ``tile_start (T + 1,)`` and ``pairs (P,)`` = ``2 * row + interval``.
 
     ``order``: rows by depth (ties by row). A counting sort by tile keeps that order within each tile."""
     per_camera = tiles_x * tiles_y
-    start = np.zeros(num_cameras * per_camera + 1, np.int64)
-    none = np.empty(0, np.int64)
+    num_tiles = num_cameras * per_camera
+    num = len(order)
     # Both passes read the Gaussians in depth order: gather them into that order once (independent loads)
     # rather than jumping through memory twice.
-    sorted_spans = np.empty((len(order), spans.shape[1]), np.int64)
-    sorted_camera = np.empty(len(order), np.int64)
-    for idx in range(len(order)):
+    sorted_spans = np.empty((num, spans.shape[1]), np.int64)
+    sorted_camera = np.empty(num, np.int64)
+    for idx in prange(num):
         for j in range(spans.shape[1]):  # (element loops: row slices cost more than their copies, gather_pairs)
             sorted_spans[idx, j] = spans[order[idx], j]
         sorted_camera[idx] = camera[order[idx]]
-    _visit_pairs(sorted_spans, sorted_camera, per_camera, tiles_x, tile, start, none, none, none, False)
-    for t in range(len(start) - 1):
-        start[t + 1] += start[t]
-    pairs = np.empty(start[-1], np.int64)
-    fill = start[:-1].copy()
-    _visit_pairs(sorted_spans, sorted_camera, per_camera, tiles_x, tile, start, pairs, fill, order, True)
+    run = (num + _BIN_RUNS - 1) // _BIN_RUNS
+    counts = np.zeros((_BIN_RUNS, num_tiles), np.int64)
+    none = np.empty(0, np.int64)
+    for r in prange(_BIN_RUNS):
+        _visit_pairs(sorted_spans, sorted_camera, per_camera, tiles_x, tile, r * run, min(num, r * run + run),
+                     counts[r], none, none, order, False)
+    # Each tile's first place, and each run's first place in each tile (after the earlier runs').
+    start = np.empty(num_tiles + 1, np.int64)
+    fill = np.empty((_BIN_RUNS, num_tiles), np.int64)
+    placed = 0
+    for t in range(num_tiles):
+        start[t] = placed
+        for r in range(_BIN_RUNS):
+            fill[r, t] = placed
+            placed += counts[r, t]
+    start[num_tiles] = placed
+    pairs = np.empty(placed, np.int64)
+    for r in prange(_BIN_RUNS):
+        _visit_pairs(sorted_spans, sorted_camera, per_camera, tiles_x, tile, r * run, min(num, r * run + run),
+                     none, pairs, fill[r], order, True)
     return start, pairs
 
 
