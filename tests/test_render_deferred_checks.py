@@ -86,8 +86,8 @@ def test_a_failed_check_stops_the_render_at_the_one_read_before_its_buffers_are_
 
     g, c2w, _ = _nan_mean(_scene(), torch.eye(4))
     sized = []
-    original = triton_binning._bin_fused
-    monkeypatch.setattr(triton_binning, "_bin_fused", lambda *args: sized.append(args[4]) or original(*args))
+    original = triton_binning._write_bins
+    monkeypatch.setattr(triton_binning, "_write_bins", lambda *args: sized.append(args[4]) or original(*args))
     reads = []
     read = projection.DeferredValues.read_with
     monkeypatch.setattr(projection.DeferredValues, "read_with", lambda self, n: reads.append(n) or read(self, n))

@@ -110,7 +110,7 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
         row = {"num": num, "size": f"{h}x{w}", "device": str(device), "renderer": name}
         if device.type == "cuda":
             torch.cuda.reset_peak_memory_stats()
-        # The variant holds for the backward too (it reads the backward variant when it runs).
+        # The variant holds for the whole timing: forward and backward both run inside it.
         with triton_variant(*variant) if variant else contextlib.nullcontext():
             try:
                 row["forward_ms"], row["fwd_bwd_ms"] = _forward_and_backward_ms(fn, params, device, repeats)

@@ -30,7 +30,7 @@ __all__ = ["triton_available", "triton_backend", "composite_triton", "FORWARDS",
            "COMPACTION", "CHECKS", "CHECK", "takes_every_pair", "queue_checks"]
 
 # The forward path's variant: "default" (:func:`.triton_binning.bin_to_tiles_by_key`, which reads the pair count on
-# the host before sizing its buffers, then compositing) or "lean" (:func:`_lean_backend`: the fused binning's
+# the host before sizing its buffers, then compositing) or "lean" (:func:`_lean_backend`: the binning's
 # kernels in buffers of a cached, growing capacity, no host synchronisation before the compositing is queued; the
 # pair count is read once after it, and the binning and compositing rerun with a larger capacity where the pairs
 # did not fit). The same images and gradients. Module-level: the benchmark switches it.

@@ -43,13 +43,13 @@ def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16) -> TileBi
         # Gaussians in depth order (ties by row): their counts and places in that order.
         by_depth = torch.sort(proj.depth.detach().float(), stable=True).indices
     centres = _centres_and_extents(proj)  # once for the binning's three kernels (read in place)
-    counts = _fused_counts(centres, by_depth, tile_size, proj)
+    counts = _depth_order_counts(centres, by_depth, tile_size, proj)
     ends = torch.cumsum(counts, 0)
     total = read_count(proj, ends[-1:]) if len(counts) else 0  # the one host synchronisation: the output size
     tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
     if total == 0:
         return TileBins(*_pair_fields(0, proj.camera.device), tiles_x, tiles_y)
-    return _bin_fused(proj, centres, by_depth, ends, total, tile_size)
+    return _write_bins(proj, centres, by_depth, ends, total, tile_size)
 
 
 def tile_key_dtype(num_tiles: int) -> torch.dtype:
@@ -80,7 +80,7 @@ def _centres_and_extents(proj) -> tuple[Tensor, Tensor, int, int]:
     return uv.to(dtype).contiguous(), ext.to(dtype).contiguous(), 2, 2
 
 
-def _fused_counts(centres, by_depth, tile_size, proj):
+def _depth_order_counts(centres, by_depth, tile_size, proj):
     """Pair counts of the Gaussians in depth order, from their ``centres`` and extents (one kernel)."""
     from . import triton_binning_kernels as kernels
 
@@ -94,7 +94,7 @@ def _fused_counts(centres, by_depth, tile_size, proj):
     return counts
 
 
-def _bin_fused(proj, centres, by_depth, ends, total, tile_size) -> TileBins:
+def _write_bins(proj, centres, by_depth, ends, total, tile_size) -> TileBins:
     from . import triton_binning_kernels as kernels
 
     device = proj.camera.device
