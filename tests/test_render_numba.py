@@ -204,6 +204,26 @@ def test_pairs_are_the_references_in_the_same_order():
     assert torch.equal(torch.from_numpy(fast.tile_start[1:] - fast.tile_start[:-1]), counts)
 
 
+@pytest.mark.parametrize("num", [0, 1, 7, 5000])
+def test_depth_order_is_a_stable_sort_of_the_depths(num):
+    """The radix sort against numpy's stable argsort: ties by row (repeated depths), and for signed zeros, negatives
+    and infinities the order of their bit patterns as int32 (what sorting the 64-bit keys gave before)."""
+    import numpy as np
+
+    from cylindersplat.render.numba_backend import _depth_order
+
+    rng = np.random.default_rng(num)
+    depth = rng.uniform(0.1, 30.0, num).astype(np.float32)
+    depth[::3] = depth[:1]  # many ties
+    order = _depth_order(depth)
+    assert order.dtype == np.int64
+    np.testing.assert_array_equal(order, np.argsort(depth, kind="stable"))
+    if num > 5:
+        depth[1:6] = [-2.0, -0.0, 0.0, np.inf, 3e-39]  # a negative, signed zeros, infinity, a subnormal
+        keys = (depth.view(np.int32).astype(np.int64) << 32) | np.arange(num, dtype=np.int64)
+        np.testing.assert_array_equal(_depth_order(depth), np.sort(keys) & 0xFFFFFFFF)
+
+
 def test_batched_rendering_matches_per_item_rendering():
     a, b = shell_scene(20, seed=4, dtype=F32), shell_scene(20, seed=5, dtype=F32)
     batched = Gaussians(**{k: torch.stack((getattr(a, k), getattr(b, k))) for k in a.tensors()})

@@ -69,11 +69,10 @@ def _numpy(t: Tensor, dtype: torch.dtype | None = None) -> np.ndarray:
 
 
 def _depth_order(depth: np.ndarray) -> np.ndarray:
-    """Rows by depth, ties by row (the reference's stable ranking). float32: one sort of 64-bit keys
-    ``bits(depth) << 32 | row`` (depths are positive, so their bits sort as the values do)."""
-    if depth.dtype == np.float32 and len(depth) < 2**31:
-        keys = (depth.view(np.int32).astype(np.int64) << 32) | np.arange(len(depth), dtype=np.int64)
-        return np.sort(keys) & 0xFFFFFFFF
+    """Rows by depth, ties by row (the reference's stable ranking). float32: a radix sort of the depths' bits
+    (:func:`.numba_kernels.depth_order`; depths are positive, so their bits sort as the values do)."""
+    if depth.dtype == np.float32:
+        return _kernels().depth_order(depth)
     return np.argsort(depth, kind="stable")
 
 

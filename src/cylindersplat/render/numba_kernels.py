@@ -43,7 +43,7 @@ def _clamp_to_int(x):
     return np.int64(x)
 
 
-@njit(cache=True)
+@njit(parallel=True, cache=True)
 def tile_spans(uv, extent, height, width, tile, wrap_u, half):
     """Per projected Gaussian ``(M, 7)`` int64 ``i0, i1, a0, b0, a1, b1, shift`` (inclusive rows and up to two
     column intervals, ``b < a`` marks an empty one; ``shift``: wrapped minus unwrapped column in the first
@@ -51,7 +51,7 @@ def tile_spans(uv, extent, height, width, tile, wrap_u, half):
     m = uv.shape[0]
     spans = np.zeros((m, 7), np.int64)
     counts = np.zeros(m, np.int64)
-    for k in range(m):
+    for k in prange(m):
         spans[k, 1] = spans[k, 3] = spans[k, 5] = -1
         u, v, eu, ev = uv[k, 0], uv[k, 1], extent[k, 0], extent[k, 1]
         if not (np.isfinite(u) and np.isfinite(v) and np.isfinite(eu) and np.isfinite(ev)):
@@ -112,6 +112,48 @@ def _visit_pairs(spans, camera, per_camera, tiles_x, tile, lo, hi, counts, pairs
                         fill[t] += 1
                     else:
                         counts[t] += 1
+
+
+# The depth sort's digits (four passes of 256 buckets: fewer write streams than 11-bit digits, faster here at 0.1 and
+# 1 M) and its runs of the input, counted and placed in parallel.
+_RADIX_RUNS = 8
+_RADIX_BITS = 8
+_RADIX_DIGITS = 1 << _RADIX_BITS
+
+
+@njit(parallel=True, cache=True)
+def depth_order(depth):
+    """Rows of float32 ``depth`` in the order of ``(bits of depth as int32, row)``: a stable LSD radix sort of the
+    32-bit patterns (positive depths sort by value), four passes, each counted and placed by runs in parallel.
+    3-5x faster than ``np.sort`` of 64-bit ``bits << 32 | row`` keys (one thread), which it equals."""
+    n = len(depth)
+    bits = depth.view(np.uint32)
+    keys, rows = np.empty(n, np.uint32), np.empty(n, np.int64)
+    for i in prange(n):
+        keys[i] = bits[i] ^ np.uint32(0x80000000)  # the int32 order as an unsigned one
+        rows[i] = i
+    next_keys, next_rows = np.empty(n, np.uint32), np.empty(n, np.int64)
+    run = (n + _RADIX_RUNS - 1) // _RADIX_RUNS
+    for shift in range(0, 32, _RADIX_BITS):
+        place = np.zeros((_RADIX_RUNS, _RADIX_DIGITS), np.int64)
+        for r in prange(_RADIX_RUNS):
+            for i in range(r * run, min(n, r * run + run)):
+                place[r, (keys[i] >> shift) & (_RADIX_DIGITS - 1)] += 1
+        total = 0
+        for d in range(_RADIX_DIGITS):  # counts -> each run's first place per digit (after the earlier runs')
+            for r in range(_RADIX_RUNS):
+                count = place[r, d]
+                place[r, d] = total
+                total += count
+        for r in prange(_RADIX_RUNS):
+            for i in range(r * run, min(n, r * run + run)):
+                d = (keys[i] >> shift) & (_RADIX_DIGITS - 1)
+                next_keys[place[r, d]] = keys[i]
+                next_rows[place[r, d]] = rows[i]
+                place[r, d] += 1
+        keys, next_keys = next_keys, keys
+        rows, next_rows = next_rows, rows
+    return rows
 
 
 # Runs of the depth order counted and emitted in parallel (each run's pairs go after the previous runs' in every
