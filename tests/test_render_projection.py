@@ -315,3 +315,33 @@ def _construction_differentiable(g, h, w):
     conic = torch.stack((cov[:, 1, 1], -cov[:, 0, 1], cov[:, 0, 0]), -1) / det[:, None]
     extent = 3 * torch.sqrt(torch.stack((cov[:, 0, 0], cov[:, 1, 1]), -1))
     return uv, cov, conic, extent, g.means.norm(dim=-1)
+
+
+def test_every_pair_visible_skips_the_gathers_with_the_same_pairs_and_gradients():
+    """All pairs visible (a panorama's usual case): the pairs come without gathers, and they are what the gathers by
+    the visible pairs' index give - rows, indices, opacities, view-dependent colours, and their gradients."""
+    from cylindersplat.render.projection import _view_colors, flatten_cameras, project_gaussians
+    from render_scenes import shell_scene
+
+    scenes = [shell_scene(5, seed=s, sh_degree=1) for s in (1, 2)]
+    g = Gaussians(**{k: torch.stack([s.tensors()[k] for s in scenes]).requires_grad_()
+                     for k in scenes[0].tensors()})
+    c2w = torch.stack([torch.stack((yaw_pose(0.3 * b), yaw_pose(1.0, (0.1, 0.0, 0.2 * b)))) for b in range(2)])
+    flat, cams = flatten_cameras(g, c2w)[:2]
+    proj = project_gaussians(flat, cams, Equirect(16, 32), SETTINGS)
+    index = torch.arange(2 * 2 * 5)  # every (b, v, n) pair, camera-major
+    assert proj.visible is None and len(proj.depth) == len(index)
+    gauss, camera = index % 5 + (index // 10) * 5, index // 5
+    torch.testing.assert_close(proj.gaussian, gauss, rtol=0, atol=0)
+    torch.testing.assert_close(proj.camera, camera, rtol=0, atol=0)
+    opacity = flat.opacities.reshape(-1).index_select(0, gauss)
+    color = _view_colors(flat, cams, camera, gauss)
+    torch.testing.assert_close(proj.opacity, opacity, rtol=0, atol=0)
+    torch.testing.assert_close(proj.color, color, rtol=1e-15, atol=1e-15)
+    weights = torch.rand(len(index), 4, generator=torch.Generator().manual_seed(0), dtype=F64)
+    got = torch.autograd.grad((proj.opacity * weights[:, 0] + (proj.color * weights[:, 1:]).sum(-1)).sum(),
+                              (g.opacities, g.sh, g.means))
+    want = torch.autograd.grad((opacity * weights[:, 0] + (color * weights[:, 1:]).sum(-1)).sum(),
+                               (g.opacities, g.sh, g.means))
+    for a, b in zip(got, want):
+        torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-14)

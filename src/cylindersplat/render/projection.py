@@ -325,7 +325,9 @@ def _pairs(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, camera
         visible = valid.sum()
     else:
         index = valid.reshape(-1).nonzero().squeeze(1)
-        geo = geo.index_select(0, index)
+        every_pair = len(index) == len(geo)  # all visible (a panorama's usual case): the pairs need no gathers
+        if not every_pair:
+            geo = geo.index_select(0, index)
     geo = geo.to(gaussians.dtype)
     if every_pair:  # pair (b, v, n) is Gaussian (b, n): broadcasts over the cameras, no gathers (views for one)
         camera, gauss = _dense_pair_indices(num_b, num_v, num_n, valid.device)
