@@ -49,6 +49,46 @@ def test_validate_names_the_problem():
         Gaussians(bad, g.scales, g.rotations, g.opacities, g.sh).validate()
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64, torch.float16, torch.bfloat16])
+def test_value_checks_agree_with_elementwise_checks(dtype):
+    """The checks come from each tensor's min and max: against ``isfinite`` and comparisons element by element, for
+    every bad value in every place of every tensor, the extremes of the type (finite: no alarm), batched and strided
+    tensors, and no Gaussians at all."""
+    big = torch.finfo(dtype).max
+
+    def expected(g):
+        for name, t in g.tensors().items():
+            if not torch.isfinite(t).all():
+                return f"{name} contains non-finite"
+        if (g.scales < 0).any():
+            return "scales must be non-negative"
+        if ((g.opacities < 0) | (g.opacities > 1)).any():
+            return "opacities must lie in"
+        return None
+
+    base = random_gaussians(6, sh_degree=1).to(dtype)
+    base = Gaussians(**{k: torch.stack((v, v.flip(0))) for k, v in base.tensors().items()})  # batched (2, 6, ...)
+    cases = [base, Gaussians(**{k: v[:, :0] for k, v in base.tensors().items()})]
+    for name, t in base.tensors().items():
+        for value in (float("nan"), float("inf"), -float("inf"), big, -big, -1e-3, 1.5):
+            for place in (0, t.numel() // 2, t.numel() - 1):
+                tensors = {k: v.clone() for k, v in base.tensors().items()}
+                tensors[name].view(-1)[place] = value
+                cases.append(Gaussians(**tensors))
+    strided = {k: v.clone() for k, v in base.tensors().items()}
+    strided["means"] = torch.cat((strided["means"], strided["means"]), -1)[..., ::2]  # a strided view
+    strided["means"][1, 3, 2] = float("nan")
+    cases.append(Gaussians(**strided))
+    assert not strided["means"].is_contiguous()
+    for g in cases:
+        want = expected(g)
+        if want is None:
+            assert g.validate() is g and not g.problem_flags().any()
+        else:
+            with pytest.raises(ValueError, match=want):
+                g.validate()
+
+
 @pytest.mark.parametrize("sh_degree", [0, 3])
 def test_ply_round_trip_is_lossless(tmp_path, sh_degree):
     g = random_gaussians(50, sh_degree=sh_degree)

@@ -141,9 +141,10 @@ class Gaussians:
         n = self.check_structure().means.shape[-2]
         # The value checks as one device-side vector; the first failing check, in this order, names the problem.
         problems = [f"{name} contains non-finite values (NaN or Inf)" for name in self.tensors()]
-        flags = [~torch.isfinite(t).all() for t in self.tensors().values()]
+        ranges = {name: _min_and_max(t) for name, t in self.tensors().items()}
+        flags = [(low_high * 0 != 0).any() for low_high in ranges.values()]  # NaN * 0 and inf * 0 are NaN
         problems += ["scales must be non-negative standard deviations", "opacities must lie in [0, 1]"]
-        flags += [(self.scales < 0).any(), ((self.opacities < 0) | (self.opacities > 1)).any()]
+        flags += [ranges["scales"][0] < 0, (ranges["opacities"][0] < 0) | (ranges["opacities"][1] > 1)]
         if n:
             problems.append("rotations contain a zero quaternion")
             flags.append((torch.linalg.vector_norm(self.rotations, dim=-1) == 0).any())
@@ -219,3 +220,12 @@ class Gaussians:
             f"Gaussians(n={self.num_gaussians}, batch={tuple(self.batch_shape)}, sh_degree={self.sh_degree}, "
             f"dtype={self.dtype}, device={self.device})"
         )
+
+
+def _min_and_max(t: Tensor) -> Tensor:
+    """``(2,)``: the smallest and largest value of ``t`` (zeros where it is empty), NaN where ``t`` holds a NaN
+    (it propagates through both). One reduction: the value checks from it instead of elementwise passes such as
+    ``isfinite`` (2.0 -> 0.25 ms for 100 k Gaussians on a 2-core CPU)."""
+    if t.numel() == 0:
+        return torch.zeros(2, dtype=t.dtype, device=t.device)
+    return torch.stack(torch.aminmax(t.detach()))
