@@ -6,7 +6,8 @@ numba's on-disk cache). The rules are the reference's (:mod:`.rasterize`), stage
 * **Spans** (:func:`tile_spans`): the support's bounding box in pixels, columns as up to two intervals in
   ``[0, W)`` (the second where the box wraps past the seam), as :func:`.rasterize.tile_spans`.
 * **Binning** (:func:`bin_pairs`): a counting sort of (Gaussian, tile) pairs by tile, fed in depth order
-  (ties by row, as the reference's stable ranking): every tile's pairs end up front to back. Runs of the depth
+  (:func:`depth_order`, a radix sort; ties by row, as the reference's stable ranking): every tile's pairs end up
+  front to back. Runs of the depth
   order are counted and emitted in parallel, each run's pairs placed after the earlier runs' in every tile. A pair is
   ``2 * row + interval`` (int64), which names its pixel rectangle without storing it.
 * **Compositing** (:func:`composite_forward`, one tile per parallel iteration): each pair visits only the
