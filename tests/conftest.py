@@ -18,6 +18,12 @@ import torch
 if not torch.cuda.is_available():
     os.environ.setdefault("TRITON_INTERPRET", "1")
 
+# The first numba render of a run compiles (or loads) the CPU kernels: no timer notice in the middle of whichever test
+# that is (tests/test_render_numba.py tests the notice itself).
+from cylindersplat.render import numba_backend  # noqa: E402
+
+numba_backend.COMPILE_NOTICE_AFTER_S = None
+
 # The real-data fixtures: $CYLINDERSPLAT_FIXTURES, else <the clone's parent>/shared/fixtures (where this project's
 # sessions share them). They hold pano_grf/<sequence folder>/00000007: three real PanoGRF (Matterport3D)
 # panoramas at 1024x512, the sample PanSplat ships; the tests that read them skip where it is absent (a fresh clone).

@@ -204,6 +204,46 @@ def test_pairs_are_the_references_in_the_same_order():
     assert torch.equal(torch.from_numpy(fast.tile_start[1:] - fast.tile_start[:-1]), counts)
 
 
+def test_a_slow_first_call_says_numba_is_compiling_once(monkeypatch):
+    """A stage's first call that outlasts COMPILE_NOTICE_AFTER_S gets one Notice while it runs; a quick first call,
+    a later call and another slow stage in the same process get none."""
+    import time
+    import warnings
+
+    from cylindersplat.render import numba_backend
+    from cylindersplat.utils import notices
+
+    monkeypatch.setattr(numba_backend, "COMPILE_NOTICE_AFTER_S", 0.05)
+    monkeypatch.setattr(numba_backend, "_CALLED_STAGES", set())
+    monkeypatch.setattr(notices, "_said", set())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with numba_backend.compile_notice("quick"):
+            pass
+        time.sleep(0.2)
+        assert caught == []  # the quick call's timer was cancelled
+        with numba_backend.compile_notice("slow"):
+            time.sleep(0.5)
+            assert [str(w.message) for w in caught] == [numba_backend.COMPILE_NOTICE]  # said while it waits
+        with numba_backend.compile_notice("slow"), numba_backend.compile_notice("other slow stage"):
+            time.sleep(0.3)
+    assert len(caught) == 1 and issubclass(caught[0].category, notices.Notice)
+    assert caught[0].filename.endswith("numba_backend.py")  # not threading.py
+
+
+def test_every_kernel_stage_is_watched_for_compilation(monkeypatch):
+    """A forward and backward on the CPU pass through the notice's watch at each stage that compiles."""
+    from cylindersplat.render import numba_backend
+
+    monkeypatch.setattr(numba_backend, "_CALLED_STAGES", set())
+    g = shell_scene(20, seed=3, dtype=F32)
+    for t in g.tensors().values():
+        t.requires_grad_()
+    out = render_equirect(g, yaw_pose(0.0, dtype=F32), 16, 32, backend="numba")
+    (out.rgb.sum() + out.depth.sum()).backward()
+    assert numba_backend._CALLED_STAGES == {"project", "bin", "composite", "composite backward", "project backward"}
+
+
 @pytest.mark.parametrize("num", [0, 1, 7, 5000])
 def test_depth_order_is_a_stable_sort_of_the_depths(num):
     """The radix sort against numpy's stable argsort: ties by row (repeated depths), and for signed zeros, negatives

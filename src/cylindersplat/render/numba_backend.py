@@ -3,30 +3,43 @@
 The reference (:mod:`.rasterize`) expands every fragment into tensors and sorts them; on a CPU that
 memory traffic is the cost. Here the work is three loops compiled by numba (:mod:`.numba_kernels`):
 a counting sort of (Gaussian, tile) pairs by tile in depth order, a parallel loop over tiles whose
-pixels walk their pairs front to back, and the same walk backwards for gradients. Projection stays
-the reference's (vectorised PyTorch, differentiable); gradients reach it through the compositing's
-analytic backward. The rules, and so the images and gradients, are the reference's.
+pixels walk their pairs front to back, and the same walk backwards for gradients. The projection has its own
+numba kernels (:mod:`.numba_projection`, forward and analytic backward); gradients reach it through the
+compositing's analytic backward. The rules, and so the images and gradients, are the reference's.
 
-The kernels compile at the first CPU render after an install (22 s forward + 11 s backward measured on the
-shared 2-core machine at load 10), then numba loads them from its on-disk cache (about a second). Numba's
-thread count follows ``torch.get_num_threads()``.
+The kernels compile at the first CPU render after an install (16 s forward + 8 s backward on the 2-core machine
+at load 0.5, 22 + 11 s at load 10), then numba loads them from its on-disk cache (about a second); a first call
+that takes over :data:`COMPILE_NOTICE_AFTER_S` says so (:func:`compile_notice`). Numba's thread count follows
+``torch.get_num_threads()``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import math
+import threading
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from ..utils.notices import notice_once
 from . import rasterize
 from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings
 from .rasterize import pack_projected, unpack_composited
 
-__all__ = ["numba_available", "numba_backend", "NumbaBins", "bin_pairs_numba", "composite_numba"]
+__all__ = ["numba_available", "numba_backend", "NumbaBins", "bin_pairs_numba", "composite_numba", "compile_notice",
+           "COMPILE_NOTICE_AFTER_S"]
+
+# A first call of a stage's kernels that lasts longer than this (seconds) is compiling them: a Notice says so, once
+# per process, while it waits (None: never). Loading them from numba's cache takes about a second.
+COMPILE_NOTICE_AFTER_S: float | None = 3.0
+COMPILE_NOTICE = ("compiling the CPU renderer's kernels (numba): once after an install, about 15-30 s; later runs "
+                  "load them from numba's cache in about a second")
+_CALLED_STAGES: set[str] = set()
 
 
 def numba_available() -> bool:
@@ -46,6 +59,29 @@ class NumbaBins:
     tile_start: np.ndarray
     tiles_x: int
     tiles_y: int
+
+
+@contextlib.contextmanager
+def compile_notice(stage: str) -> Iterator[None]:
+    """Around a call of ``stage``'s kernels (e.g. ``"project"``, ``"composite backward"``): where it is the stage's
+    first in this process and lasts over :data:`COMPILE_NOTICE_AFTER_S`, numba is compiling them, and a
+    :class:`~cylindersplat.utils.notices.Notice` says so from a timer while the call goes on (one per process)."""
+    if stage in _CALLED_STAGES or COMPILE_NOTICE_AFTER_S is None:
+        _CALLED_STAGES.add(stage)
+        yield
+        return
+    timer = threading.Timer(COMPILE_NOTICE_AFTER_S, _say_compiling)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+        _CALLED_STAGES.add(stage)
+
+
+def _say_compiling() -> None:
+    notice_once("numba compile", COMPILE_NOTICE, stacklevel=2)  # shown at this line, not in threading.py
 
 
 def _kernels():
@@ -84,12 +120,13 @@ def bin_pairs_numba(proj: ProjectedGaussians, tile_size: int) -> NumbaBins:
     dtype = _work_dtype(proj.uv.dtype)
     half = np.dtype(str(dtype).removeprefix("torch.")).type(0.5)
     tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
-    spans, counts = kernels.tile_spans(_numpy(proj.uv, dtype), _numpy(proj.extent, dtype), proj.height, proj.width,
-                                       tile_size, proj.wrap_u, half)
-    rasterize.check_pair_memory(int(counts.sum()), proj.uv.device, proj.num_cameras)
-    order = _depth_order(_numpy(proj.depth, dtype))
-    tile_start, pairs = kernels.bin_pairs(order, spans, _numpy(proj.camera, torch.int64), proj.num_cameras, tiles_x,
-                                          tiles_y, tile_size)
+    with compile_notice("bin"):
+        spans, counts = kernels.tile_spans(_numpy(proj.uv, dtype), _numpy(proj.extent, dtype), proj.height,
+                                           proj.width, tile_size, proj.wrap_u, half)
+        rasterize.check_pair_memory(int(counts.sum()), proj.uv.device, proj.num_cameras)
+        order = _depth_order(_numpy(proj.depth, dtype))
+        tile_start, pairs = kernels.bin_pairs(order, spans, _numpy(proj.camera, torch.int64), proj.num_cameras,
+                                              tiles_x, tiles_y, tile_size)
     return NumbaBins(spans, pairs, tile_start, tiles_x, tiles_y)
 
 
@@ -101,9 +138,10 @@ class _NumbaComposite(torch.autograd.Function):
         kernels = _kernels()
         height, width, wrap_u = proj_shape
         work = _numpy(packed, _work_dtype(packed.dtype))
-        pair_packed, pair_spans, local = kernels.gather_pairs(work, bins.spans, bins.pairs)
-        args = _kernel_args(bins, local, pair_spans, work.dtype, height, width, wrap_u, settings)
-        out = kernels.composite_forward(pair_packed, *args)
+        with compile_notice("composite"):
+            pair_packed, pair_spans, local = kernels.gather_pairs(work, bins.spans, bins.pairs)
+            args = _kernel_args(bins, local, pair_spans, work.dtype, height, width, wrap_u, settings)
+            out = kernels.composite_forward(pair_packed, *args)
         ctx.save_for_backward(packed)
         ctx.bins, ctx.args, ctx.out = bins, args, out
         return torch.from_numpy(out).to(packed.dtype)
@@ -113,9 +151,10 @@ class _NumbaComposite(torch.autograd.Function):
         kernels = _kernels()
         (packed,) = ctx.saved_tensors
         work = _numpy(packed, _work_dtype(packed.dtype))
-        pair_packed = kernels.gather_pairs(work, ctx.bins.spans, ctx.bins.pairs)[0]
-        pair_grads = kernels.composite_backward(pair_packed, *ctx.args, ctx.out, _numpy(grad_out, torch.float64))
-        grads = kernels.reduce_pair_grads(ctx.bins.pairs, pair_grads, len(work))
+        with compile_notice("composite backward"):
+            pair_packed = kernels.gather_pairs(work, ctx.bins.spans, ctx.bins.pairs)[0]
+            pair_grads = kernels.composite_backward(pair_packed, *ctx.args, ctx.out, _numpy(grad_out, torch.float64))
+            grads = kernels.reduce_pair_grads(ctx.bins.pairs, pair_grads, len(work))
         return torch.from_numpy(grads).to(packed.dtype), None, None, None
 
 

@@ -17,6 +17,7 @@ import torch
 from torch import Tensor
 
 from .cameras import Equirect, Pinhole
+from .numba_backend import compile_notice
 from .projection import RasterSettings, UnsupportedSettings
 
 __all__ = ["project_dense_numba"]
@@ -42,8 +43,9 @@ class _NumbaProjection(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means, scales, quats, opacities, cams, num_views: int, model: int, consts: np.ndarray):
-        geo, valid = _kernels().project_forward(_f64(means), _f64(scales), _f64(quats), _f64(opacities), cams,
-                                                num_views, model, consts)
+        with compile_notice("project"):
+            geo, valid = _kernels().project_forward(_f64(means), _f64(scales), _f64(quats), _f64(opacities), cams,
+                                                    num_views, model, consts)
         ctx.save_for_backward(means, scales, quats)
         ctx.cams, ctx.valid, ctx.num_views, ctx.model, ctx.consts = cams, valid, num_views, model, consts
         visible = torch.from_numpy(valid)
@@ -53,9 +55,10 @@ class _NumbaProjection(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad_geo, _grad_valid):
         means, scales, quats = ctx.saved_tensors
-        grads = torch.from_numpy(_kernels().project_backward(
-            _f64(means), _f64(scales), _f64(quats), ctx.cams, ctx.valid, _f64(grad_geo), ctx.num_views, ctx.model,
-            ctx.consts))
+        with compile_notice("project backward"):
+            grads = torch.from_numpy(_kernels().project_backward(
+                _f64(means), _f64(scales), _f64(quats), ctx.cams, ctx.valid, _f64(grad_geo), ctx.num_views, ctx.model,
+                ctx.consts))
         return (grads[..., 0:3].to(means.dtype), grads[..., 3:6].to(scales.dtype), grads[..., 6:10].to(quats.dtype),
                 None, None, None, None, None)
 

@@ -22,12 +22,13 @@ class Notice(UserWarning):
 _said: set[str] = set()
 
 
-def notice_once(key: str, message: str) -> None:
-    """Warn ``message`` (a :class:`Notice`) the first time this process reaches ``key``, never again."""
+def notice_once(key: str, message: str, stacklevel: int = 3) -> None:
+    """Warn ``message`` (a :class:`Notice`) the first time this process reaches ``key``, never again (``stacklevel``
+    as ``warnings.warn``'s, counted from this function: 3 is its caller's caller)."""
     if key in _said:
         return
     _said.add(key)
-    warnings.warn(message, Notice, stacklevel=3)
+    warnings.warn(message, Notice, stacklevel=stacklevel)
 
 
 @contextlib.contextmanager
