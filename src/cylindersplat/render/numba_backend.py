@@ -142,19 +142,18 @@ class _NumbaComposite(torch.autograd.Function):
             pair_packed, pair_spans, local = kernels.gather_pairs(work, bins.spans, bins.pairs)
             args = _kernel_args(bins, local, pair_spans, work.dtype, height, width, wrap_u, settings)
             out = kernels.composite_forward(pair_packed, *args)
-        ctx.save_for_backward(packed)
-        ctx.bins, ctx.args, ctx.out = bins, args, out
+        ctx.save_for_backward(packed)  # (unread: kept so that autograd refuses a backward after an in-place change)
+        ctx.bins, ctx.args, ctx.out, ctx.pair_packed = bins, args, out, pair_packed  # the backward walks the same rows
         return torch.from_numpy(out).to(packed.dtype)
 
     @staticmethod
     def backward(ctx, grad_out: Tensor):
         kernels = _kernels()
         (packed,) = ctx.saved_tensors
-        work = _numpy(packed, _work_dtype(packed.dtype))
         with compile_notice("composite backward"):
-            pair_packed = kernels.gather_pairs(work, ctx.bins.spans, ctx.bins.pairs)[0]
-            pair_grads = kernels.composite_backward(pair_packed, *ctx.args, ctx.out, _numpy(grad_out, torch.float64))
-            grads = kernels.reduce_pair_grads(ctx.bins.pairs, pair_grads, len(work))
+            pair_grads = kernels.composite_backward(ctx.pair_packed, *ctx.args, ctx.out,
+                                                    _numpy(grad_out, torch.float64))
+            grads = kernels.reduce_pair_grads(ctx.bins.pairs, pair_grads, len(packed))
         return torch.from_numpy(grads).to(packed.dtype), None, None, None
 
 
