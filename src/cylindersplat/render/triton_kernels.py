@@ -8,7 +8,8 @@ depth order. The rules are the reference's (:mod:`.rasterize`): a pixel gets a f
 ``p`` only inside the pair's pixel rectangle and the ``sigma_extent`` ellipse; ``du`` wraps into
 ``[-W/2, W/2)`` across the seam; ``alpha = min(alpha_max, o exp(-m/2))``, skipped below
 ``alpha_min``; the fragment that would bring the transmittance below ``transmittance_min`` and
-all later ones are dropped. A tile stops early once all its pixels have terminated.
+all later ones are dropped. A tile stops early once all its pixels have terminated (the forward counts them after
+every run of eight pairs).
 
 Packed Gaussian rows (``M x 11``, float32): ``[u, v, A, B, C, opacity, r, g, b, depth, 1]``; with the
 constant ``LEAN=1`` (the Triton projection's rows, either forward of :data:`.triton_backend.FORWARD`) ``M x 12``: the
@@ -22,6 +23,10 @@ from __future__ import annotations
 
 import triton
 import triton.language as tl
+
+
+# Pairs composited between two counts of a tile's live pixels (the forward's early stop).
+_ALIVE_EVERY = tl.constexpr(8)
 
 
 @triton.jit
@@ -149,18 +154,25 @@ def composite_forward_kernel(
     p = start
     n_alive = tl.sum(alive.to(tl.int32), axis=0)
     while (p < end) & (n_alive > 0):
+        # A run of pairs between two counts of the live pixels (a block-wide sum, with its barriers, per run instead
+        # of per pair; a finished tile walks at most the rest of its run, adding nothing), each pair's Gaussian
+        # loaded one pair ahead so that its row's loads need not wait for it.
+        stop = tl.minimum(p + _ALIVE_EVERY, end)
         g = tl.load(pair_gaussian_ptr + p)
-        du, dv, alpha, raw, support, a, b, c, o = _fragment(
-            packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U, LEAN)
-        use, w, trans, alive = _transmittance_step(trans, alpha, support, alive, t_min)
-        cr, cg, cb, cd = _colour(packed_ptr, g, LEAN)
-        acc_r += w * cr
-        acc_g += w * cg
-        acc_b += w * cb
-        acc_d += w * cd
-        acc_a += w
+        while p < stop:
+            g_next = tl.load(pair_gaussian_ptr + tl.minimum(p + 1, stop - 1))
+            du, dv, alpha, raw, support, a, b, c, o = _fragment(
+                packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U, LEAN)
+            use, w, trans, alive = _transmittance_step(trans, alpha, support, alive, t_min)
+            cr, cg, cb, cd = _colour(packed_ptr, g, LEAN)
+            acc_r += w * cr
+            acc_g += w * cg
+            acc_b += w * cb
+            acc_d += w * cd
+            acc_a += w
+            g = g_next
+            p += 1
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
-        p += 1
     plane = height * width
     _store_pixels(rgb_ptr, depth_ptr, alpha_ptr, pixel, _rgb_offset(pixel, tile, tiles_per_camera, plane), plane,
                   inside, acc_r, acc_g, acc_b, acc_d, acc_a)
