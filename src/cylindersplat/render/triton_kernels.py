@@ -24,7 +24,6 @@ from __future__ import annotations
 import triton
 import triton.language as tl
 
-
 # Pairs composited between two counts of a tile's live pixels (the forward's early stop).
 _ALIVE_EVERY = tl.constexpr(8)
 
