@@ -148,6 +148,17 @@ def test_view_screenshot_renders_the_room_without_a_browser(tmp_path, capsys):
     assert "W == 2H" in capsys.readouterr().err
 
 
+def test_view_panorama_screenshot_without_a_size_is_a_2_to_1_panorama(tmp_path, capsys, monkeypatch):
+    """--panorama alone: the default size is a panorama's (2:1), not the pinhole view's 480x640 refused as W != 2H."""
+    from cylindersplat.commands import view
+
+    monkeypatch.setattr(view, "PANORAMA_SIZE", (16, 32))  # (the real default, 512x1024, is slow for a test)
+    ply, _ = _room_files(tmp_path)
+    assert main(["view", str(ply), "--screenshot", str(tmp_path / "pano.png"), "--panorama", "--device", "cpu"]) == 0
+    assert Image.open(tmp_path / "pano.png").size == (32, 16)
+    assert "panorama, 16x32" in capsys.readouterr().out
+
+
 @needs_viser
 def test_view_html_is_one_self_contained_page(tmp_path):
     ply, poses = _room_files(tmp_path)

@@ -91,6 +91,11 @@ def load_scene(args: argparse.Namespace):
     return gaussians.to("cpu"), cameras
 
 
+# --screenshot's default sizes (HxW): a 4:3 pinhole view, a 2:1 panorama.
+PINHOLE_SIZE = (480, 640)
+PANORAMA_SIZE = (512, 1024)
+
+
 def _screenshot(args: argparse.Namespace, gaussians, pose) -> Path:
     """--screenshot: the Gaussians above --min-opacity rendered from ``pose`` (in bands of rows where the whole
     picture would not fit in memory); a refusal names the options that make it fit."""
@@ -119,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
     check_outputs(args)
     if args.screenshot is None or args.html is not None:
         import_viser()  # a missing viewer package fails before the (slow) reconstruction
+    if args.screenshot_size is None:  # the picture's kind decides its shape
+        args.screenshot_size = PANORAMA_SIZE if args.panorama else PINHOLE_SIZE
     if args.panorama and args.screenshot_size[1] != 2 * args.screenshot_size[0]:
         raise ValueError(f"--panorama needs --screenshot-size HxW with W == 2H, got {args.screenshot_size}")
     gaussians, cameras = load_scene(args)
@@ -169,10 +176,10 @@ def register(subparsers) -> None:
                         "do not serve: a pinhole view from where the browser view starts (the input cameras' middle), "
                         "or --panorama; Gaussians at or below --min-opacity are left out, and a picture too large for "
                         "memory is rendered in bands of rows")
-    parser.add_argument("--screenshot-size", type=image_resolution, default=(480, 640),
-                        help="HxW of --screenshot (default 480x640)")
+    parser.add_argument("--screenshot-size", type=image_resolution, default=None,
+                        help="HxW of --screenshot (default 480x640, with --panorama 512x1024)")
     parser.add_argument("--fov", type=float, default=90.0,
                         help="horizontal field of view of --screenshot in degrees (default 90)")
     parser.add_argument("--panorama", action="store_true", help="--screenshot renders an equirect panorama from the "
-                        "first input camera (or the origin) instead; needs --screenshot-size H x 2H")
+                        "first input camera (or the origin) instead (a --screenshot-size must be H x 2H)")
     parser.set_defaults(func=run)
