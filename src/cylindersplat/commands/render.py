@@ -196,8 +196,9 @@ def run(args: argparse.Namespace) -> int:
             write_poses_json(view_dir / "poses.json", records, depth_scale=1000 if args.metric_depth else None, **extra)
             what = "RGB + depth colormap" + (" + metric depth (.npy metres, 16-bit PNG mm)" if args.metric_depth
                                              else "")
-            views = "view" if index == 1 else "views"
-            said.append(f"wrote {index} {record['model']} {views} ({what}, {h}x{w}) and their poses.json to {view_dir}")
+            views, their = ("view", "its") if index == 1 else ("views", "their")
+            said.append(f"wrote {index} {record['model']} {views} ({what}, {h}x{w}) and {their} poses.json to "
+                        f"{view_dir}")
 
         if not args.no_ply and not args.ply:
             ply = save_ply(gaussians.to("cpu"), args.out / "gaussians.ply")
