@@ -5,6 +5,8 @@ here before the kernels are first imported); with CUDA they are compiled and run
 """
 
 
+import contextlib
+
 import pytest
 import torch
 
@@ -227,3 +229,24 @@ def test_deep_stacks_keep_gradients_accurate(opacity, count):
         size = ref.abs().flatten(1).amax(1) if ref.ndim > 1 else ref.abs()
         big = size > 1e-3 * size.max()
         assert (err[big] / size[big]).max() < 2e-3, (name, (err[big] / size[big]).max())
+
+
+@pytest.mark.parametrize("forward", ["default", "lean"])
+def test_empty_and_invisible_scenes_have_zero_gradients(forward, monkeypatch):
+    """No pairs at all (no Gaussians, or none in front of the camera): the kernels walk empty tiles - the backward's
+    first pair load is masked off - and every gradient is zero."""
+    from cylindersplat.render import triton_backend
+
+    monkeypatch.setattr(triton_backend, "FORWARD", forward)
+    scene = shell_scene(6, seed=4, dtype=F32)
+    behind = Gaussians(**{**scene.tensors(), "means": scene.means * 1e-4})  # all closer than the near plane
+    empty = Gaussians(**{k: v[:0] for k, v in scene.tensors().items()})
+    for g, warns in ((empty, contextlib.nullcontext()), (behind, pytest.warns(RuntimeWarning, match="none of the 6"))):
+        params = {k: v.to(DEVICE).clone().requires_grad_() for k, v in g.tensors().items()}
+        with warns:
+            out = render_equirect(Gaussians(**params), yaw_pose(0.0, dtype=F32).to(DEVICE), 8, 16,
+                                  background=(0.2, 0.3, 0.4), backend="triton")
+        assert torch.allclose(out.rgb, torch.tensor([0.2, 0.3, 0.4], device=DEVICE)[:, None, None].expand_as(out.rgb))
+        (out.rgb.sum() + out.depth.sum() + out.alpha.sum()).backward()
+        for name, t in params.items():
+            assert t.grad is not None and not t.grad.any(), name

@@ -223,8 +223,9 @@ def composite_backward_kernel(
     prefix = tl.zeros([TILE * TILE], dtype=tl.float32)
     p = start
     n_alive = tl.sum(alive.to(tl.int32), axis=0)
+    g = tl.load(pair_gaussian_ptr + p, mask=p < end, other=0)
     while (p < end) & (n_alive > 0):
-        g = tl.load(pair_gaussian_ptr + p)
+        g_next = tl.load(pair_gaussian_ptr + tl.minimum(p + 1, end - 1))  # one pair ahead (as the forward)
         du, dv, alpha, raw, support, a, b, c, o = _fragment(
             packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U, LEAN)
         use, w, next_trans, next_alive = _transmittance_step(trans, alpha, support, alive, t_min)
@@ -248,4 +249,5 @@ def composite_backward_kernel(
         trans = next_trans
         alive = next_alive
         n_alive = n_alive_next
+        g = g_next
         p += 1
