@@ -142,7 +142,7 @@ class _NumbaComposite(torch.autograd.Function):
             pair_packed, pair_spans, local = kernels.gather_pairs(work, bins.spans, bins.pairs)
             args = _kernel_args(bins, local, pair_spans, work.dtype, height, width, wrap_u, settings)
             out = kernels.composite_forward(pair_packed, *args)
-        ctx.save_for_backward(packed)  # (for its length, and so that autograd refuses a backward after an in-place change)
+        ctx.save_for_backward(packed)  # (its length; and autograd refuses a backward after an in-place change)
         ctx.bins, ctx.args, ctx.out, ctx.pair_packed = bins, args, out, pair_packed  # the backward walks the same rows
         return torch.from_numpy(out).to(packed.dtype)
 
