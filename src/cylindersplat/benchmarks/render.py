@@ -349,6 +349,15 @@ def ratio_line(base: dict, row: dict, dev: str) -> str:
     return text
 
 
+def _load_note() -> str:
+    """``", load average 0.52 / 0.61 / 0.70 (1 / 5 / 15 min)"``, or nothing where the system has none."""
+    try:
+        loads = os.getloadavg()
+    except (AttributeError, OSError):  # not on Windows
+        return ""
+    return ", load average " + " / ".join(f"{x:.2f}" for x in loads) + " (1 / 5 / 15 min)"
+
+
 def table(rows: list[dict]) -> list[str]:
     """Markdown table of timed rows; a backend out of memory shows that in its cells."""
     lines = ["| device | backend | Gaussians | size | forward ms | fwd+bwd ms | peak MB |",
@@ -410,8 +419,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     devices = args.device or (["cpu", "cuda"] if torch.cuda.is_available() else ["cpu"])
-    print(f"# {platform.processor() or platform.machine()}, {torch.get_num_threads()} torch threads, torch "
-          f"{torch.__version__}{', compiled projection' if args.compile else ''}")
+    print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, {torch.get_num_threads()} torch "
+          f"threads, torch {torch.__version__}{', compiled projection' if args.compile else ''}{_load_note()}")
     if torch.cuda.is_available():
         print(f"# GPU: {torch.cuda.get_device_name()}")
     timed = []
@@ -448,6 +457,8 @@ def main(argv: list[str] | None = None) -> None:
                         timed.append(row)
     print()
     print("\n".join(table(timed)))
+    if _load_note():  # other jobs on a shared machine slow every row: the load before and after says how much
+        print(f"#{_load_note().removeprefix(',')} at the end")
 
 
 if __name__ == "__main__":
