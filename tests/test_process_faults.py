@@ -26,7 +26,7 @@ def test_a_closed_pipe_ends_print_config_quietly():
 
 def test_ctrl_c_at_start_up_is_one_line(monkeypatch, capsys):
     """Ctrl-C while the command's modules are still importing (seconds on a busy machine)."""
-    def interrupted():
+    def interrupted(command=None):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(cli, "build_parser", interrupted)
@@ -39,7 +39,7 @@ def test_ctrl_c_that_a_library_turns_into_its_own_error_is_one_line(monkeypatch,
     import signal
     import time
 
-    def interrupted_import():
+    def interrupted_import(command=None):
         try:
             os.kill(os.getpid(), signal.SIGINT)  # main's handler raises KeyboardInterrupt here ...
             time.sleep(5)

@@ -28,7 +28,10 @@ def subcommand_modules() -> list[str]:
     return [f"{commands.__name__}.{name}" for name in names]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The whole command line, or with ``command`` (a subcommand's name) that command's parser and the others as bare
+    names: some commands' parsers import heavy modules to list their choices (torch, about 1.5 s), which the run or
+    ``--help`` of another command need not wait for."""
     from . import __version__
 
     parser = OneLineErrorParser(
@@ -39,8 +42,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show the full traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for module in subcommand_modules():
-        importlib.import_module(module).register(sub)
+        if command is None or module.rsplit(".", 1)[1] == command:
+            importlib.import_module(module).register(sub)
+        else:
+            sub.add_parser(module.rsplit(".", 1)[1])  # a name to choose from, never parsed with
     return parser
+
+
+def _command_in(argv: list[str] | None) -> str | None:
+    """The subcommand ``argv`` names (its first word that is not an option: the top-level options take no value), ""
+    for ``--version`` alone, or None where it names none that exists (the whole parser then says what is wrong)."""
+    names = {module.rsplit(".", 1)[1] for module in subcommand_modules()}
+    argv = sys.argv[1:] if argv is None else argv
+    word = next((a for a in argv if not a.startswith("-")), None)
+    if word is None and "--version" in argv and not {"-h", "--help"} & set(argv):
+        return ""  # the version alone: no command's parser is needed
+    return word if word in names else None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -93,7 +110,7 @@ def _run_command(argv: list[str] | None) -> int:
     from .utils.allocator import keep_freed_memory
     from .utils.notices import one_line_warnings
 
-    parser = build_parser()
+    parser = build_parser(_command_in(argv))
     args = parser.parse_args(argv)
     keep_freed_memory()  # the CPU renderer reuses large buffers (see utils.allocator)
     if not getattr(args, "func", None):

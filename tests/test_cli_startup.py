@@ -1,0 +1,48 @@
+"""The command line starts fast: a command's run or --help builds only its own parser (some commands' parsers import
+torch to list their choices, about 1.5 s), and --version builds none; the whole parser is still there for the
+top-level help and for a command that does not exist."""
+
+import subprocess
+import sys
+
+import pytest
+
+from cylindersplat import cli
+
+IMPORTS_TORCH = """import sys
+from cylindersplat import cli
+try:
+    cli.main({!r})
+except SystemExit:  # (what --help and --version end with)
+    pass
+print('torch' in sys.modules)
+"""
+
+
+@pytest.mark.parametrize("argv", [["render", "--help"], ["--debug", "view", "--help"], ["--version"]])
+def test_a_commands_help_and_the_version_do_not_import_torch(argv):
+    code = IMPORTS_TORCH.format(argv)
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and run.stdout.strip().splitlines()[-1] == "False", run.stderr
+
+
+def test_the_command_named_gets_its_whole_parser_and_the_others_their_names():
+    assert cli._command_in(["--debug", "render", "--ply", "x.ply"]) == "render"
+    assert cli._command_in(["rendr"]) is None and cli._command_in([]) is None
+    assert cli._command_in(["--version"]) == "" and cli._command_in(["--version", "-h"]) is None
+    whole, one = cli.build_parser(), cli.build_parser("render")
+    names = [m.rsplit(".", 1)[1] for m in cli.subcommand_modules()]
+    for parser in (whole, one):
+        sub = next(a for a in parser._actions if a.dest == "command")
+        assert list(sub.choices) == names
+    args = ["render", "--ply", "x.ply", "--views", "v.json", "--fov", "70"]
+    assert vars(one.parse_args(args)) == vars(whole.parse_args(args))
+    with pytest.raises(SystemExit):
+        one.parse_args(["render", "--bogus"])
+
+
+def test_a_mistyped_command_is_named_with_every_choice(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["rendr"])
+    err = capsys.readouterr().err
+    assert "invalid choice: 'rendr'" in err and "'ablate'" in err and "'view'" in err
