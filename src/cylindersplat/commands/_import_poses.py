@@ -150,8 +150,9 @@ def register(sub) -> None:
         "docs/inference.md; the readers and how to add one: docs/poses.md.")
     parser.add_argument("source", type=Path, help="reconstruction.json, transforms.json, a trajectory text file, a "
                         "COLMAP model folder (sparse/0), a Metashape cameras .xml or an OpenMVG sfm_data.json")
-    parser.add_argument("--from", dest="source_format", required=True, choices=_FormatNames(),
-                        help="the source's format")
+    # A metavar, so that argparse does not list the choices (importing the registry) when the argument is added.
+    parser.add_argument("--from", dest="source_format", required=True, choices=_FormatNames(), metavar="FORMAT",
+                        help="the source's format: %(choices)s")
     parser.add_argument("--out", type=Path, required=True, help="poses.json to write (in the input folder)")
     parser.add_argument("--scale", type=float, default=1.0,
                         help="metres per source unit: multiplies every camera position (default 1)")

@@ -19,8 +19,6 @@ import argparse
 import time
 from pathlib import Path
 
-import torch
-
 from ..utils.atomic import atomic_write_text, output_set, written_at_once
 from ..utils.jsonfile import json_text
 from ._arguments import device, model_resolution, positive_int
@@ -257,6 +255,8 @@ def reconstruct_held_out(args, data: Path, checkpoint: Path) -> None:
 
 
 def render_room(args) -> int:
+    import torch
+
     from ..gaussians import save_ply
     from ..geometry import make_c2w
     from ..inference import write_view

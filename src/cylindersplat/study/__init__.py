@@ -10,9 +10,7 @@ The study scripts built on it, and their results, live outside the package in ``
 """
 
 from .aggregate import RunResult, aggregate
-from .run import check_variants, run_study
 from .schedule import STUDY_THREADS, Schedule, Variant, torch_threads
-from .table import TABLE_METRICS, study_table
 from .variants import (
     all_variants,
     change_set,
@@ -26,3 +24,18 @@ from .variants import (
 __all__ = ["RunResult", "aggregate", "check_variants", "run_study", "STUDY_THREADS", "Schedule", "Variant",
            "torch_threads", "TABLE_METRICS", "study_table", "all_variants", "change_set", "default_variants",
            "extra_variants", "pinned_to_earlier_tiny", "recipe", "variant_names"]
+
+
+# The runner and the table import the evaluation (and so torch): loaded at their first use, so that reading the
+# variant catalogue (``cylindersplat ablate``'s parser) does not wait for them.
+_LAZY = {"check_variants": "run", "run_study": "run", "TABLE_METRICS": "table", "study_table": "table"}
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    globals()[name] = value
+    return value
