@@ -327,7 +327,11 @@ def test_every_pair_visible_skips_the_gathers_with_the_same_pairs_and_gradients(
     g = Gaussians(**{k: torch.stack([s.tensors()[k] for s in scenes]).requires_grad_()
                      for k in scenes[0].tensors()})
     c2w = torch.stack([torch.stack((yaw_pose(0.3 * b), yaw_pose(1.0, (0.1, 0.0, 0.2 * b)))) for b in range(2)])
+    from cylindersplat.benchmarks.launches import count_launches
+
     flat, cams = flatten_cameras(g, c2w)[:2]
+    launches = count_launches(lambda: project_gaussians(flat, cams, Equirect(16, 32), SETTINGS))
+    assert not {"index_select", "index", "gather"} & set(launches.torch_ops), launches.torch_ops  # no gathers
     proj = project_gaussians(flat, cams, Equirect(16, 32), SETTINGS)
     index = torch.arange(2 * 2 * 5)  # every (b, v, n) pair, camera-major
     assert proj.visible is None and len(proj.depth) == len(index)

@@ -7,9 +7,9 @@ numba's on-disk cache). The rules are the reference's (:mod:`.rasterize`), stage
   ``[0, W)`` (the second where the box wraps past the seam), as :func:`.rasterize.tile_spans`.
 * **Binning** (:func:`bin_pairs`): a counting sort of (Gaussian, tile) pairs by tile, fed in depth order
   (:func:`depth_order`, a radix sort; ties by row, as the reference's stable ranking): every tile's pairs end up
-  front to back. Runs of the depth
-  order are counted and emitted in parallel, each run's pairs placed after the earlier runs' in every tile. A pair is
-  ``2 * row + interval`` (int64), which names its pixel rectangle without storing it.
+  front to back. Runs of the depth order are counted and emitted in parallel, each run's pairs placed after the
+  earlier runs' in every tile. A pair is ``2 * row + interval`` (int64), which names its pixel rectangle without
+  storing it.
 * **Compositing** (:func:`composite_forward`, one tile per parallel iteration): each pair visits only the
   pixels of its rectangle that can be inside its ellipse (per-row column ranges); ``du`` wraps into
   ``[-W/2, W/2)``; fragments outside the ``sigma_extent`` ellipse or with ``alpha < alpha_min`` are skipped;

@@ -29,8 +29,8 @@ _CHUNK = 256
 
 @njit(cache=True)
 def _rotation(qw, qx, qy, qz, rot):
-    """Normalised quaternion (zero -> zero rotation, as geometry.rotations), its norm and matrix R (row-major, written
-    into ``rot`` (9,) and returned)."""
+    """Normalised quaternion (zero -> zero rotation, as geometry.rotations) and its norm; the matrix R (row-major) is
+    written into ``rot`` (9,)."""
     norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     inv = 1.0 / max(norm, 1e-12)
     w, x, y, z = qw * inv, qx * inv, qy * inv, qz * inv
@@ -43,7 +43,7 @@ def _rotation(qw, qx, qy, qz, rot):
     rot[6] = 2.0 * (x * z - w * y)
     rot[7] = 2.0 * (y * z + w * x)
     rot[8] = 1.0 - 2.0 * (x * x + y * y)
-    return w, x, y, z, norm, rot
+    return w, x, y, z, norm
 
 
 @njit(cache=True)
@@ -292,7 +292,7 @@ def project_backward(means, scales, quats, cams, valid, grad_geo, num_views, mod
                                                      np.empty(9), np.empty(9), np.empty(6))
         for i in range(chunk * _CHUNK, min(num, chunk * _CHUNK + _CHUNK)):
             b, n = i // num_n, i % num_n
-            qw, qx, qy, qz, qn, _ = _rotation(quats[b, n, 0], quats[b, n, 1], quats[b, n, 2], quats[b, n, 3], rot)
+            qw, qx, qy, qz, qn = _rotation(quats[b, n, 0], quats[b, n, 1], quats[b, n, 2], quats[b, n, 3], rot)
             for view in range(num_views):
                 if not valid[b, view, n]:
                     continue

@@ -317,6 +317,7 @@ def _pairs(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, camera
     num_b, num_v, num_n = valid.shape
     geo = geo.reshape(-1, 8)
     visible = None
+    dense = every_pair  # the pairs are all B * V * N, in order: no gathers
     if every_pair:
         if not inert_rows:
             inert = torch.zeros(8, dtype=geo.dtype, device=geo.device)
@@ -325,11 +326,11 @@ def _pairs(geo: Tensor, valid: Tensor, gaussians: Gaussians, c2w: Tensor, camera
         visible = valid.sum()
     else:
         index = valid.reshape(-1).nonzero().squeeze(1)
-        every_pair = len(index) == len(geo)  # all visible (a panorama's usual case): the pairs need no gathers
-        if not every_pair:
+        dense = len(index) == len(geo)  # all visible (a panorama's usual case): the index is the identity
+        if not dense:
             geo = geo.index_select(0, index)
     geo = geo.to(gaussians.dtype)
-    if every_pair:  # pair (b, v, n) is Gaussian (b, n): broadcasts over the cameras, no gathers (views for one)
+    if dense:  # pair (b, v, n) is Gaussian (b, n): broadcasts over the cameras, no gathers (views for one)
         camera, gauss = _dense_pair_indices(num_b, num_v, num_n, valid.device)
         opacity = gaussians.opacities.reshape(num_b, 1, num_n).expand(num_b, num_v, num_n).reshape(-1)
         color = _dense_view_colors(gaussians, c2w, num_b, num_v, num_n)

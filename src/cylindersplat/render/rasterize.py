@@ -392,11 +392,15 @@ def unpack_composited(
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Per-pixel sums ``(C*H*W, 5)`` (rgb, depth, alpha) -> ``rgb (C, 3, H, W)`` over ``background``, depth, alpha."""
     out = out.view(proj.num_cameras, proj.height, proj.width, 5)
-    rgb = out[..., :3].permute(0, 3, 1, 2)
     depth, acc = out[..., 3], out[..., 4]
-    if background is not None:
-        rgb = rgb + (1 - acc)[:, None] * background.to(rgb.dtype).view(-1, 3, 1, 1)
-    return rgb, depth, acc
+    return over_background(out[..., :3].permute(0, 3, 1, 2), acc, background), depth, acc
+
+
+def over_background(rgb: Tensor, alpha: Tensor, background: Tensor | None) -> Tensor:
+    """``rgb (C, 3, H, W)`` over ``background`` (``(3,)`` or ``(C, 3)``; None: as it is) by ``alpha (C, H, W)``."""
+    if background is None:
+        return rgb
+    return rgb + (1 - alpha)[:, None] * background.to(rgb.dtype).view(-1, 3, 1, 1)
 
 
 def rasterize(

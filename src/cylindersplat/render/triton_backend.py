@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings, read_count
-from .rasterize import TileBins, pack_projected
+from .rasterize import TileBins, over_background, pack_projected
 from .triton_binning import bin_to_tiles_by_key
 
 __all__ = ["triton_available", "triton_backend", "composite_triton", "FORWARDS", "FORWARD", "COMPACTIONS",
@@ -122,9 +122,7 @@ class _TritonComposite(torch.autograd.Function):
 def _finish(rgb: Tensor, depth: Tensor, alpha: Tensor, dtype: torch.dtype, background: Tensor | None):
     """The compositing's outputs in the render's dtype, over ``background`` (``(3,)`` or ``(C, 3)``) where given."""
     rgb, depth, alpha = rgb.to(dtype), depth.to(dtype), alpha.to(dtype)
-    if background is not None:
-        rgb = rgb + (1 - alpha)[:, None] * background.to(rgb.dtype).view(-1, 3, 1, 1)
-    return rgb, depth, alpha
+    return over_background(rgb, alpha, background), depth, alpha
 
 
 def composite_triton(
