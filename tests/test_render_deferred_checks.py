@@ -6,6 +6,8 @@ gradients are those of the compacted path and of the reference.
 
 Without a GPU the kernels run in Triton's interpreter (conftest.py)."""
 
+import os
+import traceback
 import warnings
 
 import pytest
@@ -184,7 +186,7 @@ def test_the_bench_times_the_compacted_variant_beside_the_default(capsys):
     with bench_render.triton_variant("default", "nonzero"):
         assert triton_backend.COMPACTION == "nonzero"
     assert triton_backend.COMPACTION == "none"
-    bench_render.main(["--num", "30", "--height", "8", "--device", "cpu", "--backend", "triton", "--repeats", "1",
+    bench_render.main(["--num", "30", "--height", "8", "--device", DEVICE, "--backend", "triton", "--repeats", "1",
                        "--stages", "--variants", "default", "default,nonzero"])
     out = capsys.readouterr().out
     assert "'backend': 'triton[default,nonzero]'" in out
@@ -192,31 +194,54 @@ def test_the_bench_times_the_compacted_variant_beside_the_default(capsys):
     assert "rgb max |diff| 0.00e+00" in line, line
 
 
-def _cuda_synchronisations(fn) -> int:
-    """How many synchronising CUDA calls ``fn`` makes (CUDA's own watch: every one, not only the Tensor methods
-    tensor_waits.py sees)."""
-    with warnings.catch_warnings(record=True) as caught:
+def test_the_bench_skips_the_variants_agreement_where_triton_cannot_run(monkeypatch, capsys):
+    # on a GPU machine the tests run without Triton's interpreter: a CPU row of triton is skipped, and its
+    # variants' agreement with it (it crashed there, gpu_check 2026-11-27)
+    from cylindersplat.benchmarks import render as bench_render
+
+    monkeypatch.delenv("TRITON_INTERPRET", raising=False)
+    bench_render.main(["--num", "30", "--height", "8", "--device", "cpu", "--backend", "torch", "triton",
+                       "--repeats", "1", "--variants", "default", "default,nonzero"])
+    out = capsys.readouterr().out
+    assert "# skipping triton on cpu" in out and "# agreement" not in out
+    assert "'backend': 'torch'" in out
+
+
+def _cuda_synchronisations(fn) -> list[str]:
+    """Where ``fn`` makes a synchronising CUDA call (CUDA's own watch: every one, not only the Tensor methods
+    tensor_waits.py sees): the Python lines that made each (``file:line`` of the last three frames), so that a
+    failure says where."""
+    found = []
+
+    def record(message, *args, **kwargs):
+        if "synchronizing" in str(message):
+            frames = [f for f in traceback.extract_stack()[:-1] if not f.filename.endswith("warnings.py")][-3:]
+            found.append(" < ".join(f"{os.path.relpath(f.filename)}:{f.lineno}" for f in reversed(frames)))
+
+    with warnings.catch_warnings():
         warnings.simplefilter("always")
+        warnings.showwarning = record
         torch.cuda.set_sync_debug_mode("warn")
         try:
             fn()
         finally:
             torch.cuda.set_sync_debug_mode("default")
-    return sum("synchronizing" in str(w.message) for w in caught)
+    return found
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA's synchronisation watch needs a GPU")
 @pytest.mark.parametrize("forward", ["default", "lean"])
-def test_on_a_gpu_the_forward_synchronises_once_and_the_backward_never(monkeypatch, forward):
+@pytest.mark.parametrize("camera", ["equirect", "pinhole"])
+def test_on_a_gpu_the_forward_synchronises_once_and_the_backward_never(monkeypatch, forward, camera):
     monkeypatch.setattr(triton_backend, "FORWARD", forward)
     params = {k: v.detach().clone().requires_grad_() for k, v in _scene(200, seed=4).tensors().items()}
     poses = torch.stack([yaw_pose(0.3, dtype=F32), yaw_pose(2.0, (0.1, -0.2, 0.1), dtype=F32)]).to(DEVICE)
+    model = Equirect(64, 128) if camera == "equirect" else Pinhole(K, 48, 64)
     outputs = []
 
     def forward_pass():
         # an RGB background as a tuple: made on the device (a host-to-device copy would synchronise)
-        outputs.append(render(Gaussians(**params), poses, Equirect(64, 128), background=(0.2, 0.3, 0.4),
-                              backend="triton"))
+        outputs.append(render(Gaussians(**params), poses, model, background=(0.2, 0.3, 0.4), backend="triton"))
 
     def backward_pass():
         (outputs[-1].rgb.sum() + outputs[-1].depth.sum()).backward()
@@ -224,7 +249,8 @@ def test_on_a_gpu_the_forward_synchronises_once_and_the_backward_never(monkeypat
     forward_pass()
     backward_pass()  # warm-up: the kernels compile, the lean capacity grows
     torch.cuda.synchronize()
-    assert (_cuda_synchronisations(forward_pass), _cuda_synchronisations(backward_pass)) == (1, 0)
+    forward_syncs, backward_syncs = _cuda_synchronisations(forward_pass), _cuda_synchronisations(backward_pass)
+    assert (len(forward_syncs), len(backward_syncs)) == (1, 0), (forward_syncs, backward_syncs)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="poses on another device than the Gaussians need a GPU")

@@ -34,12 +34,13 @@ def _params():
     return {k: v.to(DEVICE).requires_grad_() for k, v in g.tensors().items()}
 
 
-def _forward_then_backward(params) -> tuple[list, list]:
+def _forward_then_backward(params, background=None) -> tuple[list, list]:
     """The waits of one render's forward, then of its backward (each a list, in order)."""
     outputs = []
 
     def forward():
-        outputs.append(render_equirect(Gaussians(**params), torch.eye(4, device=DEVICE), 8, 16, backend="triton"))
+        outputs.append(render_equirect(Gaussians(**params), torch.eye(4, device=DEVICE), 8, 16,
+                                       background=background, backend="triton"))
 
     forward_waits = waits_during(forward)
     out = outputs[0]
@@ -48,8 +49,10 @@ def _forward_then_backward(params) -> tuple[list, list]:
     return forward_waits, backward_waits
 
 
-def test_the_triton_render_path_reads_the_device_once():
-    forward_waits, backward_waits = _forward_then_backward(_params())
+@pytest.mark.parametrize("background", [None, [1, 1, 1], (0.2, 0.3, 0.4)], ids=["black", "white", "rgb"])
+def test_the_triton_render_path_reads_the_device_once(background):
+    # a background given as numbers is made on the device by fills, not copied there (a copy would wait)
+    forward_waits, backward_waits = _forward_then_backward(_params(), background)
     assert forward_waits == [ONE_READ]
     assert backward_waits == []
 

@@ -427,11 +427,13 @@ def main(argv: list[str] | None = None) -> None:
     for dev in devices:
         for num in args.num:
             rows = []
+            triton_ran = False
             for backend in args.backend:
                 interpreted = os.environ.get("TRITON_INTERPRET") == "1"
                 if backend == "triton" and torch.device(dev).type != "cuda" and not interpreted:
                     print(f"# skipping triton on {dev}: needs CUDA (or TRITON_INTERPRET=1, very slow)")
                     continue
+                triton_ran |= backend == "triton"
                 variants = args.variants if backend == "triton" and args.variants else [None]
                 for variant in variants:
                     with triton_variant(*(variant or ())):
@@ -444,7 +446,7 @@ def main(argv: list[str] | None = None) -> None:
                             profile(num, args.height, torch.device(dev), backend, label=rows[-1]["backend"])
             for row in rows[1:]:
                 print(ratio_line(rows[0], row, dev))
-            if "triton" in args.backend and len(args.variants) > 1:
+            if triton_ran and len(args.variants) > 1:
                 for line in variant_agreement(num, args.height, torch.device(dev), args.variants):
                     print(line)
             timed += rows

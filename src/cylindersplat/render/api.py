@@ -347,11 +347,14 @@ def _background(background, gaussians: Gaussians, out_shape: tuple[int, ...], nu
 
 def _on_device(values, dtype: torch.dtype, device: torch.device) -> Tensor:
     """``torch.as_tensor(values, dtype=dtype, device=device)``; a flat tuple or list of numbers (an RGB) is written
-    there by fills instead, as a host-to-device copy waits for the device on CUDA (a render per training step)."""
+    there by fills instead, as a host-to-device copy waits for the device on CUDA (a render per training step).
+    Not ``out[i] = value``: PyTorch copies the number from the host for that, and waits."""
     if isinstance(values, (tuple, list)) and all(type(v) in (int, float) for v in values):
+        if len(set(values)) == 1:  # black, white, grey: one fill
+            return torch.full((len(values),), values[0], dtype=dtype, device=device)
         out = torch.empty(len(values), dtype=dtype, device=device)
         for i, value in enumerate(values):
-            out[i] = value
+            out[i].fill_(value)
         return out
     return torch.as_tensor(values, dtype=dtype, device=device)
 
