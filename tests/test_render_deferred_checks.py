@@ -214,7 +214,8 @@ def _cuda_synchronisations(fn) -> list[str]:
     found = []
 
     def record(message, *args, **kwargs):
-        if "synchronizing" in str(message):
+        # (not PyTorch's one-time notice that this watch is a prototype, whose text says "synchronizing" too)
+        if "called a synchronizing CUDA operation" in str(message):
             frames = [f for f in traceback.extract_stack()[:-1] if not f.filename.endswith("warnings.py")][-3:]
             found.append(" < ".join(f"{os.path.relpath(f.filename)}:{f.lineno}" for f in reversed(frames)))
 

@@ -33,7 +33,8 @@ __all__ = ["triton_available", "triton_backend", "composite_triton", "FORWARDS",
 # the host before sizing its buffers, then compositing) or "lean" (:func:`_lean_backend`: the binning's
 # kernels in buffers of a cached, growing capacity, no host synchronisation before the compositing is queued; the
 # pair count is read once after it, and the binning and compositing rerun with a larger capacity where the pairs
-# did not fit). The same images and gradients. Module-level: the benchmark switches it.
+# did not fit). The same images and gradients; on an H100 (2026-11-27) the same speed within the calls' noise.
+# Module-level: the benchmark switches it.
 FORWARDS = ("default", "lean")
 FORWARD = "default"
 
@@ -42,15 +43,15 @@ FORWARD = "default"
 # over all B * V * N pairs) or "nonzero" (the visible pairs only, compacted by a ``nonzero``: one more host
 # synchronisation, fewer rows where many pairs are invisible, e.g. pinhole views). The same images and gradients.
 # Either way the render's input checks are read with the pair count (:func:`.projection.read_count`): one host
-# synchronisation per forward with "none", two with "nonzero". Not yet measured on a GPU; module-level: the
-# benchmark switches it.
+# synchronisation per forward with "none", two with "nonzero". On an H100 (2026-11-27) neither was faster beyond the
+# calls' noise, panoramas or pinhole views. Module-level: the benchmark switches it.
 COMPACTIONS = ("none", "nonzero")
 COMPACTION = "none"
 
 # How a render on this backend queues its input checks (read with the pair count): "fused" (one kernel launch,
 # :mod:`.triton_checks`) or "torch" (the PyTorch operations of ``api._queue_checks_torch``: some seventy launches for
-# the Gaussians' and the poses' value checks). The same flags. Not yet measured on a GPU; module-level: the benchmark
-# switches it.
+# the Gaussians' and the poses' value checks). The same flags; "torch" took 1.3-2.4 ms more a forward on an H100
+# (2026-11-27). Module-level: the benchmark switches it.
 CHECKS = ("fused", "torch")
 CHECK = "fused"
 
