@@ -194,6 +194,28 @@ def test_the_bench_times_the_compacted_variant_beside_the_default(capsys):
     assert "rgb max |diff| 0.00e+00" in line, line
 
 
+def test_rgb_numbers_are_made_once_per_device_and_type_and_checked_on_the_host():
+    from cylindersplat.render import api
+
+    g = _scene()
+    first = api._background((0.2, 0.3, 0.4), g, (1,), 1, checks=[])
+    again = api._background([0.2, 0.3, 0.4], g, (1,), 1, checks=[])
+    assert again is first and first.tolist() == pytest.approx([0.2, 0.3, 0.4])
+    assert api._background((1, 1, 1), g, (1,), 1, checks=[]).tolist() == [1.0, 1.0, 1.0]  # ints; one fill
+    half = Gaussians(**{k: v.double() for k, v in g.tensors().items()})
+    assert api._background((0.2, 0.3, 0.4), half, (1,), 1, checks=[]).dtype == torch.float64
+    checks = []
+    with pytest.raises(ValueError, match=r"background must be finite \(RGB in \[0, 1\]\), got \[0.2, nan, 0.4\]"):
+        api._background((0.2, float("nan"), 0.4), g, (1,), 1, checks=checks)
+    assert checks == []  # raised on the host at once: nothing queued for the device
+    for bad, error in (((0.2, "x", 0.4), TypeError), ((0.2, 0.3), ValueError)):
+        with pytest.raises(error, match="background must be RGB"):
+            api._background(bad, g, (1,), 1, checks=None)
+    for i in range(api._MAX_BACKGROUNDS + 3):  # bounded: many colours do not pile up tensors
+        api._background((0.0, 0.0, i / 100), g, (1,), 1, checks=None)
+    assert len(api._BACKGROUNDS) <= api._MAX_BACKGROUNDS
+
+
 def test_the_bench_skips_the_variants_agreement_where_triton_cannot_run(monkeypatch, capsys):
     # on a GPU machine the tests run without Triton's interpreter: a CPU row of triton is skipped, and its
     # variants' agreement with it (it crashed there, gpu_check 2026-11-27)

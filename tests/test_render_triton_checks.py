@@ -164,13 +164,22 @@ def test_bad_structure_raises_now_as_the_torch_checks():
                 queue(g, poses)
 
 
-def _launches(monkeypatch, check: str, forward: str):
+def _launches(monkeypatch, check: str, forward: str, background=None):
     monkeypatch.setattr(triton_backend, "CHECK", check)
     monkeypatch.setattr(triton_backend, "FORWARD", forward)
     g = _scene(n=20)
     params = {k: v.clone().requires_grad_() for k, v in g.tensors().items()}
     c2w = torch.eye(4, device=DEVICE)
-    return count_render_launches(lambda: render_equirect(Gaussians(**params), c2w, 8, 16, backend="triton"))
+    return count_render_launches(lambda: render_equirect(Gaussians(**params), c2w, 8, 16, background=background,
+                                                         backend="triton"))
+
+
+def test_an_rgb_background_costs_only_its_blending(monkeypatch):
+    # A training step renders with its config's RGB tuple: made on the device once (4 fills) and checked on the
+    # host, it costs each later render only the blend under the image (1 - alpha, its product, the sum: 3).
+    plain, _ = _launches(monkeypatch, "fused", "default")
+    with_rgb, _ = _launches(monkeypatch, "fused", "default", background=(0.2, 0.3, 0.4))
+    assert with_rgb.kernels - plain.kernels <= 3, (plain, with_rgb)
 
 
 @pytest.mark.parametrize("forward", ["default", "lean"])

@@ -329,9 +329,15 @@ def _warn_none_visible(num_visible: int, gaussians: Gaussians, camera: CameraMod
 def _background(background, gaussians: Gaussians, out_shape: tuple[int, ...], num_cameras: int,
                 checks: list[Tensor] | None) -> Tensor:
     """``background`` as a tensor of the Gaussians' dtype and device, its shape checked; its values checked now
-    (``checks`` None) or queued (a flag or-ed into ``checks[0]``)."""
+    (``checks`` None) or queued (a flag or-ed into ``checks[0]``). RGB numbers (a tuple or list, as training and
+    inference pass them) are checked on the host and made on the device once (:func:`_on_device`)."""
+    numbers = _rgb_numbers(background)
+    if numbers is not None:
+        if not all(math.isfinite(v) for v in numbers):
+            raise ValueError(f"background must be finite (RGB in [0, 1]), got {list(numbers)}")
+        return _on_device(numbers, gaussians.dtype, gaussians.device)
     try:
-        background = _on_device(background, gaussians.dtype, gaussians.device)
+        background = torch.as_tensor(background, dtype=gaussians.dtype, device=gaussians.device)
     except (TypeError, ValueError, RuntimeError):
         raise TypeError("background must be RGB numbers in [0, 1] (3 floats or a tensor), got "
                         f"{background!r:.80}") from None
@@ -345,18 +351,37 @@ def _background(background, gaussians: Gaussians, out_shape: tuple[int, ...], nu
     return background
 
 
-def _on_device(values, dtype: torch.dtype, device: torch.device) -> Tensor:
-    """``torch.as_tensor(values, dtype=dtype, device=device)``; a flat tuple or list of numbers (an RGB) is written
-    there by fills instead, as a host-to-device copy waits for the device on CUDA (a render per training step).
-    Not ``out[i] = value``: PyTorch copies the number from the host for that, and waits."""
-    if isinstance(values, (tuple, list)) and all(type(v) in (int, float) for v in values):
-        if len(set(values)) == 1:  # black, white, grey: one fill
-            return torch.full((len(values),), values[0], dtype=dtype, device=device)
-        out = torch.empty(len(values), dtype=dtype, device=device)
-        for i, value in enumerate(values):
-            out[i].fill_(value)
-        return out
-    return torch.as_tensor(values, dtype=dtype, device=device)
+def _rgb_numbers(values) -> tuple[float, float, float] | None:
+    """``values`` as three Python floats where it is a flat tuple or list of three numbers (bool excluded), else
+    None."""
+    if isinstance(values, (tuple, list)) and len(values) == 3 and all(type(v) in (int, float) for v in values):
+        return tuple(float(v) for v in values)
+    return None
+
+
+# RGB backgrounds made on a device, by (values, dtype, device): a render per training step would otherwise launch
+# four fills and seven checks for three numbers. Read-only (blended under the image, never returned); bounded.
+_BACKGROUNDS: dict[tuple, Tensor] = {}
+_MAX_BACKGROUNDS = 16
+
+
+def _on_device(numbers: tuple[float, float, float], dtype: torch.dtype, device: torch.device) -> Tensor:
+    """The RGB ``numbers`` as a tensor on ``device``, made once per (numbers, dtype, device). Made by fills: a
+    host-to-device copy - ``torch.tensor(..., device=...)`` or ``out[i] = value``, which copies the number from the
+    host - waits for the device on CUDA."""
+    key = (numbers, dtype, torch.device(device))
+    cached = _BACKGROUNDS.get(key)
+    if cached is None:
+        if len(_BACKGROUNDS) >= _MAX_BACKGROUNDS:
+            _BACKGROUNDS.clear()
+        if len(set(numbers)) == 1:  # black, white, grey: one fill
+            cached = torch.full((len(numbers),), numbers[0], dtype=dtype, device=device)
+        else:
+            cached = torch.empty(len(numbers), dtype=dtype, device=device)
+            for i, value in enumerate(numbers):
+                cached[i].fill_(value)
+        _BACKGROUNDS[key] = cached
+    return cached
 
 
 def _check_background_finite(background: Tensor) -> None:
