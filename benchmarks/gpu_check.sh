@@ -8,7 +8,8 @@
 #                   memory is a table cell, not a crash);
 #   stages          where the Triton path spends its time (projection, binning, compositing, backward);
 #   gsplat          our pinhole renderer against gsplat (speed and agreement; the Triton forwards with every pair
-#                   and with the visible pairs compacted, with their launch counts); gsplat's wheel is carried in
+#                   and with the visible pairs compacted, with their launch counts; then one forward of each
+#                   under torch.profiler, host against device time); gsplat's wheel is carried in
 #                   $CHECK_WHEELS (default .whl: `python3 -m pip download --no-deps gsplat==1.5.3 -d .whl`); its
 #                   CUDA code (a JIT build of about 75 s) is built in the background while the tests run;
 #   model           the paper config end to end (network + one render), 1-4 views;
@@ -129,6 +130,7 @@ if [ $smoke = 1 ]; then
   variants_args=(--num 40 --height 8 --device "$device" --backend triton --stages --repeats 1 $variants)
   profile_args=(--num 40 --height 8 --device "$device" --backend triton --repeats 1 --profile $profile_variants)
   gsplat_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1 $gsplat_variants)
+  gsplat_profile_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --profile)
   model_args=(--config tiny_paper --height 64 --render --views 1 2 --repeats 1 --device "$device")
   train_args=(--config tiny --height 64 --steps 1 --warmup 0 --lpips off --device "$device")
   synth_args=(--scenes 4 --resolution 64x128)
@@ -151,6 +153,10 @@ else
   profile_args=(--num 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile $profile_variants)
   # (10 repeats: a render takes milliseconds, and the median of 3 moved by 1-2 ms between calls, 2026-11-26/27)
   gsplat_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 10 $gsplat_variants)
+  # One forward of ours (both forwards) and of gsplat under torch.profiler: host against device time (issue 35's
+  # pinhole gap: is it our launches or our kernels?)
+  gsplat_profile_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 3 --profile
+                       --variants default lean)
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
   train_args=(--config paper --height 512 --steps 3)
   synth_args=(--scenes 12 --resolution 256x512)
@@ -250,7 +256,10 @@ for item in $items; do
       # (its background build was awaited above, within what is left of the budget)
       [ -n "$gsplat_build" ] && tail -n 1 "$out/gsplat_build.log" 2>/dev/null | sed 's/^/    /' >> "$summary"
       run_item gsplat "${CHECK_LIMIT_GSPLAT:-120}" $py -m cylindersplat bench gsplat_compare "${gsplat_args[@]}"
-      excerpt '^[{#]' "$out/gsplat.log" ;;
+      excerpt '^[{#]' "$out/gsplat.log"
+      run_item gsplat_profile "${CHECK_LIMIT_GSPLAT_PROFILE:-60}" $py -m cylindersplat bench gsplat_compare \
+          "${gsplat_profile_args[@]}"
+      excerpt '^# profile\|^#  ' "$out/gsplat_profile.log" ;;
     model)
       run_item model "${CHECK_LIMIT_MODEL:-60}" $py -m cylindersplat bench model "${model_args[@]}"
       excerpt '^[|#(]' "$out/model.log" ;;

@@ -38,6 +38,21 @@ def test_gsplat_comparison_times_each_triton_variant_with_its_launches(capsys):
     assert (triton_backend.FORWARD, triton_backend.COMPACTION) == ("default", "none")
 
 
+def test_gsplat_comparison_profiles_one_forward_of_each_renderer(capsys):
+    """``--profile``: a line of host and device totals per renderer, then its top operators (here the CPU's: the
+    reference renders with PyTorch operations, whose names the table must show)."""
+    gsplat_compare.main(["--num", "40", "--height", "8", "--device", "cpu", "--backend", "torch", "--repeats", "1",
+                         "--profile"])
+    out = capsys.readouterr().out.splitlines()
+    head = [x for x in out if x.startswith("# profile, one forward: cylindersplat-torch, 40 Gaussians")]
+    assert len(head) == 1 and "host " in head[0] and "device 0.00 ms" in head[0], out
+    top = out[out.index(head[0]) + 1:out.index(head[0]) + 11]
+    assert len(top) == 10 and all(x.startswith("#   ") and " ms  x" in x for x in top), top
+    assert any("aten::" in x for x in top)
+    rows = [ast.literal_eval(x) for x in out if x.startswith("{")]
+    assert all("profile" not in r for r in rows)  # the lines print as lines, not inside the rows
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--variants", "lean", "--backend", "torch"], "--variants needs --backend triton"),
     (["--variants", "default,wrong"], "COMPACTION one of"),

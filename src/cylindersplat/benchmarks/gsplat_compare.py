@@ -37,7 +37,15 @@ from cylindersplat.scenes import random_indoor
 from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
 from cylindersplat.utils.arguments import device as device_name
 
-from .render import _forward_and_backward_ms, _peak_mb, _sync, launch_counts, triton_variant, triton_variant_name
+from .render import (
+    _forward_and_backward_ms,
+    _peak_mb,
+    _sync,
+    launch_counts,
+    profile_forward,
+    triton_variant,
+    triton_variant_name,
+)
 
 __all__ = ["main"]
 
@@ -80,9 +88,10 @@ def _our_renderers(backends: list[str], variants: list[tuple[str, ...]]) -> list
 
 
 def compare(num: int, height: int, device: torch.device, backends: list[str], repeats: int,
-            variants: list[tuple[str, ...]] = (), launches: bool = False) -> list[dict]:
+            variants: list[tuple[str, ...]] = (), launches: bool = False, profile: bool = False) -> list[dict]:
     """Rows: each of our renderers (``backends``; the Triton one once per variant of ``variants``) and gsplat timed
-    on the same pinhole view, then each of ours' agreement with gsplat's image."""
+    on the same pinhole view, then each of ours' agreement with gsplat's image. ``profile``: each renderer's row
+    also holds ``profile``, the lines of :func:`.render.profile_forward` (host and device totals, top operators)."""
     g = random_indoor(num).to(device)
     g = type(g).from_rgb(g.means, g.scales, g.rotations, g.opacities, eval_sh(g.sh[..., :1, :], None))
     params = [t.requires_grad_() for t in g.tensors().values()]
@@ -121,6 +130,8 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
                     for p in params:
                         p.grad = None
                     row["launches"] = launch_counts(fn)
+                if profile:
+                    row["profile"] = profile_forward(fn, device, f"{name}, {num} Gaussians")
             except (torch.OutOfMemoryError, MemoryError):
                 row["error"] = "out of memory"
         for p in params:
@@ -154,6 +165,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="the Triton backend's variants, one row each (as `cylindersplat bench render --variants`)")
     parser.add_argument("--launches", action="store_true",
                         help="also count the kernels one forward and its backward of ours launch")
+    parser.add_argument("--profile", action="store_true",
+                        help="also profile one forward of each renderer (torch.profiler): host and device totals, "
+                             "top operators")
     args = parser.parse_args(argv)
     if args.variants and "triton" not in args.backend:
         parser.error("--variants needs --backend triton")
@@ -161,9 +175,12 @@ def main(argv: list[str] | None = None) -> None:
     print(f"# pinhole {args.height}x{2 * args.height}, 90 deg horizontal FOV; torch {torch.__version__}"
           + (f"; GPU: {torch.cuda.get_device_name()}" if device.type == "cuda" else "; CPU"))
     for num in args.num:
-        rows = compare(num, args.height, device, args.backend, args.repeats, args.variants, args.launches)
+        rows = compare(num, args.height, device, args.backend, args.repeats, args.variants, args.launches,
+                       args.profile)
         for row in rows:
-            print(row)
+            print({k: v for k, v in row.items() if k != "profile"})
+        for row in rows:
+            print("\n".join(row.get("profile", [])))
         timed = {r["renderer"]: r for r in rows if "forward_ms" in r}
         if any("agreement" in r for r in rows):
             print("# agreement: this scene's overlapping random-coloured splats are ordered by z-depth in gsplat and by"

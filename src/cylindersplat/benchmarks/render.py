@@ -248,6 +248,29 @@ def profile(num: int, height: int, device: torch.device, backend: str, rows: int
     print(prof.key_averages().table(sort_by=key, row_limit=rows, max_name_column_width=60))
 
 
+def profile_forward(fn, device: torch.device, label: str, rows: int = 10) -> list[str]:
+    """One forward of ``fn`` (no gradients) under ``torch.profiler``, after one unprofiled call: a line with its
+    host and device totals, then its top ``rows`` operators by device time (by host time on a CPU). The host total
+    against the device's says whether the forward waits on its launches (issue 35: ours against gsplat's)."""
+    with torch.no_grad():
+        fn()
+        _sync(device)
+        activities = [torch.profiler.ProfilerActivity.CPU]
+        activities += [torch.profiler.ProfilerActivity.CUDA] if device.type == "cuda" else []
+        with torch.profiler.profile(activities=activities) as prof:
+            fn()
+            _sync(device)
+    events = prof.key_averages()
+    key = "self_device_time_total" if device.type == "cuda" else "self_cpu_time_total"
+    host_ms = sum(e.self_cpu_time_total for e in events) / 1000
+    device_ms = sum(getattr(e, "self_device_time_total", 0) for e in events) / 1000
+    lines = [f"# profile, one forward: {label}: host {host_ms:.2f} ms (profiled), device {device_ms:.2f} ms, "
+             f"{sum(e.count for e in events if getattr(e, 'self_device_time_total', 0) > 0)} device operations"]
+    for e in sorted(events, key=lambda e: getattr(e, key), reverse=True)[:rows]:
+        lines.append(f"#   {getattr(e, key) / 1000:8.3f} ms  x{e.count:<3d} {e.key[:70]}")
+    return lines
+
+
 def ply_view(num: int, device: torch.device, backends: list[str], folder: str, height: int = 512) -> list[dict]:
     """Seconds to load a PLY of ``num`` Gaussians and render one ``height x 2 height`` view, per backend (the second
     of two renders: the first compiles where a backend compiles)."""
