@@ -22,7 +22,7 @@ print('torch' in sys.modules)
 
 
 @pytest.mark.parametrize("argv", [["render", "--help"], ["--debug", "view", "--help"], ["--version"], ["--help"],
-                                  ["ablate", "--help"], ["data", "--help"]])
+                                  ["ablate", "--help"], ["data", "--help"], ["data", "import-poses", "--help"]])
 def test_a_commands_help_and_the_version_do_not_import_torch(argv):
     code = IMPORTS_TORCH.format(argv)
     env = {**os.environ, "PYTHONPATH": str(Path(cli.__file__).parents[1])}  # this checkout's package
@@ -50,3 +50,24 @@ def test_a_mistyped_command_is_named_with_every_choice(capsys):
         cli.main(["rendr"])
     err = capsys.readouterr().err
     assert "invalid choice: 'rendr'" in err and "'ablate'" in err and "'view'" in err
+
+
+def test_lazy_package_names_load_at_first_use_and_unknown_ones_are_refused():
+    code = """import sys
+import cylindersplat.data as data
+import cylindersplat.data.poses as poses
+from cylindersplat.data.poses.registry import POSE_FORMATS
+print('torch' in sys.modules, sorted(POSE_FORMATS) == sorted(poses.POSE_FORMATS))
+from cylindersplat.data import read_rgb, SimulatedPriorConfig
+print('torch' in sys.modules, read_rgb.__module__, 'read_rgb' in vars(data), 'FolderDataset' in dir(data))
+try:
+    data.nothing_here
+except AttributeError as error:
+    print(error)
+"""
+    env = {**os.environ, "PYTHONPATH": str(Path(cli.__file__).parents[1])}
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.splitlines() == [
+        "False True", "True cylindersplat.data.io True True",
+        "module 'cylindersplat.data' has no attribute 'nothing_here'"], run.stdout

@@ -9,6 +9,7 @@ seeds, score them on the same held-out scenes, and tabulate mean and spread (pap
 The study scripts built on it, and their results, live outside the package in ``studies/``.
 """
 
+from ..utils.lazy import lazy_exports
 from .aggregate import RunResult, aggregate
 from .schedule import STUDY_THREADS, Schedule, Variant, torch_threads
 from .variants import (
@@ -21,21 +22,9 @@ from .variants import (
     variant_names,
 )
 
-__all__ = ["RunResult", "aggregate", "check_variants", "run_study", "STUDY_THREADS", "Schedule", "Variant",
-           "torch_threads", "TABLE_METRICS", "study_table", "all_variants", "change_set", "default_variants",
-           "extra_variants", "pinned_to_earlier_tiny", "recipe", "variant_names"]
-
-
 # The runner and the table import the evaluation (and so torch): loaded at their first use, so that reading the
 # variant catalogue (``cylindersplat ablate``'s parser) does not wait for them.
-_LAZY = {"check_variants": "run", "run_study": "run", "TABLE_METRICS": "table", "study_table": "table"}
-
-
-def __getattr__(name: str):
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
-    globals()[name] = value
-    return value
+__all__ = ["RunResult", "aggregate", "STUDY_THREADS", "Schedule", "Variant", "torch_threads", "all_variants",
+           "change_set", "default_variants", "extra_variants", "pinned_to_earlier_tiny", "recipe", "variant_names",
+           *lazy_exports(__name__, globals(), {".run": ("check_variants", "run_study"),
+                                               ".table": ("TABLE_METRICS", "study_table")})]

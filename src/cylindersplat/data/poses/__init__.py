@@ -11,27 +11,19 @@ One module per tool, each opening with a table of what that tool means by a pose
   :mod:`.alignment` (how far estimated poses are from reference ones).
 """
 
-from .colmap import (
-    COLMAP_EQUIRECT_MODELS,
-    c2w_to_colmap,
-    colmap_to_c2w,
-    panoramas_from_virtual_cameras,
-    read_colmap,
-    write_colmap,
-)
-from .conventions import POSE_CONVENTIONS, PoseFormat, PoseRecord, parse_pose_matrix, to_opencv_c2w
-from .metashape import metashape_to_c2w, read_metashape_xml, write_metashape_xml
-from .nerfstudio import EQUIRECT_CAMERA_MODELS, is_transforms_json, read_transforms_json
-from .openmvg import c2w_to_openmvg, openmvg_to_c2w, read_openmvg, write_openmvg
-from .opensfm import read_opensfm
-from .poses_json import write_poses_json
-from .registry import POSE_FORMATS, pose_format
-from .trajectories import match_timestamps_to_images, read_kitti, read_tum
+from ...utils.lazy import lazy_exports
 
-__all__ = [
-    "POSE_CONVENTIONS", "PoseRecord", "PoseFormat", "parse_pose_matrix", "to_opencv_c2w", "POSE_FORMATS", "pose_format",
-    "EQUIRECT_CAMERA_MODELS", "is_transforms_json", "read_transforms_json", "read_opensfm", "read_tum", "read_kitti",
-    "match_timestamps_to_images", "COLMAP_EQUIRECT_MODELS", "colmap_to_c2w", "c2w_to_colmap", "read_colmap",
-    "write_colmap", "panoramas_from_virtual_cameras", "metashape_to_c2w", "read_metashape_xml", "write_metashape_xml",
-    "openmvg_to_c2w", "c2w_to_openmvg", "read_openmvg", "write_openmvg", "write_poses_json",
-]
+# Loaded at first use (:func:`cylindersplat.utils.lazy.lazy_exports`): the readers need torch, the registry's format
+# names (``data import-poses --help``) do not.
+__all__ = lazy_exports(__name__, globals(), {
+    ".conventions": ("POSE_CONVENTIONS", "PoseRecord", "parse_pose_matrix", "to_opencv_c2w"),
+    ".registry": ("POSE_FORMATS", "PoseFormat", "pose_format"),
+    ".nerfstudio": ("EQUIRECT_CAMERA_MODELS", "is_transforms_json", "read_transforms_json"),
+    ".opensfm": ("read_opensfm",),
+    ".trajectories": ("read_tum", "read_kitti", "match_timestamps_to_images"),
+    ".colmap": ("COLMAP_EQUIRECT_MODELS", "colmap_to_c2w", "c2w_to_colmap", "read_colmap", "write_colmap",
+                "panoramas_from_virtual_cameras"),
+    ".metashape": ("metashape_to_c2w", "read_metashape_xml", "write_metashape_xml"),
+    ".openmvg": ("openmvg_to_c2w", "c2w_to_openmvg", "read_openmvg", "write_openmvg"),
+    ".poses_json": ("write_poses_json",),
+})

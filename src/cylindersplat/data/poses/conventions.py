@@ -20,7 +20,6 @@ files with it); :class:`PoseFormat` is a registry entry (:mod:`.registry`).
 
 from __future__ import annotations
 
-import importlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +29,7 @@ from torch import Tensor
 
 from ...geometry import validate_c2w
 from ...utils.jsonfile import read_json_file
+from .registry import PoseFormat  # (defined there, torch-free: the command line lists the formats without torch)
 
 __all__ = ["POSE_CONVENTIONS", "PoseRecord", "PoseFormat", "parse_pose_matrix", "to_opencv_c2w", "check_pose",
            "check_scale", "scaled"]
@@ -114,20 +114,3 @@ def check_pose(c2w: Tensor, where: str) -> Tensor:
     otherwise. Every reader's last word: no NaN, shear or reflection reaches a ``poses.json``."""
     validate_c2w(c2w, name=where)
     return c2w
-
-
-@dataclass(frozen=True)
-class PoseFormat:
-    """One ``data import-poses --from NAME`` of the registry: the ``module`` of this package and its ``reader``
-    function (``reader(path, scale, **options) -> list[PoseRecord]``); ``images`` says how its poses name their
-    panoramas: ``"named"`` (image names, looked up in ``--images``), ``"relative"`` (file names relative to the
-    pose file, nerfstudio) or ``"ordered"`` (none: trajectories, matched in name order or by timestamp);
-    ``options`` are the command-line options it takes (``"reconstruction"``)."""
-
-    module: str
-    reader: str
-    images: str
-    options: tuple[str, ...] = ()
-
-    def read(self, path, scale: float = 1.0, **options) -> list[PoseRecord]:
-        return getattr(importlib.import_module(f"{__package__}.{self.module}"), self.reader)(path, scale, **options)

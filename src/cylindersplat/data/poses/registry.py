@@ -9,9 +9,32 @@ only when it parses ``--from``.
 
 from __future__ import annotations
 
-from .conventions import PoseFormat
+import importlib
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-__all__ = ["POSE_FORMATS", "pose_format"]
+if TYPE_CHECKING:  # (conventions imports torch; this module does not, for the command line's help)
+    from .conventions import PoseRecord
+
+__all__ = ["POSE_FORMATS", "PoseFormat", "pose_format"]
+
+
+@dataclass(frozen=True)
+class PoseFormat:
+    """One ``data import-poses --from NAME`` of the registry: the ``module`` of this package and its ``reader``
+    function (``reader(path, scale, **options) -> list[PoseRecord]``); ``images`` says how its poses name their
+    panoramas: ``"named"`` (image names, looked up in ``--images``), ``"relative"`` (file names relative to the
+    pose file, nerfstudio) or ``"ordered"`` (none: trajectories, matched in name order or by timestamp);
+    ``options`` are the command-line options it takes (``"reconstruction"``)."""
+
+    module: str
+    reader: str
+    images: str
+    options: tuple[str, ...] = ()
+
+    def read(self, path, scale: float = 1.0, **options) -> list[PoseRecord]:
+        return getattr(importlib.import_module(f"{__package__}.{self.module}"), self.reader)(path, scale, **options)
+
 
 POSE_FORMATS: dict[str, PoseFormat] = {
     "opensfm": PoseFormat("opensfm", "read_opensfm", "named", options=("reconstruction",)),
