@@ -263,9 +263,11 @@ def profile_forward(fn, device: torch.device, label: str, rows: int = 10) -> lis
     events = prof.key_averages()
     key = "self_device_time_total" if device.type == "cuda" else "self_cpu_time_total"
     host_ms = sum(e.self_cpu_time_total for e in events) / 1000
-    device_ms = sum(getattr(e, "self_device_time_total", 0) for e in events) / 1000
-    lines = [f"# profile, one forward: {label}: host {host_ms:.2f} ms (profiled), device {device_ms:.2f} ms, "
-             f"{sum(e.count for e in events if getattr(e, 'self_device_time_total', 0) > 0)} device operations"]
+    # The device's own events (kernels, copies) only: an operator's row repeats the time of the kernels it launched.
+    kernels = [e for e in events if e.device_type != torch.autograd.DeviceType.CPU]
+    device_ms = sum(e.self_device_time_total for e in kernels) / 1000
+    lines = [f"# profile, one forward: {label}: host {host_ms:.2f} ms (profiled), device {device_ms:.2f} ms in "
+             f"{sum(e.count for e in kernels)} kernels and copies"]
     for e in sorted(events, key=lambda e: getattr(e, key), reverse=True)[:rows]:
         lines.append(f"#   {getattr(e, key) / 1000:8.3f} ms  x{e.count:<3d} {e.key[:70]}")
     return lines
