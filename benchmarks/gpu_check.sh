@@ -132,7 +132,7 @@ if [ $smoke = 1 ]; then
   gsplat_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1 $gsplat_variants)
   gsplat_profile_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --profile)
   model_args=(--config tiny_paper --height 64 --render --views 1 2 --repeats 1 --device "$device")
-  train_args=(--config tiny --height 64 --steps 1 --warmup 0 --lpips off --device "$device")
+  train_args=(--config tiny_paper --height 64 --steps 1 --warmup 0 --lpips off --device "$device")
   synth_args=(--scenes 4 --resolution 64x128)
   run_overrides=(model.preset=tiny_paper data.resolution=[64,128] train.steps_per_stage=[12,6] train.log_every=1)
   base_scenes=4; base_resolution=64x128; rm -rf "$base_dir"  # a fresh run each time: chunks and resumes are exercised

@@ -31,3 +31,13 @@ def test_a_recipe_runs():
                               amp="off", warmup=0, repeats=1)
     result = run_single(args)
     assert result["gaussians"] > 2 * 16 * 32 and result["median_s"] > 0
+
+
+@pytest.mark.parametrize("device, message", [("tpu", "not a torch device: 'tpu'"),
+                                             ("cuda:7", "cuda:7")])
+def test_a_device_that_is_not_there_is_one_line(device, message, capsys):
+    # (it was a traceback from the timed subprocess; 'cuda:7' is refused with or without a GPU here)
+    with pytest.raises(SystemExit) as stop:
+        main(["--device", device])
+    err = capsys.readouterr().err.strip()
+    assert stop.value.code == 2 and message in err and len(err.splitlines()) == 1, err

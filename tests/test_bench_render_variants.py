@@ -63,6 +63,15 @@ def test_bad_variants_stop_the_command_in_one_line(capsys):
     assert exit_info.value.code == 2 and "FORWARD one of default, lean" in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("argv, message", [(["--device", "tpu"], "not a torch device: 'tpu'"),
+                                           (["--backend", "nope"], "invalid choice: 'nope'")])
+def test_a_bad_device_or_backend_is_one_line(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        bench_render.main(argv)
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_stages_time_the_numba_backends_own_stages():
     """``--stages`` with the numba backend times its own projection, binning and compositing, not the reference's
     (which it did until session 19): no fragment stage, and the reference's pair count."""

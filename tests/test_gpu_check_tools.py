@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from cylindersplat.benchmarks import gsplat_compare
+from cylindersplat.benchmarks import train as bench_train
 from cylindersplat.benchmarks.gsplat_compare import compare
 from cylindersplat.render import triton_backend
 
@@ -62,6 +63,31 @@ def test_gsplat_comparison_profiles_one_forward_of_each_renderer(capsys):
 def test_gsplat_comparison_refuses_bad_arguments_in_one_line(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
         gsplat_compare.main(["--device", "cpu", *argv])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_the_training_step_bench_times_every_stage_on_the_cpu(capsys):
+    """``bench train`` (the ``train`` item): one row per curriculum stage, a positive time, the Gaussians drawn, and on
+    the CPU the process's peak memory (it printed nan)."""
+    bench_train.main(["--config", "tiny_paper", "--height", "16", "--steps", "1", "--warmup", "0", "--lpips", "off",
+                      "--device", "cpu"])
+    out = capsys.readouterr().out
+    rows = [json.loads(x) for x in out.splitlines() if x.startswith("{")]
+    assert [r["stage"] for r in rows] == [1, 2, 3]
+    assert all(r["median_s"] > 0 and r["peak_mb"] > 0 and r["gaussians"] > 0 for r in rows), rows
+    assert "nan" not in out and "(CPU memory: the process's peak resident memory" in out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--config", "papr"], "invalid choice: 'papr' (choose from 'paper',"),
+    (["--device", "tpu"], "not a torch device: 'tpu'"),
+    (["--steps", "0"], "--steps"),
+    (["--height", "-8"], "--height"),
+])
+def test_the_training_step_bench_refuses_bad_arguments_in_one_line(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        bench_train.main(argv)
     err = capsys.readouterr().err
     assert exit_info.value.code == 2 and message in err and len(err.strip().splitlines()) == 1, err
 

@@ -27,6 +27,7 @@ import time
 import torch
 
 from cylindersplat.utils.arguments import OneLineErrorParser, nonnegative_int, positive_int
+from cylindersplat.utils.arguments import device as device_name
 
 
 def synthetic_inputs(views: int, height: int, device: torch.device, seed: int = 0):
@@ -124,7 +125,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--height", type=positive_int, default=None, help="input panorama height (width = 2 x height)")
     parser.add_argument("--views", type=positive_int, nargs="+", default=[1, 2, 3, 4])
     parser.add_argument("--mode", default="both", choices=["pixel", "volume", "both"])
-    parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    parser.add_argument("--device", type=device_name, default="auto", help="auto (CUDA when present), cpu, cuda[:N]")
     parser.add_argument("--render", action="store_true", help="include one render_equirect per forward")
     parser.add_argument("--amp", choices=["bf16", "off"], default="bf16",
                         help="network forward under bf16 autocast on CUDA (as inference and training do)")

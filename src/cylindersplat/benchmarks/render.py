@@ -45,6 +45,7 @@ from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragm
 from cylindersplat.scenes import random_indoor
 from cylindersplat.utils.allocator import keep_freed_memory
 from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
+from cylindersplat.utils.arguments import device as device_name
 
 
 def _sync(device: torch.device) -> None:
@@ -407,10 +408,11 @@ def main(argv: list[str] | None = None) -> None:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--num", type=positive_int, nargs="+", default=[100_000], help="numbers of Gaussians")
     parser.add_argument("--height", type=positive_int, default=256)
-    parser.add_argument("--device", nargs="+", default=None, help="devices (default: cpu, and cuda when present)")
-    parser.add_argument("--backend", nargs="+", default=["torch"],
+    parser.add_argument("--device", nargs="+", type=device_name, default=None,
+                        help="devices: cpu, cuda[:N], auto (default: cpu, and cuda when present)")
+    parser.add_argument("--backend", nargs="+", default=["torch"], choices=["torch", "triton", "numba", "auto"],
                         help="render backends, timed in one run; ratios are printed against the first "
-                             "(torch, triton, auto)")
+                             "(%(choices)s)")
     parser.add_argument("--repeats", type=positive_int, default=5)
     parser.add_argument("--cubemap", action="store_true", help="also time the cubemap route")
     parser.add_argument("--stages", action="store_true", help="print the per-stage breakdown")
