@@ -173,3 +173,12 @@ def test_no_other_module_splits_dotted_keys():
     found = sorted(str(path.relative_to(package)) for path in package.rglob("*.py")
                    if '.split(".")' in path.read_text())
     assert found == ["metrics/lpips.py", "model/config.py"]
+
+
+@pytest.mark.parametrize("device", ["tpu", "cuda:x", "gpu", "cpu:0:1"])
+def test_a_device_torch_does_not_know_is_refused_when_the_config_loads(device):
+    # (torch.device raised a traceback from the trainer's setup; the command line shows this message in one line)
+    with pytest.raises(ValueError, match=f"^train.device must be auto, cpu, cuda or cuda:N; got '{device}'$"):
+        load_config("tiny", [f"train.device={device}"])
+    for good in ("auto", "cpu", "cuda", "cuda:1"):  # a missing GPU is the command's check, not the config's
+        assert load_config("tiny", [f"train.device={good}"]).train.device == good

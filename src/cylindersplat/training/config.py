@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -297,6 +298,8 @@ def _from_dict(data: dict[str, Any]) -> ExperimentConfig:
     if not cfg.train.volume_lr_scale > 0:
         raise ValueError(f"train.volume_lr_scale must be > 0, got {cfg.train.volume_lr_scale}")
     cfg.data.captures.validate()
+    if not re.fullmatch(r"auto|cpu|cuda(:\d+)?", str(cfg.train.device)):  # (torch.device would say so mid-setup)
+        raise ValueError(f"train.device must be auto, cpu, cuda or cuda:N; got {cfg.train.device!r}")
     if cfg.train.max_nonfinite_steps < 0:
         raise ValueError("train.max_nonfinite_steps must be >= 0 (0 = never give up), got "
                          f"{cfg.train.max_nonfinite_steps}")
