@@ -147,7 +147,7 @@ def test_unknown_forward_is_refused_by_name(monkeypatch):
                backend="triton")
 
 
-def test_the_lean_compositing_reads_the_projection_rows_in_place_and_falls_back_elsewhere():
+def test_the_compositing_reads_the_projection_rows_in_place_and_falls_back_elsewhere():
     from dataclasses import replace
 
     from cylindersplat.render.projection import flatten_cameras, project_gaussians
@@ -158,14 +158,17 @@ def test_the_lean_compositing_reads_the_projection_rows_in_place_and_falls_back_
     camera, settings = Equirect(8, 16), RasterSettings()
     proj = project_gaussians(*flatten_cameras(g, torch.eye(4, device=DEVICE))[:2], camera, settings,
                              project_dense_triton)
-    packed, lean, dtype = triton_backend._packed_rows(proj)
+    (geo, opacity, colour), layout, dtype = triton_backend._composite_rows(proj)
     reference = pack_projected(proj)
-    assert lean == 1 and packed.shape == (len(proj.depth), 12) and dtype == F32
-    columns = [0, 1, 2, 3, 4, 8, 9, 10, 11, 7]  # u v A B C opacity r g b depth: pack_projected's columns 0-9
-    assert torch.equal(packed[:, columns], reference[:, :10])
+    assert layout.split == 1 and dtype == F32 and geo.shape == (len(proj.depth), 8)
+    assert geo.data_ptr() == proj.uv.data_ptr()  # the projection's own rows: no copy, no concatenation
+    u_to_c_and_depth = torch.cat((geo[:, :5], opacity[:, None], colour, geo[:, 7:8]), 1)
+    assert torch.equal(u_to_c_and_depth, reference[:, :10])  # pack_projected's columns 0-9
     copied = replace(proj, uv=proj.uv.clone())  # not a view of the projection's rows: the 11-column layout
-    packed, lean, dtype = triton_backend._packed_rows(copied)
-    assert lean == 0 and torch.equal(packed, reference)
+    (packed, none, nothing), layout, dtype = triton_backend._composite_rows(copied)
+    assert layout.split == 0 and none is None and nothing is None and torch.equal(packed, reference)
+    pointers = layout.pointers(packed, None, None)  # opacity and colour: views of the packed rows
+    assert torch.equal(pointers[1], reference[:, 5]) and torch.equal(pointers[2], reference[:, 6:9])
 
 
 def test_lean_bins_with_int32_tile_keys(monkeypatch):

@@ -46,6 +46,12 @@ INT64_POINTER_KERNELS = {"count_pairs_kernel", "emit_fused_keys_kernel", "write_
 LEAN_PAIRS = {"pair_gaussian_ptr": "*i32", "rows_ptr": "*i32", "cols_ptr": "*i32"}
 
 
+# Where the compositing kernels read a pair's parameters (triton_backend.CompositeRows): the projection's rows, the
+# opacities and the colours apart, or pack_projected's 11 columns.
+SPLIT_ROWS = {"GEO_STRIDE": 8, "OPAC_STRIDE": 1, "COLOUR_STRIDE": 3, "DEPTH_COL": 7}
+PACKED_ROWS = {"GEO_STRIDE": 11, "OPAC_STRIDE": 11, "COLOUR_STRIDE": 11, "DEPTH_COL": 9}
+
+
 def _signature(kernel, constexprs, pointers=None):
     sig = {}
     for name in kernel.arg_names:
@@ -96,15 +102,15 @@ KERNELS = [
     (triton_checks_kernels.input_checks_kernel, {"FLAT": 1024, "CAMERAS": 32}, {"flags_ptr": "*i64"}),
     (triton_checks_kernels.input_checks_kernel, {"FLAT": 1024, "CAMERAS": 32},
      {"flags_ptr": "*i64", "means_ptr": "*fp64", "scales_ptr": "*bf16", "rotations_ptr": "*fp16", "c2w_ptr": "*fp64"}),
-    (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 1}, LEAN_PAIRS),
-    # the default forward's compositing on the projection's rows (LEAN layout) with int64 pair fields
-    (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 1}),
-    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, "LEAN": 1}),
-    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 1}, LEAN_PAIRS),
-    # the packed rows of other projections (LEAN=0: pack_projected's layout)
-    (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 0}),
-    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, "LEAN": 0}),
-    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, "LEAN": 0}),
+    (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, **SPLIT_ROWS}, LEAN_PAIRS),
+    # the default forward's compositing on the projection's rows, opacities and colours with int64 pair fields
+    (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, **SPLIT_ROWS}),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, **SPLIT_ROWS, "SPLIT": 1}),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, **SPLIT_ROWS, "SPLIT": 1}, LEAN_PAIRS),
+    # the packed rows of other projections (pack_projected's 11 columns)
+    (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, **PACKED_ROWS}),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, **PACKED_ROWS, "SPLIT": 0}),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, **PACKED_ROWS, "SPLIT": 0}),
 ]
 
 

@@ -18,6 +18,7 @@ interpreter; that is how the test suite checks them on machines without a GPU.
 from __future__ import annotations
 
 import importlib.util
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -80,26 +81,28 @@ def queue_checks(gaussians, c2w: Tensor) -> list[Tensor] | None:
 
 
 class _TritonComposite(torch.autograd.Function):
-    """Compositing on Triton: packed rows and bins -> ``rgb (C, 3, H, W)``, ``depth (C, H, W)``, ``alpha (C, H, W)``
-    (float32, each its own contiguous tensor)."""
+    """Compositing on Triton: the pairs' rows (:class:`CompositeRows`) and bins -> ``rgb (C, 3, H, W)``,
+    ``depth (C, H, W)``, ``alpha (C, H, W)`` (float32, each its own contiguous tensor)."""
 
     @staticmethod
-    def forward(ctx, packed, pair_gaussian, rows, cols, tile_start, num_cameras, height, width, tiles_x, tiles_y,
-                wrap_u, settings, lean=0):
+    def forward(ctx, geo, opacity, colour, pair_gaussian, rows, cols, tile_start, num_cameras, height, width,
+                tiles_x, tiles_y, wrap_u, settings, layout):
         from . import triton_kernels as kernels
 
         # Every pixel is written: one program per tile of every camera, empty tiles included.
-        empty = dict(dtype=torch.float32, device=packed.device)
+        empty = dict(dtype=torch.float32, device=geo.device)
         rgb = torch.empty(num_cameras, 3, height, width, **empty)
         depth, alpha = (torch.empty(num_cameras, height, width, **empty) for _ in range(2))
         grid = (len(tile_start) - 1,)
         args = (height, width, tiles_x, tiles_x * tiles_y, settings.sigma_extent**2, settings.alpha_max,
                 settings.alpha_min, settings.transmittance_min)
+        pointers = layout.pointers(geo, opacity, colour)
         if grid[0] > 0:
-            kernels.composite_forward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha,
-                                                   *args, TILE=settings.tile_size, WRAP_U=bool(wrap_u), LEAN=lean)
-        ctx.save_for_backward(packed, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha)
-        ctx.args, ctx.tile, ctx.wrap_u, ctx.lean = args, settings.tile_size, bool(wrap_u), lean
+            kernels.composite_forward_kernel[grid](*pointers, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha,
+                                                   *args, TILE=settings.tile_size, WRAP_U=bool(wrap_u),
+                                                   **layout.strides)
+        ctx.save_for_backward(geo, opacity, colour, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha)
+        ctx.args, ctx.tile, ctx.wrap_u, ctx.layout = args, settings.tile_size, bool(wrap_u), layout
         ctx.set_materialize_grads(False)  # an output without a gradient (often alpha) is read as zero, not made
         return rgb, depth, alpha
 
@@ -107,17 +110,49 @@ class _TritonComposite(torch.autograd.Function):
     def backward(ctx, grad_rgb, grad_depth, grad_alpha):
         from . import triton_kernels as kernels
 
-        packed, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha = ctx.saved_tensors
-        grad_packed = torch.zeros_like(packed)
+        geo, opacity, colour, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha = ctx.saved_tensors
+        layout = ctx.layout
+        grad_rows = torch.zeros(len(geo), layout.gradient_width, dtype=torch.float32, device=geo.device)
         grid = (len(tile_start) - 1,)
         grads = [out if grad is None else grad.float().contiguous()  # (a placeholder where None: never read)
                  for grad, out in ((grad_rgb, rgb), (grad_depth, depth), (grad_alpha, alpha))]
         has = [int(grad is not None) for grad in (grad_rgb, grad_depth, grad_alpha)]
         if grid[0] > 0 and any(has):
-            kernels.composite_backward_kernel[grid](packed, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha,
-                                                    *grads, grad_packed, *has, *ctx.args, TILE=ctx.tile,
-                                                    WRAP_U=ctx.wrap_u, LEAN=ctx.lean)
-        return (grad_packed,) + (None,) * 12
+            kernels.composite_backward_kernel[grid](*layout.pointers(geo, opacity, colour), pair_gaussian, rows, cols,
+                                                    tile_start, rgb, depth, alpha, *grads, grad_rows, *has,
+                                                    *ctx.args, TILE=ctx.tile, WRAP_U=ctx.wrap_u, SPLIT=layout.split,
+                                                    **layout.strides)
+        return (*layout.gradients(grad_rows),) + (None,) * 12
+
+
+@dataclass(frozen=True)
+class CompositeRows:
+    """Where the compositing kernels read a pair's parameters (:mod:`.triton_kernels`): ``split`` 1, the
+    projection's ``(M, 8)`` rows, the ``(M,)`` opacities and the ``(M, 3)`` colours where they are (a gradient
+    buffer ``M x 12`` whose column slices are their gradients); 0, one ``M x 11`` tensor of
+    :func:`.rasterize.pack_projected` (its gradient ``M x 11``)."""
+
+    split: int
+
+    @property
+    def strides(self) -> dict:
+        if self.split:
+            return dict(GEO_STRIDE=8, OPAC_STRIDE=1, COLOUR_STRIDE=3, DEPTH_COL=7)
+        return dict(GEO_STRIDE=11, OPAC_STRIDE=11, COLOUR_STRIDE=11, DEPTH_COL=9)
+
+    @property
+    def gradient_width(self) -> int:
+        return 11 + self.split
+
+    def pointers(self, geo: Tensor, opacity: Tensor | None, colour: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
+        """The kernels' three row pointers (views into the one packed tensor where not split)."""
+        return (geo, opacity, colour) if self.split else (geo, geo[:, 5], geo[:, 6:9])
+
+    def gradients(self, grad_rows: Tensor) -> tuple[Tensor, Tensor | None, Tensor | None]:
+        """The gradients of ``geo``, ``opacity`` and ``colour`` (views of the kernel's gradient rows)."""
+        if self.split:
+            return grad_rows[:, :8], grad_rows[:, 8], grad_rows[:, 9:12]
+        return grad_rows, None, None
 
 
 def _finish(rgb: Tensor, depth: Tensor, alpha: Tensor, dtype: torch.dtype, background: Tensor | None):
@@ -139,9 +174,9 @@ def composite_triton(
     # host on CUDA to size its output).
     tile_ids = torch.arange(num_tiles + 1, dtype=bins.tile.dtype, device=bins.tile.device)
     tile_start = torch.searchsorted(bins.tile.contiguous(), tile_ids)
-    packed, layout, dtype = _packed_rows(proj)
+    rows, layout, dtype = _composite_rows(proj)
     out = _TritonComposite.apply(
-        packed, bins.gaussian.contiguous(), bins.rows.contiguous(), bins.cols.contiguous(),
+        *rows, bins.gaussian.contiguous(), bins.rows.contiguous(), bins.cols.contiguous(),
         tile_start, c, h, w, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings, layout,
     )
     return _finish(*out, dtype, background)
@@ -179,19 +214,19 @@ def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background
 def composite_lean(proj: ProjectedGaussians, bins, settings: RasterSettings, background: Tensor | None = None):
     """Stage 4 of the ``"lean"`` forward on :class:`.triton_binning.LeanBins` (complete only where their pair
     count fits their capacity). Returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
-    packed, layout, dtype = _packed_rows(proj)
-    out = _TritonComposite.apply(packed, bins.gaussian, bins.rows, bins.cols, bins.tile_start, proj.num_cameras,
+    rows, layout, dtype = _composite_rows(proj)
+    out = _TritonComposite.apply(*rows, bins.gaussian, bins.rows, bins.cols, bins.tile_start, proj.num_cameras,
                                  proj.height, proj.width, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings, layout)
     return _finish(*out, dtype, background)
 
 
-def _packed_rows(proj: ProjectedGaussians) -> tuple[Tensor, int, torch.dtype]:
-    """The compositing kernels' rows, their layout (:mod:`.triton_kernels`, ``LEAN``: both forwards use the
-    projection's rows in place where they can) and the outputs' dtype:
-    where ``uv``, ``conic`` and ``depth`` are columns 0-1, 2-4 and 7 of one float32 ``(M, 8)`` tensor (the
-    projection's rows, as :func:`.projection._pairs` makes them), that tensor with opacity and colour appended
-    (``M x 12``, one concatenation; the gradient reaches the projection's rows whole, not column by column); else
-    :func:`.rasterize.pack_projected`'s rows (``M x 11``)."""
+def _composite_rows(proj: ProjectedGaussians) -> tuple[tuple[Tensor, Tensor | None, Tensor | None], CompositeRows,
+                                                      torch.dtype]:
+    """The compositing kernels' inputs ``(geo, opacity, colour)``, where they read them (:class:`CompositeRows`) and
+    the outputs' dtype: where ``uv``, ``conic`` and ``depth`` are columns 0-1, 2-4 and 7 of one float32 ``(M, 8)``
+    tensor (the projection's rows, as :func:`.projection._pairs` makes them), those rows, the opacities and the
+    colours as they are (contiguous float32; no concatenation, and the gradient reaches the projection's rows
+    whole); else :func:`.rasterize.pack_projected`'s rows (``M x 11``)."""
     base = proj.uv._base  # the projection's rows, (M, 8) or (B, V, N, 8)
     f32 = torch.float32
     if (base is not None and base.dtype == f32 and base.shape[-1:] == (8,) and base.numel() == 8 * len(proj.depth)
@@ -199,6 +234,6 @@ def _packed_rows(proj: ProjectedGaussians) -> tuple[Tensor, int, torch.dtype]:
             and proj.opacity.dtype == f32 and proj.color.dtype == f32
             and [t.storage_offset() - base.storage_offset() for t in (proj.uv, proj.conic, proj.depth)] == [0, 2, 7]
             and proj.uv.stride() == (8, 1) and proj.conic.stride() == (8, 1) and proj.depth.stride() == (8,)):
-        return torch.cat((base.view(-1, 8), proj.opacity[:, None], proj.color), -1), 1, f32
+        return (base.view(-1, 8), proj.opacity.contiguous(), proj.color.contiguous()), CompositeRows(1), f32
     packed = pack_projected(proj)
-    return packed.float().contiguous(), 0, packed.dtype
+    return (packed.float().contiguous(), None, None), CompositeRows(0), packed.dtype

@@ -11,12 +11,17 @@ depth order. The rules are the reference's (:mod:`.rasterize`): a pixel gets a f
 all later ones are dropped. A tile stops early once all its pixels have terminated (the forward counts them after
 every run of eight pairs).
 
-Packed Gaussian rows (``M x 11``, float32): ``[u, v, A, B, C, opacity, r, g, b, depth, 1]``; with the
-constant ``LEAN=1`` (the Triton projection's rows, either forward of :data:`.triton_backend.FORWARD`) ``M x 12``: the
-projection's rows ``[u, v, A, B, C, extent u, extent v, depth]`` followed by ``[opacity, r, g, b]`` - one
-concatenation of the projection's output, whose gradient goes back to it whole. :func:`_column` maps the ten
-parameters to their columns. The outputs are the render's own tensors: rgb planar ``(C, 3, H, W)``, depth and alpha
-``(C, H, W)``, float32 and contiguous (no slices of an interleaved buffer: their gradients come back as they are).
+The pairs' parameters are read from three row pointers with compile-time row strides: ``geo`` (``u, v, A, B, C``
+in columns 0-4, the depth in column ``DEPTH_COL``), ``opac`` and ``colour`` (``r, g, b``). With ``SPLIT=1`` (the
+Triton projection's rows, either forward of :data:`.triton_backend.FORWARD`) they are the projection's own
+``(M, 8)`` rows ``[u, v, A, B, C, extent u, extent v, depth]``, the ``(M,)`` opacities and the ``(M, 3)`` colours,
+read where they are (no concatenation: it was 8 % of the device time at 1.3 M Gaussians on an H100), and the
+gradients go into one ``M x 12`` buffer laid out as ``[u, v, A, B, C, -, -, depth, opacity, r, g, b]``, whose
+column slices are the three inputs' gradients; with ``SPLIT=0`` all three point into
+:func:`.rasterize.pack_projected`'s ``M x 11`` rows ``[u, v, A, B, C, opacity, r, g, b, depth, 1]``, and so does
+the gradient. :func:`_column` maps the ten parameters to their gradient columns. The outputs are the render's own
+tensors: rgb planar ``(C, 3, H, W)``, depth and alpha ``(C, H, W)``, float32 and contiguous (no slices of an
+interleaved buffer: their gradients come back as they are).
 """
 
 from __future__ import annotations
@@ -43,22 +48,22 @@ def _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE: tl.conste
 
 
 @triton.jit
-def _column(j, LEAN: tl.constexpr):
-    """The packed column of parameter ``j`` (0-4: u, v, A, B, C; 5: opacity; 6-8: r, g, b; 9: depth)."""
-    return tl.where(j < 5, j, tl.where(j == 9, 9 - 2 * LEAN, j + 3 * LEAN))
+def _column(j, SPLIT: tl.constexpr):
+    """The gradient column of parameter ``j`` (0-4: u, v, A, B, C; 5: opacity; 6-8: r, g, b; 9: depth)."""
+    return tl.where(j < 5, j, tl.where(j == 9, 9 - 2 * SPLIT, j + 3 * SPLIT))
 
 
 @triton.jit
-def _fragment(packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min,
-              WRAP_U: tl.constexpr, LEAN: tl.constexpr):
+def _fragment(geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min,
+              WRAP_U: tl.constexpr, GEO_STRIDE: tl.constexpr, OPAC_STRIDE: tl.constexpr):
     """Offsets, alpha and the support mask of pair ``p`` (Gaussian ``g``) at the tile's pixels."""
-    base = packed_ptr + g * (11 + LEAN)
+    base = geo_ptr + g * GEO_STRIDE
     u = tl.load(base + 0)
     v = tl.load(base + 1)
     a = tl.load(base + 2)
     b = tl.load(base + 3)
     c = tl.load(base + 4)
-    o = tl.load(base + 5 + 3 * LEAN)
+    o = tl.load(opac_ptr + g * OPAC_STRIDE)
     r0 = tl.load(rows_ptr + 2 * p)
     r1 = tl.load(rows_ptr + 2 * p + 1)
     c0 = tl.load(cols_ptr + 2 * p)
@@ -77,11 +82,10 @@ def _fragment(packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alp
 
 
 @triton.jit
-def _colour(packed_ptr, g, LEAN: tl.constexpr):
-    """Colour and radial depth of Gaussian ``g`` (columns 6-9 of its packed row; 9-11 and 7 with ``LEAN``)."""
-    base = packed_ptr + g * (11 + LEAN)
-    return (tl.load(base + 6 + 3 * LEAN), tl.load(base + 7 + 3 * LEAN), tl.load(base + 8 + 3 * LEAN),
-            tl.load(base + 9 - 2 * LEAN))
+def _colour(geo_ptr, colour_ptr, g, GEO_STRIDE: tl.constexpr, COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr):
+    """Colour and radial depth of Gaussian ``g``."""
+    base = colour_ptr + g * COLOUR_STRIDE
+    return tl.load(base + 0), tl.load(base + 1), tl.load(base + 2), tl.load(geo_ptr + g * GEO_STRIDE + DEPTH_COL)
 
 
 @triton.jit
@@ -98,11 +102,11 @@ def _transmittance_step(trans, alpha, support, alive, t_min):
 
 
 @triton.jit
-def _add_gradients(gp, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, o, LEAN: tl.constexpr):
+def _add_gradients(gp, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, o, SPLIT: tl.constexpr):
     """``gp[j] += sum(x_j)`` over the tile's pixels (``/ max(o, 1e-30)`` for ``j = 5``, the opacity), for the
-    ten packed parameters of one Gaussian: the ten per-pixel values joined into one ``(pixels, 2, 2, 2, 2)`` tensor
+    ten parameters of one Gaussian: the ten per-pixel values joined into one ``(pixels, 2, 2, 2, 2)`` tensor
     (registers, no data movement), one block-wide sum of it (one pass through shared memory instead of ten, each with
-    its barriers) and one vector atomic of the ten sums (six padding lanes masked off). ``gp``: the Gaussian's packed
+    its barriers) and one vector atomic of the ten sums (six padding lanes masked off). ``gp``: the Gaussian's
     gradient row (columns by :func:`_column`)."""
     z = tl.zeros_like(x0)
     low = tl.join(tl.join(tl.join(x0, x1), tl.join(x2, x3)), tl.join(tl.join(x4, x5), tl.join(x6, x7)))
@@ -111,7 +115,7 @@ def _add_gradients(gp, x0, x1, x2, x3, x4, x5, x6, x7, x8, x9, o, LEAN: tl.const
     bit = tl.arange(0, 2)
     j = (bit[:, None, None, None] + 2 * bit[None, :, None, None] + 4 * bit[None, None, :, None]
          + 8 * bit[None, None, None, :])
-    tl.atomic_add(gp + _column(j, LEAN), sums / tl.where(j == 5, tl.maximum(o, 1e-30), 1.0), mask=j < 10)
+    tl.atomic_add(gp + _column(j, SPLIT), sums / tl.where(j == 5, tl.maximum(o, 1e-30), 1.0), mask=j < 10)
 
 
 @triton.jit
@@ -134,10 +138,11 @@ def _store_pixels(rgb_ptr, depth_ptr, alpha_ptr, pixel, rgb_at, plane, inside, a
 
 @triton.jit
 def composite_forward_kernel(
-    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, rgb_ptr, depth_ptr, alpha_ptr,
-    height, width, tiles_x, tiles_per_camera,
+    geo_ptr, opac_ptr, colour_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, rgb_ptr, depth_ptr,
+    alpha_ptr, height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, LEAN: tl.constexpr,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, GEO_STRIDE: tl.constexpr, OPAC_STRIDE: tl.constexpr,
+    COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr,
 ):
     tile = tl.program_id(0)
     row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
@@ -161,9 +166,10 @@ def composite_forward_kernel(
         while p < stop:
             g_next = tl.load(pair_gaussian_ptr + tl.minimum(p + 1, stop - 1))
             du, dv, alpha, raw, support, a, b, c, o = _fragment(
-                packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U, LEAN)
+                geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U,
+                GEO_STRIDE, OPAC_STRIDE)
             use, w, trans, alive = _transmittance_step(trans, alpha, support, alive, t_min)
-            cr, cg, cb, cd = _colour(packed_ptr, g, LEAN)
+            cr, cg, cb, cd = _colour(geo_ptr, colour_ptr, g, GEO_STRIDE, COLOUR_STRIDE, DEPTH_COL)
             acc_r += w * cr
             acc_g += w * cg
             acc_b += w * cb
@@ -199,11 +205,12 @@ def _output_gradients(rgb_ptr, depth_ptr, alpha_ptr, grad_rgb_ptr, grad_depth_pt
 
 @triton.jit(do_not_specialize=["has_rgb", "has_depth", "has_alpha"])  # one compilation whichever outputs have one
 def composite_backward_kernel(
-    packed_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, rgb_ptr, depth_ptr, alpha_ptr, grad_rgb_ptr,
-    grad_depth_ptr, grad_alpha_ptr, grad_packed_ptr, has_rgb, has_depth, has_alpha,
+    geo_ptr, opac_ptr, colour_ptr, pair_gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr, rgb_ptr, depth_ptr,
+    alpha_ptr, grad_rgb_ptr, grad_depth_ptr, grad_alpha_ptr, grad_rows_ptr, has_rgb, has_depth, has_alpha,
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, LEAN: tl.constexpr,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, GEO_STRIDE: tl.constexpr, OPAC_STRIDE: tl.constexpr,
+    COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr, SPLIT: tl.constexpr,
 ):
     """Front to back again: ``dL/dalpha_i = T_i s_i - (S - P_i) / (1 - alpha_i)`` with ``s_i = g . f_i``,
     ``S = g . out`` (all contributions) and ``P_i`` the running sum of ``s_k w_k`` up to ``i``.
@@ -227,9 +234,10 @@ def composite_backward_kernel(
     while (p < end) & (n_alive > 0):
         g_next = tl.load(pair_gaussian_ptr + tl.minimum(p + 1, end - 1))  # one pair ahead (as the forward)
         du, dv, alpha, raw, support, a, b, c, o = _fragment(
-            packed_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U, LEAN)
+            geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U,
+            GEO_STRIDE, OPAC_STRIDE)
         use, w, next_trans, next_alive = _transmittance_step(trans, alpha, support, alive, t_min)
-        cr, cg, cb, cd = _colour(packed_ptr, g, LEAN)
+        cr, cg, cb, cd = _colour(geo_ptr, colour_ptr, g, GEO_STRIDE, COLOUR_STRIDE, DEPTH_COL)
         s = g_r * cr + g_g * cg + g_b * cb + g_d * cd + g_a
         prefix += s * w
         # both counts from one block-wide sum
@@ -242,10 +250,10 @@ def composite_backward_kernel(
             d_mahal = tl.where(on, -0.5 * alpha * d_alpha, 0.0)
             du = tl.where(on, du, 0.0)
             dv = tl.where(on, dv, 0.0)
-            _add_gradients(grad_packed_ptr + g * (11 + LEAN),
+            _add_gradients(grad_rows_ptr + g * (11 + SPLIT),
                            -2.0 * d_mahal * (a * du + b * dv), -2.0 * d_mahal * (b * du + c * dv),
                            d_mahal * du * du, 2.0 * d_mahal * du * dv, d_mahal * dv * dv,
-                           tl.where(on, d_alpha * alpha, 0.0), g_r * w, g_g * w, g_b * w, g_d * w, o, LEAN)
+                           tl.where(on, d_alpha * alpha, 0.0), g_r * w, g_g * w, g_b * w, g_d * w, o, SPLIT)
         trans = next_trans
         alive = next_alive
         n_alive = n_alive_next
