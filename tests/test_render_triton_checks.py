@@ -189,7 +189,7 @@ def test_the_fused_checks_launch_one_kernel_where_pytorch_launches_dozens(monkey
     assert fused.triton["input_checks_kernel"] == 1 and "input_checks_kernel" not in torch_checks.triton
     assert torch_checks.kernels - fused.kernels >= 60  # 98 -> 24 (default), 94 -> 20 (lean) on 2026-11-26
     # The whole forward: checks, projection, binning, compositing (20 default / 18 lean since session 21, which
-    # dropped the compositing rows' concatenation; 24 / 20 in session 18, 112 / 105 before). The backward: 14 with the loss's own four and the copies of its two expanded
-    # gradients (17 in session 18, 31 / 26 before).
+    # dropped the compositing rows' concatenation; 24 / 20 in session 18, 112 / 105 before). The backward: 14 with
+    # the loss's own four and the copies of its two expanded gradients (17 in session 18, 31 / 26 before).
     assert fused.kernels <= (20 if forward == "default" else 18)
     assert fused_backward.kernels == torch_backward.kernels <= 15
