@@ -155,7 +155,7 @@ else
   gsplat_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 10 $gsplat_variants)
   # One forward of ours (both forwards) and of gsplat under torch.profiler: host against device time (issue 35's
   # pinhole gap: is it our launches or our kernels?)
-  gsplat_profile_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 3 --profile
+  gsplat_profile_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile
                        --variants default lean)
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
   train_args=(--config paper --height 512 --steps 3)

@@ -225,6 +225,19 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
     return out
 
 
+def _profiled(fn, device: torch.device):
+    """``torch.profiler``'s record of one call of ``fn`` after one unprofiled call (first-call work: compilation,
+    caches), and the key its operators rank by: device time on CUDA, host time on a CPU."""
+    fn()
+    _sync(device)
+    activities = [torch.profiler.ProfilerActivity.CPU]
+    activities += [torch.profiler.ProfilerActivity.CUDA] if device.type == "cuda" else []
+    with torch.profiler.profile(activities=activities) as prof:
+        fn()
+        _sync(device)
+    return prof, "self_device_time_total" if device.type == "cuda" else "self_cpu_time_total"
+
+
 def profile(num: int, height: int, device: torch.device, backend: str, rows: int = 20,
             label: str | None = None) -> None:
     """Top operators (by device time) of one forward + backward."""
@@ -237,14 +250,7 @@ def profile(num: int, height: int, device: torch.device, backend: str, rows: int
         out = render_equirect(g, c2w, height, 2 * height, backend=backend)
         (out.rgb.sum() + out.depth.sum()).backward()
 
-    step()
-    _sync(device)
-    activities = [torch.profiler.ProfilerActivity.CPU]
-    activities += [torch.profiler.ProfilerActivity.CUDA] if device.type == "cuda" else []
-    with torch.profiler.profile(activities=activities) as prof:
-        step()
-        _sync(device)
-    key = "self_device_time_total" if device.type == "cuda" else "self_cpu_time_total"
+    prof, key = _profiled(step, device)
     print(f"# profile: {label or backend}, {num} Gaussians, {height}x{2 * height}, one forward + backward")
     print(prof.key_averages().table(sort_by=key, row_limit=rows, max_name_column_width=60))
 
@@ -254,15 +260,8 @@ def profile_forward(fn, device: torch.device, label: str, rows: int = 10) -> lis
     host and device totals, then its top ``rows`` operators by device time (by host time on a CPU). The host total
     against the device's says whether the forward waits on its launches (issue 35: ours against gsplat's)."""
     with torch.no_grad():
-        fn()
-        _sync(device)
-        activities = [torch.profiler.ProfilerActivity.CPU]
-        activities += [torch.profiler.ProfilerActivity.CUDA] if device.type == "cuda" else []
-        with torch.profiler.profile(activities=activities) as prof:
-            fn()
-            _sync(device)
+        prof, key = _profiled(fn, device)
     events = prof.key_averages()
-    key = "self_device_time_total" if device.type == "cuda" else "self_cpu_time_total"
     host_ms = sum(e.self_cpu_time_total for e in events) / 1000
     # The device's own events (kernels, copies) only: an operator's row repeats the time of the kernels it launched.
     kernels = [e for e in events if e.device_type != torch.autograd.DeviceType.CPU]
