@@ -13,25 +13,33 @@ from cylindersplat.render import triton_backend
 def test_variant_names_are_checked_against_the_backends_lists():
     assert bench_render.triton_variant_name("lean") == ("lean",)
     assert bench_render.triton_variant_name("default,nonzero") == ("default", "nonzero")
-    assert bench_render.triton_variant_name("default,none,torch") == ("default", "none", "torch")
-    # Trailing defaults are left out: every spelling of one variant has one name (its row's).
+    assert bench_render.triton_variant_name("default,none,torch") == ("default", "torch")
+    # Options in any order, one name per variant (its row's): the forward, then the options that are not their
+    # switch's default, in the switches' order.
     assert bench_render.triton_variant_name("lean,none,fused") == ("lean",)
-    for bad, field in (("thin", "FORWARD one of default, lean"), ("", "FORWARD one of"),
-                       ("default,all", "COMPACTION one of none, nonzero"), ("lean,none,numpy", "CHECK one of fused"),
-                       ("lean,none,fused,x", "is not FORWARD[,COMPACTION[,CHECK]]"),
-                       ("fused,joined", "FORWARD one of")):  # the old BINNING,BACKWARD form
-        with pytest.raises(argparse.ArgumentTypeError, match=field.replace("[", r"\[")):
+    assert bench_render.triton_variant_name("lean,ids,nonzero") == ("lean", "nonzero", "ids")
+    assert bench_render.triton_variant_name("default,rects") == ("default",)
+    for bad, message in (("thin", "'thin' is not a forward"), ("", "'' is not a forward"),
+                         ("ids", "'ids' is not a forward"),
+                         ("default,all", "'all' is not an option"), ("lean,none,numpy", "'numpy' is not an option"),
+                         ("lean,ids,rects", "gives PAIR_FIELD twice (ids, rects)"),
+                         ("fused,joined", "'fused' is not a forward")):  # the old BINNING,BACKWARD form
+        with pytest.raises(argparse.ArgumentTypeError, match=message.replace("(", r"\(").replace(")", r"\)")) as e:
             bench_render.triton_variant_name(bad)
+        assert "FORWARD one of default, lean" in str(e.value) and "PAIR_FIELD one of rects, ids" in str(e.value)
 
 
 def test_a_variant_holds_inside_and_the_defaults_come_back_even_after_an_error():
-    before = triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK
+    def switches():
+        return (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK, triton_backend.PAIR_FIELD)
+
+    before = switches()
     with pytest.raises(RuntimeError):
-        with bench_render.triton_variant("lean", "nonzero", "torch"):
-            assert (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK) == ("lean", "nonzero",
-                                                                                                "torch")
+        with bench_render.triton_variant("lean", "ids", "nonzero", "torch"):
+            assert switches() == ("lean", "nonzero", "torch", "ids")
             raise RuntimeError("a failing row")
-    assert (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK) == before
+    assert switches() == before
+    before = switches()[:3]
     with bench_render.triton_variant(None, "nonzero"):
         assert (triton_backend.FORWARD, triton_backend.COMPACTION) == (before[0], "nonzero")
     assert (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK) == before
@@ -44,6 +52,19 @@ def test_the_lean_variant_is_timed_beside_the_default_with_its_agreement(capsys)
     assert "'backend': 'triton[lean]'" in out and "'num_pairs'" in out
     line = next(x for x in out.splitlines() if x.startswith("# agreement triton[lean] vs triton[default]"))
     assert "rgb max |diff| 0.00e+00" in line, line
+
+
+def test_the_id_pairs_are_timed_by_stage_beside_the_rectangles_with_their_agreement(capsys):
+    bench_render.main(["--num", "30", "--height", "8", "--device", "cpu", "--backend", "triton", "--repeats", "1",
+                       "--stages", "--variants", "default", "default,ids", "lean,ids"])
+    out = capsys.readouterr().out
+    rows = {row["backend"]: row for row in (ast.literal_eval(x) for x in out.splitlines() if x.startswith("{"))}
+    pairs = {name: row["stages_ms"]["num_pairs"] for name, row in rows.items()}
+    assert pairs["triton[default,ids]"] == pairs["triton[lean,ids]"] == pairs["triton[default]"] > 0
+    for name in ("default,ids", "lean,ids"):
+        line = next(x for x in out.splitlines() if x.startswith(f"# agreement triton[{name}] vs triton[default]"))
+        assert "rgb max |diff| 0.00e+00" in line and "means 0.0e+00" in line, line
+    assert triton_backend.PAIR_FIELD == "rects"  # the default is back
 
 
 def test_the_input_checks_variant_and_launches_are_counted(capsys):

@@ -98,6 +98,13 @@ KERNELS = [
      {"sorted_key_ptr": "*i16", "rank_ptr": "*i32", "gaussian_ptr": "*i32", "rows_ptr": "*i32", "cols_ptr": "*i32"}),
     (triton_binning_kernels.write_lean_pairs_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128},
      {"sorted_key_ptr": "*i32", "rank_ptr": "*i32", "gaussian_ptr": "*i32", "rows_ptr": "*i32", "cols_ptr": "*i32"}),
+    # pairs that carry only their Gaussian (triton_backend.PAIR_FIELD = "ids"): its row emitted, no rectangles
+    (triton_binning_kernels.emit_fused_keys_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128, "ROW_IDS": True},
+     {"key_ptr": "*i16", "rank_ptr": "*i32"}),
+    (triton_binning_kernels.emit_lean_keys_kernel, {"TILE": 16, "WRAP_U": False, "BLOCK": 128, "ROW_IDS": True},
+     {"key_ptr": "*i32", "rank_ptr": "*i32"}),
+    (triton_binning_kernels.write_lean_pairs_kernel, {"TILE": 16, "WRAP_U": True, "BLOCK": 128, "RECTS": False},
+     {"sorted_key_ptr": "*i16", "rank_ptr": "*i32", "gaussian_ptr": "*i32", "rows_ptr": "*i32", "cols_ptr": "*i32"}),
     # the input checks: float32 Gaussians and poses, and float64 / bfloat16 ones
     (triton_checks_kernels.input_checks_kernel, {"FLAT": 1024, "CAMERAS": 32}, {"flags_ptr": "*i64"}),
     (triton_checks_kernels.input_checks_kernel, {"FLAT": 1024, "CAMERAS": 32},
@@ -107,6 +114,15 @@ KERNELS = [
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, **SPLIT_ROWS}),
     (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, **SPLIT_ROWS, "SPLIT": 1}),
     (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, **SPLIT_ROWS, "SPLIT": 1}, LEAN_PAIRS),
+    # the compositing computing each pair's rectangle (PAIR_FIELD "ids"), panorama (the seam's two intervals) and
+    # pinhole
+    (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, **SPLIT_ROWS, "RECTS": False}, LEAN_PAIRS),
+    (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": False, **SPLIT_ROWS, "RECTS": False},
+     LEAN_PAIRS),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, **SPLIT_ROWS, "SPLIT": 1, "RECTS": False},
+     LEAN_PAIRS),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, **SPLIT_ROWS, "SPLIT": 1,
+                                                "RECTS": False}, LEAN_PAIRS),
     # the packed rows of other projections (pack_projected's 11 columns)
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, **PACKED_ROWS}),
     (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, **PACKED_ROWS, "SPLIT": 0}),
@@ -114,9 +130,16 @@ KERNELS = [
 ]
 
 
+def _with_defaults(kernel, constexprs: dict) -> dict:
+    """``constexprs`` and the kernel's defaults of the compile-time constants not given (e.g. ``RECTS``)."""
+    defaults = {p.name: p.default for p in kernel.params if p.is_constexpr and p.has_default}
+    return {**defaults, **constexprs}
+
+
 def compile_all() -> None:
     """Compile every kernel of :data:`KERNELS` for sm_90 (run without ``TRITON_INTERPRET``)."""
     for kernel, constexprs, *pointers in KERNELS:
+        constexprs = _with_defaults(kernel, constexprs)
         signature = _signature(kernel, constexprs, *pointers)
         compiled = triton.compile(ASTSource(fn=kernel, signature=signature, constexprs=constexprs),
                                   target=GPUTarget("cuda", 90, 32))

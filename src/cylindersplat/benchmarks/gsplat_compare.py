@@ -10,7 +10,7 @@ sorts by z-depth where we sort by radial distance, and culls at the image border
 images agree closely but not bit for bit: the agreement is printed (mean |difference|, PSNR of ours
 against gsplat's), not asserted.
 
-``--variants FORWARD[,COMPACTION[,CHECK]] ...`` (with ``--backend triton``) times the Triton backend's variants
+``--variants FORWARD[,OPTION...] ...`` (with ``--backend triton``) times the Triton backend's variants
 beside gsplat, one ``cylindersplat-triton[...]`` row each, as ``bench render --variants`` does (issue 35: the lean
 forward and the compaction of the visible pairs, ``default,nonzero``, are to be judged on pinhole views too, where
 most pairs are invisible); ``--launches`` adds the kernels one forward and its backward launch.
@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="our backends to time")
     parser.add_argument("--repeats", type=positive_int, default=5)
     parser.add_argument("--variants", nargs="+", type=triton_variant_name, default=[],
-                        metavar="FORWARD[,COMPACTION[,CHECK]]",
+                        metavar="FORWARD[,OPTION...]",
                         help="the Triton backend's variants, one row each (as `cylindersplat bench render --variants`)")
     parser.add_argument("--launches", action="store_true",
                         help="also count the kernels one forward and its backward of ours launch")

@@ -15,12 +15,14 @@ of memory is reported as such in the rows and the closing table (the others are 
 ``--stages`` starts with the render's input checks (``checks``: queued on the device for the Triton backend,
 :data:`cylindersplat.render.triton_backend.CHECK`). ``--launches`` also counts the kernels one forward and its
 backward launch (PyTorch operations and Triton kernels: on an H100 the Triton path is launch-bound, issue 35).
-``--variants FORWARD[,COMPACTION[,CHECK]] ...`` times the Triton backend's variants side by side (issue 35): one
+``--variants FORWARD[,OPTION...] ...`` times the Triton backend's variants side by side (issue 35): one
 ``triton[...]`` row each - ``triton[lean]`` with the lean forward (:data:`cylindersplat.render.triton_backend.FORWARD`),
 ``triton[default,nonzero]`` with the visible pairs compacted first (:data:`cylindersplat.render.triton_backend.
-COMPACTION`), ``triton[default,none,torch]`` with the input checks as PyTorch operations
-(:data:`cylindersplat.render.triton_backend.CHECK`) - then ``# agreement`` lines (each variant's image and gradients
-against the first's, at the timed size), e.g. ``--backend triton --stages --variants default lean default,nonzero``.
+COMPACTION`), ``triton[default,torch]`` with the input checks as PyTorch operations
+(:data:`cylindersplat.render.triton_backend.CHECK`), ``triton[lean,ids]`` with pairs that carry only their Gaussian
+(:data:`cylindersplat.render.triton_backend.PAIR_FIELD`) - then ``# agreement`` lines (each variant's image and
+gradients against the first's, at the timed size), e.g. ``--backend triton --stages --variants default lean
+default,ids``.
 """
 
 from __future__ import annotations
@@ -167,21 +169,25 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
         mark()
         lean = False
         if fast:  # the Triton backend's own stages: fused projection kernel, key binning
+            from cylindersplat.render import triton_binning as binning
             from cylindersplat.render.projection import flatten_cameras, project_gaussians
-            from cylindersplat.render.triton_binning import bin_lean, bin_to_tiles_by_key, grow_capacity, lean_capacity
             from cylindersplat.render.triton_projection import project_dense_triton
 
             proj = project_gaussians(*flatten_cameras(g, c2w)[:2], Equirect(height, width), settings,
                                      project_dense_triton, every_pair=triton_backend.takes_every_pair())
             mark()
-            lean = triton_backend.FORWARD == "lean"
-            if lean:  # the capacity grows in the warm-up iteration
-                key, capacity = lean_capacity(proj, settings.tile_size)
-                bins = bin_lean(proj, settings.tile_size, capacity)
+            rects = triton_backend.pairs_carry_rects(proj)
+            lean = triton_backend.FORWARD == "lean" or not rects  # PairBins (else TileBins)
+            if triton_backend.FORWARD == "lean":  # the capacity grows in the warm-up iteration
+                key, capacity = binning.lean_capacity(proj, settings.tile_size)
+                bins = binning.bin_lean(proj, settings.tile_size, capacity, rects)
                 while int(bins.total) > bins.capacity:
-                    bins = bin_lean(proj, settings.tile_size, grow_capacity(key, int(bins.total)))
+                    bins = binning.bin_lean(proj, settings.tile_size, binning.grow_capacity(key, int(bins.total)),
+                                            rects)
+            elif not rects:
+                bins = binning.bin_ids(proj, settings.tile_size)
             else:
-                bins = bin_to_tiles_by_key(proj, settings.tile_size)
+                bins = binning.bin_to_tiles_by_key(proj, settings.tile_size)
         elif kind == "numba":  # the numba backend's: fused float64 projection, counting sort by tile
             from cylindersplat.render.numba_backend import bin_pairs_numba
             from cylindersplat.render.numba_projection import project_dense_numba
@@ -198,9 +204,9 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
         mark()
         num_fragments = None
         if fast:
-            from cylindersplat.render.triton_backend import composite_lean, composite_triton
+            from cylindersplat.render.triton_backend import composite_bins, composite_triton
 
-            rgb, depth, _ = (composite_lean if lean else composite_triton)(proj, bins, settings)
+            rgb, depth, _ = (composite_bins if lean else composite_triton)(proj, bins, settings)
         elif kind == "numba":
             from cylindersplat.render.numba_backend import composite_numba
 
@@ -298,19 +304,26 @@ def ply_view(num: int, device: torch.device, backends: list[str], folder: str, h
 
 
 def triton_variant_name(text: str) -> tuple[str, ...]:
-    """``"FORWARD[,COMPACTION[,CHECK]]"`` (argparse type): the fields, each checked against the Triton backend's
-    variants; trailing defaults (COMPACTION ``none``, CHECK ``fused``) are left out."""
-    fields = tuple(text.split(","))
-    options = (triton_backend.FORWARDS, triton_backend.COMPACTIONS, triton_backend.CHECKS)
-    if len(fields) > len(options) or any(f not in choices for f, choices in zip(fields, options)):
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is not FORWARD[,COMPACTION[,CHECK]] with FORWARD one of {', '.join(triton_backend.FORWARDS)}, "
-            f"COMPACTION one of {', '.join(triton_backend.COMPACTIONS)} and CHECK one of "
-            f"{', '.join(triton_backend.CHECKS)}")
-    defaults = (None, "none", "fused")
-    while len(fields) > 1 and fields[-1] == defaults[len(fields) - 1]:
-        fields = fields[:-1]
-    return fields
+    """``"FORWARD[,OPTION...]"`` (argparse type): a Triton forward (:data:`.triton_backend.FORWARDS`) and at most one
+    value of each other switch of :data:`.triton_backend.VARIANT_FIELDS` (COMPACTION, CHECK, PAIR_FIELD), in any
+    order: the forward, then the options that are not their switch's default, in the switches' order (every
+    spelling of one variant has one name: its row's)."""
+    forward, *options = text.split(",")
+    fields = triton_backend.VARIANT_FIELDS
+    usage = ("FORWARD[,OPTION...] with FORWARD one of " + ", ".join(triton_backend.FORWARDS) + " and OPTIONs from "
+             + "; ".join(f"{name} one of {', '.join(values)}" for name, values in fields.items() if name != "FORWARD"))
+    if forward not in triton_backend.FORWARDS:
+        raise argparse.ArgumentTypeError(f"{text!r}: {forward!r} is not a forward; use {usage}")
+    chosen: dict[str, str] = {}
+    for option in options:
+        field = next((name for name, values in fields.items() if name != "FORWARD" and option in values), None)
+        if field is None:
+            raise argparse.ArgumentTypeError(f"{text!r}: {option!r} is not an option; use {usage}")
+        if field in chosen:
+            raise argparse.ArgumentTypeError(f"{text!r} gives {field} twice ({chosen[field]}, {option}); use {usage}")
+        chosen[field] = option
+    return (forward,) + tuple(chosen[name] for name, values in fields.items()
+                              if name in chosen and chosen[name] != values[0])
 
 
 def variant_agreement(num: int, height: int, device: torch.device, variants: list[tuple[str, ...]]) -> list[str]:
@@ -347,17 +360,21 @@ def variant_agreement(num: int, height: int, device: torch.device, variants: lis
 
 
 @contextlib.contextmanager
-def triton_variant(forward: str | None = None, compaction: str | None = None, check: str | None = None):
-    """The Triton backend with the given forward, compaction and input-check variants (None: the default) while
-    inside."""
-    saved = (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK)
-    triton_backend.FORWARD = forward or saved[0]
-    triton_backend.COMPACTION = compaction or saved[1]
-    triton_backend.CHECK = check or saved[2]
+def triton_variant(forward: str | None = None, *options: str):
+    """The Triton backend with the given forward (None: the current one) and options (values of the other switches
+    of :data:`.triton_backend.VARIANT_FIELDS`, e.g. ``"nonzero"``, ``"ids"``; the rest stay) while inside."""
+    fields = triton_backend.VARIANT_FIELDS
+    saved = {name: getattr(triton_backend, name) for name in fields}
     try:
+        if forward is not None:
+            triton_backend.FORWARD = forward
+        for option in options:
+            if option is not None:
+                setattr(triton_backend, next(name for name, values in fields.items() if option in values), option)
         yield
     finally:
-        triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK = saved
+        for name, value in saved.items():
+            setattr(triton_backend, name, value)
 
 
 def ratio_line(base: dict, row: dict, dev: str) -> str:
@@ -422,14 +439,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--compile", action="store_true", help="projection through torch.compile "
                                                                "(render.projection.compile_projection)")
     parser.add_argument("--variants", nargs="+", type=triton_variant_name, default=[],
-                        metavar="FORWARD[,COMPACTION[,CHECK]]",
+                        metavar="FORWARD[,OPTION...]",
                         help="Triton variants timed side by side, one row each: forward "
                              f"{'|'.join(triton_backend.FORWARDS)} (default {triton_backend.FORWARD}; lean: no host "
-                             "sync before compositing), compaction "
+                             "sync before compositing), then options in any order: compaction "
                              f"{'|'.join(triton_backend.COMPACTIONS)} (default {triton_backend.COMPACTION}; nonzero: "
                              "only the visible pairs, one more host sync), input checks "
                              f"{'|'.join(triton_backend.CHECKS)} (default {triton_backend.CHECK}; torch: some seventy "
-                             "PyTorch operations instead of one kernel)")
+                             "PyTorch operations instead of one kernel), pair fields "
+                             f"{'|'.join(triton_backend.PAIR_FIELDS)} (default {triton_backend.PAIR_FIELD}; ids: pairs "
+                             "carry only their Gaussian, the compositing computes their pixel rectangles)")
     parser.add_argument("--launches", action="store_true",
                         help="also count the kernels one forward and its backward launch (PyTorch operations and "
                              "Triton kernels; on any device)")

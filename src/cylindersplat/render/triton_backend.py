@@ -27,8 +27,9 @@ from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings,
 from .rasterize import TileBins, over_background, pack_projected
 from .triton_binning import bin_to_tiles_by_key
 
-__all__ = ["triton_available", "triton_backend", "composite_triton", "FORWARDS", "FORWARD", "COMPACTIONS",
-           "COMPACTION", "CHECKS", "CHECK", "takes_every_pair", "queue_checks"]
+__all__ = ["triton_available", "triton_backend", "composite_triton", "composite_bins", "FORWARDS", "FORWARD",
+           "COMPACTIONS", "COMPACTION", "CHECKS", "CHECK", "PAIR_FIELDS", "PAIR_FIELD", "VARIANT_FIELDS",
+           "takes_every_pair", "queue_checks", "pairs_carry_rects"]
 
 # The forward path's variant: "default" (:func:`.triton_binning.bin_to_tiles_by_key`, which reads the pair count on
 # the host before sizing its buffers, then compositing) or "lean" (:func:`_lean_backend`: the binning's
@@ -55,6 +56,18 @@ COMPACTION = "none"
 # (2026-11-27). Module-level: the benchmark switches it.
 CHECKS = ("fused", "torch")
 CHECK = "fused"
+
+# What a (Gaussian, tile) pair carries from the binning to the compositing: "rects" (its Gaussian's row and its pixel
+# rectangle in the tile, written by the binning's last kernel: 56 bytes a pair with the default forward, 20 with
+# "lean") or "ids" (its Gaussian's row only, 4 bytes; the compositing kernels compute the rectangle from the
+# Gaussian's centre and extents with the binning's arithmetic, as gsplat's rasterizer reads only Gaussian ids). The
+# same images and gradients. "ids" needs the Triton projection's rows (float32, extents in place); other
+# projections' pairs carry rectangles whatever this says. Module-level: the benchmark switches it.
+PAIR_FIELDS = ("rects", "ids")
+PAIR_FIELD = "rects"
+
+# The switches above by name, for the benchmarks' variant names (every value is one field's: "lean,ids").
+VARIANT_FIELDS = {"FORWARD": FORWARDS, "COMPACTION": COMPACTIONS, "CHECK": CHECKS, "PAIR_FIELD": PAIR_FIELDS}
 
 
 def triton_available() -> bool:
@@ -97,12 +110,15 @@ class _TritonComposite(torch.autograd.Function):
         args = (height, width, tiles_x, tiles_x * tiles_y, settings.sigma_extent**2, settings.alpha_max,
                 settings.alpha_min, settings.transmittance_min)
         pointers = layout.pointers(geo, opacity, colour)
+        rects = rows is not None  # else the kernels compute each pair's rectangle (never read: the ids as pointers)
+        if not rects:
+            rows = cols = pair_gaussian
         if grid[0] > 0:
             kernels.composite_forward_kernel[grid](*pointers, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha,
                                                    *args, TILE=settings.tile_size, WRAP_U=bool(wrap_u),
-                                                   **layout.strides)
+                                                   RECTS=rects, **layout.strides)
         ctx.save_for_backward(geo, opacity, colour, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha)
-        ctx.args, ctx.tile, ctx.wrap_u, ctx.layout = args, settings.tile_size, bool(wrap_u), layout
+        ctx.args, ctx.tile, ctx.wrap_u, ctx.layout, ctx.rects = args, settings.tile_size, bool(wrap_u), layout, rects
         ctx.set_materialize_grads(False)  # an output without a gradient (often alpha) is read as zero, not made
         return rgb, depth, alpha
 
@@ -121,7 +137,7 @@ class _TritonComposite(torch.autograd.Function):
             kernels.composite_backward_kernel[grid](*layout.pointers(geo, opacity, colour), pair_gaussian, rows, cols,
                                                     tile_start, rgb, depth, alpha, *grads, grad_rows, *has,
                                                     *ctx.args, TILE=ctx.tile, WRAP_U=ctx.wrap_u, SPLIT=layout.split,
-                                                    **layout.strides)
+                                                    RECTS=ctx.rects, **layout.strides)
         return (*layout.gradients(grad_rows),) + (None,) * 12
 
 
@@ -189,13 +205,25 @@ def triton_backend(proj: ProjectedGaussians, settings: RasterSettings, backgroun
         raise UnsupportedSettings(f"the Triton backend needs a power-of-two tile size, got {settings.tile_size}")
     if FORWARD not in FORWARDS:
         raise ValueError(f"unknown Triton forward {FORWARD!r}: choose one of {', '.join(FORWARDS)}")
+    rects = pairs_carry_rects(proj)
     if FORWARD == "lean":
-        return _lean_backend(proj, settings, background)
-    bins = bin_to_tiles_by_key(proj, settings.tile_size)
-    return composite_triton(proj, bins, settings, background)
+        return _lean_backend(proj, settings, background, rects)
+    if not rects:
+        from .triton_binning import bin_ids
+
+        return composite_bins(proj, bin_ids(proj, settings.tile_size), settings, background)
+    return composite_triton(proj, bin_to_tiles_by_key(proj, settings.tile_size), settings, background)
 
 
-def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background: Tensor | None):
+def pairs_carry_rects(proj: ProjectedGaussians) -> bool:
+    """Whether the binning gives the pairs of ``proj`` their pixel rectangles (:data:`PAIR_FIELD`; always where the
+    compositing cannot compute them: rows other than the Triton projection's)."""
+    if PAIR_FIELD not in PAIR_FIELDS:
+        raise ValueError(f"unknown Triton pair field {PAIR_FIELD!r}: choose one of {', '.join(PAIR_FIELDS)}")
+    return PAIR_FIELD == "rects" or _projection_rows(proj) is None
+
+
+def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background: Tensor | None, rects: bool = True):
     """The ``"lean"`` forward: :func:`.triton_binning.bin_lean` into the cached capacity of this kind of render,
     compositing, then one read of the pair count (the GPU has the whole forward queued by then); where the pairs
     did not fit, the capacity grows to hold them and the binning and compositing run again: no pair is dropped."""
@@ -203,17 +231,18 @@ def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background
 
     key, capacity = lean_capacity(proj, settings.tile_size)
     while True:
-        bins = bin_lean(proj, settings.tile_size, capacity)
-        out = composite_lean(proj, bins, settings, background)
+        bins = bin_lean(proj, settings.tile_size, capacity, rects)
+        out = composite_bins(proj, bins, settings, background)
         needed = read_count(proj, bins.total)  # the one host synchronisation, after the compositing is queued
         if needed <= capacity:
             return out
         capacity = grow_capacity(key, needed)
 
 
-def composite_lean(proj: ProjectedGaussians, bins, settings: RasterSettings, background: Tensor | None = None):
-    """Stage 4 of the ``"lean"`` forward on :class:`.triton_binning.LeanBins` (complete only where their pair
-    count fits their capacity). Returns ``rgb (C, 3, H, W), depth (C, H, W), alpha (C, H, W)``."""
+def composite_bins(proj: ProjectedGaussians, bins, settings: RasterSettings, background: Tensor | None = None):
+    """Stage 4 on :class:`.triton_binning.PairBins` (the ``"lean"`` forward's, complete only where their pair
+    count fits their capacity, and :func:`.triton_binning.bin_ids`'). Returns ``rgb (C, 3, H, W), depth (C, H, W),
+    alpha (C, H, W)``."""
     rows, layout, dtype = _composite_rows(proj)
     out = _TritonComposite.apply(*rows, bins.gaussian, bins.rows, bins.cols, bins.tile_start, proj.num_cameras,
                                  proj.height, proj.width, bins.tiles_x, bins.tiles_y, proj.wrap_u, settings, layout)
@@ -227,13 +256,24 @@ def _composite_rows(proj: ProjectedGaussians) -> tuple[tuple[Tensor, Tensor | No
     tensor (the projection's rows, as :func:`.projection._pairs` makes them), those rows, the opacities and the
     colours as they are (contiguous float32; no concatenation, and the gradient reaches the projection's rows
     whole); else :func:`.rasterize.pack_projected`'s rows (``M x 11``)."""
-    base = proj.uv._base  # the projection's rows, (M, 8) or (B, V, N, 8)
-    f32 = torch.float32
-    if (base is not None and base.dtype == f32 and base.shape[-1:] == (8,) and base.numel() == 8 * len(proj.depth)
-            and base.is_contiguous() and proj.conic._base is base and proj.depth._base is base
-            and proj.opacity.dtype == f32 and proj.color.dtype == f32
-            and [t.storage_offset() - base.storage_offset() for t in (proj.uv, proj.conic, proj.depth)] == [0, 2, 7]
-            and proj.uv.stride() == (8, 1) and proj.conic.stride() == (8, 1) and proj.depth.stride() == (8,)):
-        return (base.view(-1, 8), proj.opacity.contiguous(), proj.color.contiguous()), CompositeRows(1), f32
+    base = _projection_rows(proj)
+    if base is not None:
+        return (base, proj.opacity.contiguous(), proj.color.contiguous()), CompositeRows(1), torch.float32
     packed = pack_projected(proj)
     return (packed.float().contiguous(), None, None), CompositeRows(0), packed.dtype
+
+
+def _projection_rows(proj: ProjectedGaussians) -> Tensor | None:
+    """The projection's float32 ``(M, 8)`` rows ``[u, v, A, B, C, extent u, extent v, depth]`` that ``uv``,
+    ``conic``, ``extent`` and ``depth`` are views of (as :func:`.projection._pairs` makes them from the Triton
+    projection's), with float32 opacities and colours; else None."""
+    base = proj.uv._base  # the projection's rows, (M, 8) or (B, V, N, 8)
+    f32 = torch.float32
+    views = (proj.uv, proj.conic, proj.extent, proj.depth)
+    if (base is not None and base.dtype == f32 and base.shape[-1:] == (8,) and base.numel() == 8 * len(proj.depth)
+            and base.is_contiguous() and all(t._base is base for t in views[1:])
+            and proj.opacity.dtype == f32 and proj.color.dtype == f32
+            and [t.storage_offset() - base.storage_offset() for t in views] == [0, 2, 5, 7]
+            and [t.stride() for t in views] == [(8, 1), (8, 1), (8, 1), (8,)]):
+        return base.view(-1, 8)
+    return None

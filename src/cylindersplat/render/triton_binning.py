@@ -13,6 +13,8 @@ counts, the emission (the key and the Gaussian's depth rank) and the pair fields
 sorted places (no gathers). On an H100 (benchmarks/RESULTS.md, 2026-11-26) this took 1.4 ms for 1.3 M Gaussians
 (4.9 M tile pairs) against 9.1 ms for one radix sort of 64-bit ``tile << 32 | depth`` keys and 3.6 ms with
 :func:`.rasterize.tile_spans`' thirty small PyTorch operations instead of the recomputation, variants removed since.
+:func:`bin_ids` gives the same pairs carrying only their Gaussian's row (the compositing computes their pixel
+rectangles: ``triton_backend.PAIR_FIELD = "ids"``).
 
 :func:`bin_to_tiles_by_key` makes one host synchronisation: the pair count that sizes the buffers, read with the
 render's deferred input checks (:func:`.projection.read_count`). :func:`bin_lean` (the lean forward) makes none
@@ -30,7 +32,7 @@ from torch import Tensor
 from .projection import ProjectedGaussians, read_count
 from .rasterize import TileBins
 
-__all__ = ["bin_to_tiles_by_key", "bin_lean", "LeanBins", "tile_key_dtype"]
+__all__ = ["bin_to_tiles_by_key", "bin_ids", "bin_lean", "PairBins", "tile_key_dtype"]
 
 _BLOCK = 128
 
@@ -125,17 +127,19 @@ CAPACITY_HEADROOM = 1.25
 
 
 @dataclass
-class LeanBins:
-    """The lean binning's pairs, sorted by (tile, depth) in buffers of ``capacity`` places.
+class PairBins:
+    """Pairs sorted by (tile, depth) in buffers of ``capacity`` places, with int32 fields and the tiles' first
+    places (:func:`bin_lean`, :func:`bin_ids`).
 
     gaussian: (capacity,) int32 row of the ProjectedGaussians; rows/cols: (capacity, 2) int32 inclusive pixel
-    ranges (:class:`.rasterize.TileBins`); tile_start: (num_tiles + 1,) int64 first place of each tile (the
-    last: the number of places used); total: (1,) int64 on the device, the pair count, which may exceed
-    ``capacity`` (then the bins are incomplete: :func:`bin_lean` with a larger capacity)."""
+    ranges (:class:`.rasterize.TileBins`), or None where the pairs carry only their Gaussian (the compositing
+    computes them); tile_start: (num_tiles + 1,) int64 first place of each tile (the last: the number of places
+    used); total: (1,) int64 on the device, the pair count, which may exceed ``capacity`` (then the bins are
+    incomplete: :func:`bin_lean` with a larger capacity)."""
 
     gaussian: torch.Tensor
-    rows: torch.Tensor
-    cols: torch.Tensor
+    rows: torch.Tensor | None
+    cols: torch.Tensor | None
     tile_start: torch.Tensor
     total: torch.Tensor
     capacity: int
@@ -162,11 +166,11 @@ def _strided_rows(x: torch.Tensor) -> tuple[torch.Tensor, int]:
     return x, (x.stride(0) if len(x) > 1 else x.shape[1])
 
 
-def bin_lean(proj: ProjectedGaussians, tile_size: int, capacity: int) -> LeanBins:
+def bin_lean(proj: ProjectedGaussians, tile_size: int, capacity: int, rects: bool = True) -> PairBins:
     """:func:`bin_to_tiles_by_key` without a host synchronisation: the centres and extents read in place, buffers of
     ``capacity`` pairs (the padding sorts last), int32 pair fields and the tiles' first places written by the last
     kernel. Two sorts and four launches: depth sort, count (and the key buffer's fill), prefix sum, emission, tile
-    sort, writing."""
+    sort, writing. ``rects=False``: the pairs carry only their Gaussian's row (no pixel rectangles)."""
     from . import triton_binning_kernels as kernels
 
     device = proj.camera.device
@@ -196,13 +200,59 @@ def bin_lean(proj: ProjectedGaussians, tile_size: int, capacity: int) -> LeanBin
     if num:
         kernels.emit_lean_keys_kernel[((num + _BLOCK - 1) // _BLOCK,)](
             *head, keys, rank, num, capacity, proj.height, proj.width, uv_stride, ext_stride, tiles_x,
-            tiles_per_camera, **constants)
+            tiles_per_camera, ROW_IDS=not rects, **constants)
+    return _write_pair_bins(head, keys, rank, total, capacity, num_tiles, tiles_x, tiles_y, proj, uv_stride,
+                            ext_stride, rects, constants)
+
+
+def bin_ids(proj: ProjectedGaussians, tile_size: int) -> PairBins:
+    """:func:`bin_to_tiles_by_key`'s pairs (the same order, after the same one host synchronisation) carrying only
+    their Gaussian's row, in int32, with the tiles' first places: no pixel rectangles, tile ids or column shifts
+    (the compositing computes a pair's rectangle from its Gaussian's centre and extents: ``rects=False`` in
+    :mod:`.triton_kernels`). 4 bytes a pair written once after the sort, against 56 (``PAIR_FIELD = "rects"``)."""
+    from . import triton_binning_kernels as kernels
+
+    by_depth = None
+    if len(proj.depth):
+        by_depth = torch.sort(proj.depth.detach().float(), stable=True).indices
+    centres = _centres_and_extents(proj)
+    counts = _depth_order_counts(centres, by_depth, tile_size, proj)
+    ends = torch.cumsum(counts, 0)
+    total = read_count(proj, ends[-1:]) if len(counts) else 0  # the one host synchronisation: the output size
+    tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
+    num_tiles = proj.num_cameras * tiles_x * tiles_y
+    device = proj.camera.device
+    if total == 0:
+        return PairBins(torch.empty(0, dtype=torch.int32, device=device), None, None,
+                        torch.zeros(num_tiles + 1, dtype=torch.int64, device=device),
+                        torch.zeros(1, dtype=torch.int64, device=device), 0, tiles_x, tiles_y)
+    uv, ext, uv_stride, ext_stride = centres
+    keys, rank = _key_buffers(proj, total, num_tiles)
+    head = (uv, ext, proj.camera, by_depth, ends)
+    constants = dict(TILE=tile_size, WRAP_U=bool(proj.wrap_u), BLOCK=_BLOCK)
+    kernels.emit_fused_keys_kernel[((len(by_depth) + _BLOCK - 1) // _BLOCK,)](
+        *head, keys, rank, len(by_depth), proj.height, proj.width, uv_stride, ext_stride, tiles_x, tiles_x * tiles_y,
+        ROW_IDS=True, **constants)
+    return _write_pair_bins(head, keys, rank, ends[-1:], total, num_tiles, tiles_x, tiles_y, proj, uv_stride,
+                            ext_stride, False, constants)
+
+
+def _write_pair_bins(head, keys, rank, total, capacity, num_tiles, tiles_x, tiles_y, proj, uv_stride, ext_stride,
+                     rects, constants) -> PairBins:
+    """The sort by tile and the last kernel of :func:`bin_lean` and :func:`bin_ids`: the pairs' int32 fields in
+    sorted order and the tiles' first places."""
+    from . import triton_binning_kernels as kernels
+
+    device = proj.camera.device
     sorted_keys, order = torch.sort(keys, stable=True)  # by tile; within a tile, emission (= depth) order
     gaussian = torch.empty(capacity, dtype=torch.int32, device=device)
-    rows = torch.empty(capacity, 2, dtype=torch.int32, device=device)
-    cols = torch.empty(capacity, 2, dtype=torch.int32, device=device)
+    rows = cols = None
+    if rects:
+        rows = torch.empty(capacity, 2, dtype=torch.int32, device=device)
+        cols = torch.empty(capacity, 2, dtype=torch.int32, device=device)
     tile_start = torch.empty(num_tiles + 1, dtype=torch.int64, device=device)
     kernels.write_lean_pairs_kernel[(capacity // _BLOCK + 1,)](
-        *head, total, order, sorted_keys, rank, gaussian, rows, cols, tile_start, capacity, num_tiles, proj.height,
-        proj.width, uv_stride, ext_stride, tiles_x, tiles_per_camera, **constants)
-    return LeanBins(gaussian, rows, cols, tile_start, total, capacity, tiles_x, tiles_y)
+        *head, total, order, sorted_keys, rank, gaussian, gaussian if rows is None else rows,
+        gaussian if cols is None else cols, tile_start, capacity, num_tiles, proj.height, proj.width, uv_stride,
+        ext_stride, tiles_x, num_tiles // proj.num_cameras, RECTS=rects, **constants)
+    return PairBins(gaussian, rows, cols, tile_start, total, capacity, tiles_x, tiles_y)

@@ -45,13 +45,21 @@ def _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE:
 @triton.jit
 def _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask, height, width, TILE: tl.constexpr,
                    WRAP_U: tl.constexpr):
-    """:func:`.rasterize.tile_spans` of Gaussians ``g``, computed from their centres and extents, the same
-    arithmetic in the same float type: ``(i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1)``. The centres and extents are
-    ``uv_stride`` / ``ext_stride`` elements apart (e.g. the projection's ``(M, 8)`` rows, read in place)."""
+    """:func:`tile_spans` of Gaussians ``g`` whose centres and extents are ``uv_stride`` / ``ext_stride`` elements
+    apart (e.g. the projection's ``(M, 8)`` rows, read in place)."""
     u = tl.load(uv_ptr + uv_stride * g, mask=mask, other=0.0)
     v = tl.load(uv_ptr + uv_stride * g + 1, mask=mask, other=0.0)
     eu = tl.load(ext_ptr + ext_stride * g, mask=mask, other=0.0)
     ev = tl.load(ext_ptr + ext_stride * g + 1, mask=mask, other=0.0)
+    return tile_spans(u, v, eu, ev, height, width, TILE, WRAP_U)
+
+
+@triton.jit
+def tile_spans(u, v, eu, ev, height, width, TILE: tl.constexpr, WRAP_U: tl.constexpr):
+    """:func:`.rasterize.tile_spans` of a Gaussian centred at pixel ``(u, v)`` with half-widths ``(eu, ev)``, the
+    same arithmetic in the same float type: ``(i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1)`` (its pixel rows, first
+    column, columns ``a0..b0`` and, wrapped across the seam, ``a1..b1``; its tile rows and the tile columns of each
+    interval). Also the compositing's (:mod:`.triton_kernels`), where the pairs carry no pixel rectangle."""
     i0 = tl.maximum(tl.ceil(v - ev - 0.5), 0.0).to(tl.int64)
     i1 = tl.minimum(tl.floor(v + ev - 0.5), height - 1.0).to(tl.int64)
     j0 = tl.ceil(u - eu - 0.5).to(tl.int64)
@@ -100,11 +108,11 @@ def count_pairs_kernel(
 def emit_fused_keys_kernel(
     uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, key_ptr, rank_ptr,
     num_gaussians, height, width, uv_stride, ext_stride, tiles_x, tiles_per_camera,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr, ROW_IDS: tl.constexpr = False,
 ):
     """The emission: lane ``i`` takes the Gaussian of depth rank ``i`` and writes its pairs' tile ids (the sort
     keys, int16 or int32) and ``i`` at its offset (``end``: the inclusive prefix sum of the counts in depth
-    order)."""
+    order); with ``ROW_IDS``, the Gaussian's row instead of ``i`` (pairs that carry only their Gaussian)."""
     i = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
     mask = i < num_gaussians
     g = tl.load(by_depth_ptr + i, mask=mask, other=0)
@@ -117,7 +125,7 @@ def emit_fused_keys_kernel(
         on = mask & (k < count)
         ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
         tl.store(key_ptr + start + k, tile.to(key_ptr.dtype.element_ty), mask=on)
-        tl.store(rank_ptr + start + k, i.to(tl.int32), mask=on)
+        tl.store(rank_ptr + start + k, (g if ROW_IDS else i).to(tl.int32), mask=on)
 
 
 @triton.jit
@@ -172,7 +180,7 @@ def count_lean_kernel(
 def emit_lean_keys_kernel(
     uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, key_ptr, rank_ptr,
     num_gaussians, capacity, height, width, uv_stride, ext_stride, tiles_x, tiles_per_camera,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr, ROW_IDS: tl.constexpr = False,
 ):
     """:func:`emit_fused_keys_kernel` on strided centres and extents; places at or past ``capacity`` are not
     written (the pair count, ``end[-1]``, tells the caller to rerun with more)."""
@@ -188,7 +196,7 @@ def emit_lean_keys_kernel(
         on = mask & (k < count) & (start + k < capacity)
         ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
         tl.store(key_ptr + start + k, tile.to(key_ptr.dtype.element_ty), mask=on)
-        tl.store(rank_ptr + start + k, i.to(tl.int32), mask=on)
+        tl.store(rank_ptr + start + k, (g if ROW_IDS else i).to(tl.int32), mask=on)
 
 
 @triton.jit
@@ -196,26 +204,30 @@ def write_lean_pairs_kernel(
     uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, total_ptr, order_ptr, sorted_key_ptr, rank_ptr,
     gaussian_ptr, rows_ptr, cols_ptr, tile_start_ptr,
     capacity, num_tiles, height, width, uv_stride, ext_stride, tiles_x, tiles_per_camera,
-    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
+    TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr, RECTS: tl.constexpr = True,
 ):
     """:func:`write_fused_pairs_kernel` on strided centres and extents, int32 fields (Gaussian row, pixel rows
     and columns) for the ``used = min(total, capacity)`` sorted places, and the tiles' first places: lane
     ``q <= used`` writes ``tile_start[t] = q`` for the tiles ``t`` after the previous place's and up to its own
     (a place ``>= used`` counts as past every tile, so ``tile_start[num_tiles] = used``). Launch with at least
-    ``capacity + 1`` lanes."""
+    ``capacity + 1`` lanes. ``RECTS=False``: the pairs carry only their Gaussian's row, which the emission wrote in
+    ``rank`` (``ROW_IDS``); no pixel rectangle (``rows``, ``cols``, and the spans' inputs are not read)."""
     q = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
     used = tl.minimum(tl.load(total_ptr), capacity)
     mask = q < used
     at = tl.load(order_ptr + q, mask=mask, other=0)
-    i = tl.load(rank_ptr + at, mask=mask, other=0)
-    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
-    camera = tl.load(camera_ptr + g, mask=mask, other=0)
-    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
-                                                              height, width, TILE, WRAP_U)
-    k = at - (tl.load(end_ptr + i, mask=mask, other=0) - ny * (nx0 + nx1))
-    ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
-    tl.store(gaussian_ptr + q, g.to(tl.int32), mask=mask)
-    _store_pair_rect(rows_ptr, cols_ptr, q, i0, i1, a0, b0, a1, b1, ty, tx, second, mask, TILE)
+    if RECTS:
+        i = tl.load(rank_ptr + at, mask=mask, other=0)
+        g = tl.load(by_depth_ptr + i, mask=mask, other=0)
+        camera = tl.load(camera_ptr + g, mask=mask, other=0)
+        i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
+                                                                  height, width, TILE, WRAP_U)
+        k = at - (tl.load(end_ptr + i, mask=mask, other=0) - ny * (nx0 + nx1))
+        ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
+        tl.store(gaussian_ptr + q, g.to(tl.int32), mask=mask)
+        _store_pair_rect(rows_ptr, cols_ptr, q, i0, i1, a0, b0, a1, b1, ty, tx, second, mask, TILE)
+    else:
+        tl.store(gaussian_ptr + q, tl.load(rank_ptr + at, mask=mask, other=0).to(tl.int32), mask=mask)
     # The tiles' first places, from the sorted keys (every key < num_tiles).
     key = tl.load(sorted_key_ptr + q, mask=mask, other=0).to(tl.int32)
     key = tl.where(mask, key, num_tiles)

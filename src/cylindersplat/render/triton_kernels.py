@@ -5,7 +5,8 @@ Imported lazily by :mod:`.triton_backend` (only when the Triton backend is used)
 
 One program per (camera, tile): its ``TILE x TILE`` pixels walk the tile's (Gaussian, tile) pairs in
 depth order. The rules are the reference's (:mod:`.rasterize`): a pixel gets a fragment of pair
-``p`` only inside the pair's pixel rectangle and the ``sigma_extent`` ellipse; ``du`` wraps into
+``p`` only inside the pair's pixel rectangle (read from the pair's fields, or with ``RECTS=False`` computed from
+its Gaussian's centre and extents: :func:`_pair_rect`) and the ``sigma_extent`` ellipse; ``du`` wraps into
 ``[-W/2, W/2)`` across the seam; ``alpha = min(alpha_max, o exp(-m/2))``, skipped below
 ``alpha_min``; the fragment that would bring the transmittance below ``transmittance_min`` and
 all later ones are dropped. A tile stops early once all its pixels have terminated (the forward counts them after
@@ -29,6 +30,8 @@ from __future__ import annotations
 import triton
 import triton.language as tl
 
+from .triton_binning_kernels import tile_spans
+
 # Pairs composited between two counts of a tile's live pixels (the forward's early stop).
 _ALIVE_EVERY = tl.constexpr(8)
 
@@ -44,7 +47,7 @@ def _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE: tl.conste
     col = tx * TILE + offs % TILE
     inside = (row < height) & (col < width)
     pixel = (camera * height + row) * width + col
-    return row, col, inside, pixel
+    return row, col, inside, pixel, tx * TILE
 
 
 @triton.jit
@@ -54,9 +57,28 @@ def _column(j, SPLIT: tl.constexpr):
 
 
 @triton.jit
-def _fragment(geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min,
-              WRAP_U: tl.constexpr, GEO_STRIDE: tl.constexpr, OPAC_STRIDE: tl.constexpr):
-    """Offsets, alpha and the support mask of pair ``p`` (Gaussian ``g``) at the tile's pixels."""
+def _pair_rect(u, v, eu, ev, repeated, col0, height, width, TILE: tl.constexpr, WRAP_U: tl.constexpr):
+    """The pixel rows ``r0..r1`` and columns ``c0..c1`` of a pair in the tile whose first column is ``col0``, from
+    its Gaussian's centre and extents (the binning's arithmetic, :func:`.triton_binning_kernels.tile_spans`): the
+    rectangle the binning writes for the pair, less its clamping to the tile (the tile's pixels are inside it).
+    Across the seam a footprint has two column intervals; where both meet the tile the Gaussian has two pairs
+    there, next to each other (one Gaussian's pairs are emitted together, and the sort by tile is stable), the
+    first interval's first: ``repeated`` (the previous pair of the tile has the same Gaussian) marks the second."""
+    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = tile_spans(u, v, eu, ev, height, width, TILE, WRAP_U)
+    if WRAP_U:
+        meets_first = (a0 <= col0 + TILE - 1) & (b0 >= col0)
+        second = repeated | (meets_first == 0)
+        return i0, i1, tl.where(second, a1, a0), tl.where(second, b1, b0)
+    return i0, i1, a0, b0
+
+
+@triton.jit
+def _fragment(geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, height, width, sigma2, alpha_max, alpha_min,
+              repeated, col0, TILE: tl.constexpr, WRAP_U: tl.constexpr, GEO_STRIDE: tl.constexpr,
+              OPAC_STRIDE: tl.constexpr, RECTS: tl.constexpr):
+    """Offsets, alpha and the support mask of pair ``p`` (Gaussian ``g``) at the tile's pixels. ``RECTS``: the
+    pair's pixel rectangle is read from ``rows`` / ``cols``; else computed (:func:`_pair_rect`: ``repeated`` and
+    ``col0``) from the extents in columns 5-6 of ``geo`` (the projection's rows)."""
     base = geo_ptr + g * GEO_STRIDE
     u = tl.load(base + 0)
     v = tl.load(base + 1)
@@ -64,10 +86,14 @@ def _fragment(geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigm
     b = tl.load(base + 3)
     c = tl.load(base + 4)
     o = tl.load(opac_ptr + g * OPAC_STRIDE)
-    r0 = tl.load(rows_ptr + 2 * p)
-    r1 = tl.load(rows_ptr + 2 * p + 1)
-    c0 = tl.load(cols_ptr + 2 * p)
-    c1 = tl.load(cols_ptr + 2 * p + 1)
+    if RECTS:
+        r0 = tl.load(rows_ptr + 2 * p)
+        r1 = tl.load(rows_ptr + 2 * p + 1)
+        c0 = tl.load(cols_ptr + 2 * p)
+        c1 = tl.load(cols_ptr + 2 * p + 1)
+    else:
+        r0, r1, c0, c1 = _pair_rect(u, v, tl.load(base + 5), tl.load(base + 6), repeated, col0, height, width, TILE,
+                                    WRAP_U)
     du = col.to(tl.float32) + 0.5 - u
     if WRAP_U:
         half = width * 0.5
@@ -142,12 +168,13 @@ def composite_forward_kernel(
     alpha_ptr, height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, GEO_STRIDE: tl.constexpr, OPAC_STRIDE: tl.constexpr,
-    COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr,
+    COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr, RECTS: tl.constexpr = True,
 ):
     tile = tl.program_id(0)
-    row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
+    row, col, inside, pixel, col0 = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
     end = tl.load(tile_start_ptr + tile + 1)
+    g_prev = tl.load(pair_gaussian_ptr + start, mask=start < end, other=0) * 0 - 1  # (none yet: -1)
     trans = tl.where(inside, 1.0, 0.0)
     alive = inside
     acc_r = tl.zeros([TILE * TILE], dtype=tl.float32)
@@ -166,8 +193,8 @@ def composite_forward_kernel(
         while p < stop:
             g_next = tl.load(pair_gaussian_ptr + tl.minimum(p + 1, stop - 1))
             du, dv, alpha, raw, support, a, b, c, o = _fragment(
-                geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U,
-                GEO_STRIDE, OPAC_STRIDE)
+                geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, height, width, sigma2, alpha_max, alpha_min,
+                g == g_prev, col0, TILE, WRAP_U, GEO_STRIDE, OPAC_STRIDE, RECTS)
             use, w, trans, alive = _transmittance_step(trans, alpha, support, alive, t_min)
             cr, cg, cb, cd = _colour(geo_ptr, colour_ptr, g, GEO_STRIDE, COLOUR_STRIDE, DEPTH_COL)
             acc_r += w * cr
@@ -175,6 +202,7 @@ def composite_forward_kernel(
             acc_b += w * cb
             acc_d += w * cd
             acc_a += w
+            g_prev = g
             g = g_next
             p += 1
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
@@ -210,7 +238,7 @@ def composite_backward_kernel(
     height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, GEO_STRIDE: tl.constexpr, OPAC_STRIDE: tl.constexpr,
-    COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr, SPLIT: tl.constexpr,
+    COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr, SPLIT: tl.constexpr, RECTS: tl.constexpr = True,
 ):
     """Front to back again: ``dL/dalpha_i = T_i s_i - (S - P_i) / (1 - alpha_i)`` with ``s_i = g . f_i``,
     ``S = g . out`` (all contributions) and ``P_i`` the running sum of ``s_k w_k`` up to ``i``.
@@ -218,7 +246,7 @@ def composite_backward_kernel(
     (:func:`_add_gradients`): two block-wide sums per pair (the ten gradients in one, and the counts of used and
     still-alive pixels in one)."""
     tile = tl.program_id(0)
-    row, col, inside, pixel = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
+    row, col, inside, pixel, col0 = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
     end = tl.load(tile_start_ptr + tile + 1)
     plane = height * width
@@ -231,11 +259,12 @@ def composite_backward_kernel(
     p = start
     n_alive = tl.sum(alive.to(tl.int32), axis=0)
     g = tl.load(pair_gaussian_ptr + p, mask=p < end, other=0)
+    g_prev = g * 0 - 1  # (none yet: -1)
     while (p < end) & (n_alive > 0):
         g_next = tl.load(pair_gaussian_ptr + tl.minimum(p + 1, end - 1))  # one pair ahead (as the forward)
         du, dv, alpha, raw, support, a, b, c, o = _fragment(
-            geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, width, sigma2, alpha_max, alpha_min, WRAP_U,
-            GEO_STRIDE, OPAC_STRIDE)
+            geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, height, width, sigma2, alpha_max, alpha_min,
+            g == g_prev, col0, TILE, WRAP_U, GEO_STRIDE, OPAC_STRIDE, RECTS)
         use, w, next_trans, next_alive = _transmittance_step(trans, alpha, support, alive, t_min)
         cr, cg, cb, cd = _colour(geo_ptr, colour_ptr, g, GEO_STRIDE, COLOUR_STRIDE, DEPTH_COL)
         s = g_r * cr + g_g * cg + g_b * cb + g_d * cd + g_a
@@ -257,5 +286,6 @@ def composite_backward_kernel(
         trans = next_trans
         alive = next_alive
         n_alive = n_alive_next
+        g_prev = g
         g = g_next
         p += 1
