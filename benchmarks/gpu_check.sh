@@ -112,18 +112,19 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
 }
 
 # Item sizes: full (the issue's) or smoke (seconds on a CPU).
-# The default forward beside the lean one (no host sync before compositing: triton_backend.FORWARD), each with pairs
-# that carry only their Gaussian (",ids": triton_backend.PAIR_FIELD; the default "rects" writes each pair's pixel
-# rectangle), the default with the visible pairs compacted first (",nonzero": triton_backend.COMPACTION; the default
-# "none" bins every pair, the invisible ones inert, and reads the device once per render) and with its input checks
-# as PyTorch operations (",torch": triton_backend.CHECK; the default "fused" is one kernel); --launches counts each
-# variant's kernel launches per forward and backward. The binning and backward variants measured on 2026-11-26 (and
-# removed since), "lean,nonzero" on 2026-11-27 (no faster than either): benchmarks/RESULTS.md.
-variants="--launches --variants default default,ids lean lean,ids default,nonzero default,torch"
-profile_variants="--variants default default,ids lean,ids"
-# Pinhole views beside gsplat: both forwards with and without pair rectangles (3.2 M pairs of 0.18 M visible
-# Gaussians at 1.3 M, 512x1024: the pairs' bytes count there), with their launch counts.
-gsplat_variants="--launches --variants default default,ids lean lean,ids"
+# The default forward beside the lean one (no host sync before compositing: triton_backend.FORWARD), with pairs that
+# carry only their Gaussian (",ids": triton_backend.PAIR_FIELD; the default "rects" writes each pair's pixel
+# rectangle), with the compositing loading the next pair's row while it composites one (",row":
+# triton_backend.LOOKAHEAD; the default "id" loads only its Gaussian's id ahead) and with the input checks as PyTorch
+# operations (",torch": triton_backend.CHECK; the default "fused" is one kernel); --launches counts each variant's
+# kernel launches per forward and backward. The binning and backward variants measured on 2026-11-26 (and removed
+# since), the compaction of the visible pairs (",nonzero": triton_backend.COMPACTION) on 2026-11-27 (no faster, on
+# panoramas or pinhole views): benchmarks/RESULTS.md.
+variants="--launches --variants default default,ids default,row default,ids,row lean,ids,row default,torch"
+profile_variants="--variants default default,ids default,ids,row"
+# Pinhole views beside gsplat (3.2 M pairs of 0.18 M visible Gaussians at 1.3 M, 512x1024: the pairs' bytes count
+# there), with their launch counts.
+gsplat_variants="--launches --variants default default,ids default,ids,row lean,ids,row"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
   render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
@@ -146,6 +147,7 @@ else
   # The GPU kernels' tests only (slow-marked ones included: seconds on a GPU), not the reference's CPU tests.
   test_args=(tests/test_render_triton.py tests/test_render_triton_projection.py tests/test_render_binning.py
              tests/test_render_triton_sync.py tests/test_render_triton_lean.py tests/test_render_triton_ids.py
+             tests/test_render_triton_lookahead.py
              tests/test_triton_compile.py
              tests/test_render_deferred_checks.py tests/test_render_triton_checks.py
              "tests/test_render_layered.py::test_blending_is_the_normalised_weighted_mean_of_the_front_surface")
@@ -158,7 +160,7 @@ else
   # One forward of ours (both forwards) and of gsplat under torch.profiler: host against device time (issue 35's
   # pinhole gap: is it our launches or our kernels?)
   gsplat_profile_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile
-                       --variants default default,ids)
+                       --variants default default,ids,row)
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
   train_args=(--config paper --height 512 --steps 3)
   synth_args=(--scenes 12 --resolution 256x512)

@@ -18,7 +18,8 @@ def test_variant_names_are_checked_against_the_backends_lists():
     # switch's default, in the switches' order.
     assert bench_render.triton_variant_name("lean,none,fused") == ("lean",)
     assert bench_render.triton_variant_name("lean,ids,nonzero") == ("lean", "nonzero", "ids")
-    assert bench_render.triton_variant_name("default,rects") == ("default",)
+    assert bench_render.triton_variant_name("default,rects,id") == ("default",)
+    assert bench_render.triton_variant_name("lean,row,ids,nonzero") == ("lean", "nonzero", "ids", "row")
     for bad, message in (("thin", "'thin' is not a forward"), ("", "'' is not a forward"),
                          ("ids", "'ids' is not a forward"),
                          ("default,all", "'all' is not an option"), ("lean,none,numpy", "'numpy' is not an option"),
@@ -31,12 +32,13 @@ def test_variant_names_are_checked_against_the_backends_lists():
 
 def test_a_variant_holds_inside_and_the_defaults_come_back_even_after_an_error():
     def switches():
-        return (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK, triton_backend.PAIR_FIELD)
+        return (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK, triton_backend.PAIR_FIELD,
+                triton_backend.LOOKAHEAD)
 
     before = switches()
     with pytest.raises(RuntimeError):
-        with bench_render.triton_variant("lean", "ids", "nonzero", "torch"):
-            assert switches() == ("lean", "nonzero", "torch", "ids")
+        with bench_render.triton_variant("lean", "ids", "nonzero", "row", "torch"):
+            assert switches() == ("lean", "nonzero", "torch", "ids", "row")
             raise RuntimeError("a failing row")
     assert switches() == before
     before = switches()[:3]

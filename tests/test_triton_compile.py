@@ -123,6 +123,14 @@ KERNELS = [
      LEAN_PAIRS),
     (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, **SPLIT_ROWS, "SPLIT": 1,
                                                 "RECTS": False}, LEAN_PAIRS),
+    # the next pair's row loaded while one is composited (LOOKAHEAD "row"), with and without rectangles
+    (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, **SPLIT_ROWS, "RECTS": False,
+                                               "ROW_AHEAD": True}, LEAN_PAIRS),
+    (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": False, **SPLIT_ROWS, "ROW_AHEAD": True}),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": True, **SPLIT_ROWS, "SPLIT": 1, "RECTS": False,
+                                                "ROW_AHEAD": True}, LEAN_PAIRS),
+    (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, **SPLIT_ROWS, "SPLIT": 1,
+                                                "ROW_AHEAD": True}),
     # the packed rows of other projections (pack_projected's 11 columns)
     (triton_kernels.composite_forward_kernel, {"TILE": 16, "WRAP_U": True, **PACKED_ROWS}),
     (triton_kernels.composite_backward_kernel, {"TILE": 16, "WRAP_U": False, **PACKED_ROWS, "SPLIT": 0}),

@@ -28,7 +28,8 @@ from .rasterize import TileBins, over_background, pack_projected
 from .triton_binning import bin_to_tiles_by_key
 
 __all__ = ["triton_available", "triton_backend", "composite_triton", "composite_bins", "FORWARDS", "FORWARD",
-           "COMPACTIONS", "COMPACTION", "CHECKS", "CHECK", "PAIR_FIELDS", "PAIR_FIELD", "VARIANT_FIELDS",
+           "COMPACTIONS", "COMPACTION", "CHECKS", "CHECK", "PAIR_FIELDS", "PAIR_FIELD", "LOOKAHEADS", "LOOKAHEAD",
+           "VARIANT_FIELDS",
            "takes_every_pair", "queue_checks", "pairs_carry_rects"]
 
 # The forward path's variant: "default" (:func:`.triton_binning.bin_to_tiles_by_key`, which reads the pair count on
@@ -66,8 +67,18 @@ CHECK = "fused"
 PAIR_FIELDS = ("rects", "ids")
 PAIR_FIELD = "rects"
 
-# The switches above by name, for the benchmarks' variant names (every value is one field's: "lean,ids").
-VARIANT_FIELDS = {"FORWARD": FORWARDS, "COMPACTION": COMPACTIONS, "CHECK": CHECKS, "PAIR_FIELD": PAIR_FIELDS}
+# How far ahead the compositing kernels load a tile's next pair (issue 35): "id" (its Gaussian's id one pair ahead;
+# the pair's row is loaded when it is composited, and the pixels wait for it) or "row" (the next pair's whole row -
+# centre, conic, opacity, rectangle or extents, colour, depth - loaded while the current one is composited, its id
+# two pairs ahead: a load's latency hidden behind a pair's arithmetic, as gsplat hides it behind batches in shared
+# memory). The same arithmetic in the same order: the same images and gradients bit for bit. Module-level: the
+# benchmark switches it.
+LOOKAHEADS = ("id", "row")
+LOOKAHEAD = "id"
+
+# The switches above by name, for the benchmarks' variant names (every value is one field's: "lean,ids,row").
+VARIANT_FIELDS = {"FORWARD": FORWARDS, "COMPACTION": COMPACTIONS, "CHECK": CHECKS, "PAIR_FIELD": PAIR_FIELDS,
+                  "LOOKAHEAD": LOOKAHEADS}
 
 
 def triton_available() -> bool:
@@ -113,12 +124,15 @@ class _TritonComposite(torch.autograd.Function):
         rects = rows is not None  # else the kernels compute each pair's rectangle (never read: the ids as pointers)
         if not rects:
             rows = cols = pair_gaussian
+        if LOOKAHEAD not in LOOKAHEADS:
+            raise ValueError(f"unknown Triton lookahead {LOOKAHEAD!r}: choose one of {', '.join(LOOKAHEADS)}")
+        flags = dict(RECTS=rects, ROW_AHEAD=LOOKAHEAD == "row")  # the backward's too
         if grid[0] > 0:
             kernels.composite_forward_kernel[grid](*pointers, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha,
                                                    *args, TILE=settings.tile_size, WRAP_U=bool(wrap_u),
-                                                   RECTS=rects, **layout.strides)
+                                                   **flags, **layout.strides)
         ctx.save_for_backward(geo, opacity, colour, pair_gaussian, rows, cols, tile_start, rgb, depth, alpha)
-        ctx.args, ctx.tile, ctx.wrap_u, ctx.layout, ctx.rects = args, settings.tile_size, bool(wrap_u), layout, rects
+        ctx.args, ctx.tile, ctx.wrap_u, ctx.layout, ctx.flags = args, settings.tile_size, bool(wrap_u), layout, flags
         ctx.set_materialize_grads(False)  # an output without a gradient (often alpha) is read as zero, not made
         return rgb, depth, alpha
 
@@ -137,7 +151,7 @@ class _TritonComposite(torch.autograd.Function):
             kernels.composite_backward_kernel[grid](*layout.pointers(geo, opacity, colour), pair_gaussian, rows, cols,
                                                     tile_start, rgb, depth, alpha, *grads, grad_rows, *has,
                                                     *ctx.args, TILE=ctx.tile, WRAP_U=ctx.wrap_u, SPLIT=layout.split,
-                                                    RECTS=ctx.rects, **layout.strides)
+                                                    **ctx.flags, **layout.strides)
         return (*layout.gradients(grad_rows),) + (None,) * 12
 
 

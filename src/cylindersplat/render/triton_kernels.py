@@ -73,27 +73,47 @@ def _pair_rect(u, v, eu, ev, repeated, col0, height, width, TILE: tl.constexpr, 
 
 
 @triton.jit
-def _fragment(geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, height, width, sigma2, alpha_max, alpha_min,
-              repeated, col0, TILE: tl.constexpr, WRAP_U: tl.constexpr, GEO_STRIDE: tl.constexpr,
-              OPAC_STRIDE: tl.constexpr, RECTS: tl.constexpr):
-    """Offsets, alpha and the support mask of pair ``p`` (Gaussian ``g``) at the tile's pixels. ``RECTS``: the
-    pair's pixel rectangle is read from ``rows`` / ``cols``; else computed (:func:`_pair_rect`: ``repeated`` and
-    ``col0``) from the extents in columns 5-6 of ``geo`` (the projection's rows)."""
+def _load_pair(geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, g, p, on, GEO_STRIDE: tl.constexpr,
+               OPAC_STRIDE: tl.constexpr, COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr, RECTS: tl.constexpr):
+    """What the compositing reads of pair ``p`` (Gaussian ``g``; zeros where ``on`` is false): ``u, v, A, B, C``,
+    the opacity, the rectangle's four inputs (``RECTS``: its pixel rows ``r0, r1`` and columns ``c0, c1`` from the
+    pair's fields; else its Gaussian's extents ``eu, ev`` from columns 5-6 of ``geo`` and two unused zeros: the
+    rectangle is computed by :func:`_fragment_at`), the colour ``r, g, b`` and the radial depth."""
     base = geo_ptr + g * GEO_STRIDE
-    u = tl.load(base + 0)
-    v = tl.load(base + 1)
-    a = tl.load(base + 2)
-    b = tl.load(base + 3)
-    c = tl.load(base + 4)
-    o = tl.load(opac_ptr + g * OPAC_STRIDE)
+    u = tl.load(base + 0, mask=on, other=0.0)
+    v = tl.load(base + 1, mask=on, other=0.0)
+    a = tl.load(base + 2, mask=on, other=0.0)
+    b = tl.load(base + 3, mask=on, other=0.0)
+    c = tl.load(base + 4, mask=on, other=0.0)
+    o = tl.load(opac_ptr + g * OPAC_STRIDE, mask=on, other=0.0)
     if RECTS:
-        r0 = tl.load(rows_ptr + 2 * p)
-        r1 = tl.load(rows_ptr + 2 * p + 1)
-        c0 = tl.load(cols_ptr + 2 * p)
-        c1 = tl.load(cols_ptr + 2 * p + 1)
+        e0 = tl.load(rows_ptr + 2 * p, mask=on, other=0)
+        e1 = tl.load(rows_ptr + 2 * p + 1, mask=on, other=0)
+        e2 = tl.load(cols_ptr + 2 * p, mask=on, other=0)
+        e3 = tl.load(cols_ptr + 2 * p + 1, mask=on, other=0)
     else:
-        r0, r1, c0, c1 = _pair_rect(u, v, tl.load(base + 5), tl.load(base + 6), repeated, col0, height, width, TILE,
-                                    WRAP_U)
+        e0 = tl.load(base + 5, mask=on, other=0.0)
+        e1 = tl.load(base + 6, mask=on, other=0.0)
+        e2 = e0 * 0.0
+        e3 = e2
+    colour = colour_ptr + g * COLOUR_STRIDE
+    cr = tl.load(colour + 0, mask=on, other=0.0)
+    cg = tl.load(colour + 1, mask=on, other=0.0)
+    cb = tl.load(colour + 2, mask=on, other=0.0)
+    cd = tl.load(base + DEPTH_COL, mask=on, other=0.0)
+    return u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd
+
+
+@triton.jit
+def _fragment_at(u, v, a, b, c, o, e0, e1, e2, e3, repeated, col0, row, col, height, width, sigma2, alpha_max,
+                 alpha_min, TILE: tl.constexpr, WRAP_U: tl.constexpr, RECTS: tl.constexpr):
+    """Offsets, alpha and the support mask of a pair (:func:`_load_pair`'s values) at the tile's pixels. Without
+    ``RECTS`` the pair's pixel rectangle is computed (:func:`_pair_rect`: ``repeated`` and ``col0``) from its
+    Gaussian's extents ``e0, e1``."""
+    if RECTS:
+        r0, r1, c0, c1 = e0, e1, e2, e3
+    else:
+        r0, r1, c0, c1 = _pair_rect(u, v, e0, e1, repeated, col0, height, width, TILE, WRAP_U)
     du = col.to(tl.float32) + 0.5 - u
     if WRAP_U:
         half = width * 0.5
@@ -104,14 +124,7 @@ def _fragment(geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, height, wid
     raw = o * tl.exp(-0.5 * mahal)
     alpha = tl.minimum(raw, alpha_max)
     support = (row >= r0) & (row <= r1) & (col >= c0) & (col <= c1) & (mahal <= sigma2) & (alpha >= alpha_min)
-    return du, dv, alpha, raw, support, a, b, c, o
-
-
-@triton.jit
-def _colour(geo_ptr, colour_ptr, g, GEO_STRIDE: tl.constexpr, COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr):
-    """Colour and radial depth of Gaussian ``g``."""
-    base = colour_ptr + g * COLOUR_STRIDE
-    return tl.load(base + 0), tl.load(base + 1), tl.load(base + 2), tl.load(geo_ptr + g * GEO_STRIDE + DEPTH_COL)
+    return du, dv, alpha, raw, support
 
 
 @triton.jit
@@ -168,13 +181,23 @@ def composite_forward_kernel(
     alpha_ptr, height, width, tiles_x, tiles_per_camera,
     sigma2, alpha_max, alpha_min, t_min,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, GEO_STRIDE: tl.constexpr, OPAC_STRIDE: tl.constexpr,
-    COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr, RECTS: tl.constexpr = True,
+    COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr, RECTS: tl.constexpr = True, ROW_AHEAD: tl.constexpr = False,
 ):
+    """Front to back: each pixel's colour, depth and alpha (:func:`_transmittance_step`). ``ROW_AHEAD``: each pair's
+    parameters are loaded while the pair before it is composited (its Gaussian's id two pairs ahead), else only its
+    Gaussian's id one pair ahead (the row's loads wait for it)."""
     tile = tl.program_id(0)
     row, col, inside, pixel, col0 = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
     end = tl.load(tile_start_ptr + tile + 1)
-    g_prev = tl.load(pair_gaussian_ptr + start, mask=start < end, other=0) * 0 - 1  # (none yet: -1)
+    has = start < end
+    g = tl.load(pair_gaussian_ptr + start, mask=has, other=0)
+    g_prev = g * 0 - 1  # (none yet: -1)
+    if ROW_AHEAD:
+        g1 = tl.load(pair_gaussian_ptr + tl.maximum(tl.minimum(start + 1, end - 1), start), mask=has, other=0)
+        u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _load_pair(
+            geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, g, start, has, GEO_STRIDE, OPAC_STRIDE, COLOUR_STRIDE,
+            DEPTH_COL, RECTS)
     trans = tl.where(inside, 1.0, 0.0)
     alive = inside
     acc_r = tl.zeros([TILE * TILE], dtype=tl.float32)
@@ -187,23 +210,38 @@ def composite_forward_kernel(
     while (p < end) & (n_alive > 0):
         # A run of pairs between two counts of the live pixels (a block-wide sum, with its barriers, per run instead
         # of per pair; a finished tile walks at most the rest of its run, adding nothing), each pair's Gaussian
-        # loaded one pair ahead so that its row's loads need not wait for it.
+        # loaded one pair ahead so that its row's loads need not wait for it (or, ROW_AHEAD, its row too).
         stop = tl.minimum(p + _ALIVE_EVERY, end)
-        g = tl.load(pair_gaussian_ptr + p)
+        if not ROW_AHEAD:
+            g = tl.load(pair_gaussian_ptr + p)
         while p < stop:
-            g_next = tl.load(pair_gaussian_ptr + tl.minimum(p + 1, stop - 1))
-            du, dv, alpha, raw, support, a, b, c, o = _fragment(
-                geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, height, width, sigma2, alpha_max, alpha_min,
-                g == g_prev, col0, TILE, WRAP_U, GEO_STRIDE, OPAC_STRIDE, RECTS)
+            if ROW_AHEAD:
+                g2 = tl.load(pair_gaussian_ptr + tl.minimum(p + 2, end - 1))
+                nu, nv, na, nb, nc, no, n0, n1, n2, n3, nr, ng, nbl, nd = _load_pair(
+                    geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, g1, tl.minimum(p + 1, end - 1), p < end,
+                    GEO_STRIDE, OPAC_STRIDE, COLOUR_STRIDE, DEPTH_COL, RECTS)
+            else:
+                g_next = tl.load(pair_gaussian_ptr + tl.minimum(p + 1, stop - 1))
+                u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _load_pair(
+                    geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, g, p, p < end, GEO_STRIDE, OPAC_STRIDE,
+                    COLOUR_STRIDE, DEPTH_COL, RECTS)
+            du, dv, alpha, raw, support = _fragment_at(u, v, a, b, c, o, e0, e1, e2, e3, g == g_prev, col0, row, col,
+                                                       height, width, sigma2, alpha_max, alpha_min, TILE, WRAP_U,
+                                                       RECTS)
             use, w, trans, alive = _transmittance_step(trans, alpha, support, alive, t_min)
-            cr, cg, cb, cd = _colour(geo_ptr, colour_ptr, g, GEO_STRIDE, COLOUR_STRIDE, DEPTH_COL)
             acc_r += w * cr
             acc_g += w * cg
             acc_b += w * cb
             acc_d += w * cd
             acc_a += w
             g_prev = g
-            g = g_next
+            if ROW_AHEAD:
+                u, v, a, b, c, o, e0, e1 = nu, nv, na, nb, nc, no, n0, n1
+                e2, e3, cr, cg, cb, cd = n2, n3, nr, ng, nbl, nd
+                g = g1
+                g1 = g2
+            else:
+                g = g_next
             p += 1
         n_alive = tl.sum(alive.to(tl.int32), axis=0)
     plane = height * width
@@ -239,12 +277,13 @@ def composite_backward_kernel(
     sigma2, alpha_max, alpha_min, t_min,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, GEO_STRIDE: tl.constexpr, OPAC_STRIDE: tl.constexpr,
     COLOUR_STRIDE: tl.constexpr, DEPTH_COL: tl.constexpr, SPLIT: tl.constexpr, RECTS: tl.constexpr = True,
+    ROW_AHEAD: tl.constexpr = False,
 ):
     """Front to back again: ``dL/dalpha_i = T_i s_i - (S - P_i) / (1 - alpha_i)`` with ``s_i = g . f_i``,
     ``S = g . out`` (all contributions) and ``P_i`` the running sum of ``s_k w_k`` up to ``i``.
     Per-pair gradients are summed over the tile's pixels and added atomically per Gaussian
     (:func:`_add_gradients`): two block-wide sums per pair (the ten gradients in one, and the counts of used and
-    still-alive pixels in one)."""
+    still-alive pixels in one). ``ROW_AHEAD`` as in the forward."""
     tile = tl.program_id(0)
     row, col, inside, pixel, col0 = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
@@ -258,15 +297,28 @@ def composite_backward_kernel(
     prefix = tl.zeros([TILE * TILE], dtype=tl.float32)
     p = start
     n_alive = tl.sum(alive.to(tl.int32), axis=0)
-    g = tl.load(pair_gaussian_ptr + p, mask=p < end, other=0)
+    has = p < end
+    g = tl.load(pair_gaussian_ptr + p, mask=has, other=0)
     g_prev = g * 0 - 1  # (none yet: -1)
+    if ROW_AHEAD:
+        g1 = tl.load(pair_gaussian_ptr + tl.maximum(tl.minimum(p + 1, end - 1), p), mask=has, other=0)
+        u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _load_pair(
+            geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, g, p, has, GEO_STRIDE, OPAC_STRIDE, COLOUR_STRIDE,
+            DEPTH_COL, RECTS)
     while (p < end) & (n_alive > 0):
-        g_next = tl.load(pair_gaussian_ptr + tl.minimum(p + 1, end - 1))  # one pair ahead (as the forward)
-        du, dv, alpha, raw, support, a, b, c, o = _fragment(
-            geo_ptr, opac_ptr, g, p, rows_ptr, cols_ptr, row, col, height, width, sigma2, alpha_max, alpha_min,
-            g == g_prev, col0, TILE, WRAP_U, GEO_STRIDE, OPAC_STRIDE, RECTS)
+        if ROW_AHEAD:
+            g2 = tl.load(pair_gaussian_ptr + tl.minimum(p + 2, end - 1))
+            nu, nv, na, nb, nc, no, n0, n1, n2, n3, nr, ng, nbl, nd = _load_pair(
+                geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, g1, tl.minimum(p + 1, end - 1), p < end,
+                GEO_STRIDE, OPAC_STRIDE, COLOUR_STRIDE, DEPTH_COL, RECTS)
+        else:
+            g_next = tl.load(pair_gaussian_ptr + tl.minimum(p + 1, end - 1))  # one pair ahead (as the forward)
+            u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _load_pair(
+                geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, g, p, p < end, GEO_STRIDE, OPAC_STRIDE,
+                COLOUR_STRIDE, DEPTH_COL, RECTS)
+        du, dv, alpha, raw, support = _fragment_at(u, v, a, b, c, o, e0, e1, e2, e3, g == g_prev, col0, row, col,
+                                                   height, width, sigma2, alpha_max, alpha_min, TILE, WRAP_U, RECTS)
         use, w, next_trans, next_alive = _transmittance_step(trans, alpha, support, alive, t_min)
-        cr, cg, cb, cd = _colour(geo_ptr, colour_ptr, g, GEO_STRIDE, COLOUR_STRIDE, DEPTH_COL)
         s = g_r * cr + g_g * cg + g_b * cb + g_d * cd + g_a
         prefix += s * w
         # both counts from one block-wide sum
@@ -287,5 +339,11 @@ def composite_backward_kernel(
         alive = next_alive
         n_alive = n_alive_next
         g_prev = g
-        g = g_next
+        if ROW_AHEAD:
+            u, v, a, b, c, o, e0, e1 = nu, nv, na, nb, nc, no, n0, n1
+            e2, e3, cr, cg, cb, cd = n2, n3, nr, ng, nbl, nd
+            g = g1
+            g1 = g2
+        else:
+            g = g_next
         p += 1
