@@ -151,3 +151,21 @@ def test_the_id_forward_reads_the_device_once_and_launches_fewer_kernels(monkeyp
     # first places); the backward is unchanged.
     assert ids.kernels == rects.kernels - 2 and ids_bwd.kernels == rects_bwd.kernels
     assert "write_fused_pairs_kernel" not in ids.triton and ids.triton["write_lean_pairs_kernel"] == 1
+
+
+def test_a_lean_capacity_too_small_for_the_id_pairs_drops_none(monkeypatch):
+    g = shell_scene(20, seed=34, scale=(0.2, 0.6), dtype=F32)
+    camera, settings = Equirect(16, 32), RasterSettings(tile_size=4)
+    expected, _ = _render(g, torch.eye(4), camera, "default", "rects", monkeypatch, settings=settings)
+    proj = _fused_projection(g, torch.eye(4)[None], camera)
+    key, _ = triton_binning.lean_capacity(proj, 4)
+    calls = []
+    original = triton_binning.bin_lean
+    monkeypatch.setattr(triton_binning, "bin_lean", lambda *a: calls.append(a[2:]) or original(*a))
+    monkeypatch.setattr(triton_backend, "FORWARD", "lean")
+    monkeypatch.setattr(triton_backend, "PAIR_FIELD", "ids")
+    monkeypatch.setattr(triton_binning, "_CAPACITY", {key: 3})  # far too small: the first binning misses most pairs
+    out = render(g.to(DEVICE), torch.eye(4, device=DEVICE), camera, backend="triton", settings=settings)
+    assert [rects for _, rects in calls] == [False, False] and calls[0][0] == 3 < calls[1][0]  # one rerun
+    for name, a, b in zip(("rgb", "depth", "alpha"), expected, (out.rgb, out.depth, out.alpha)):
+        assert torch.equal(a.detach(), b), name
