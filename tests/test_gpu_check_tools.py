@@ -54,6 +54,18 @@ def test_gsplat_comparison_profiles_one_forward_of_each_renderer(capsys):
     assert all("profile" not in r for r in rows)  # the lines print as lines, not inside the rows
 
 
+def test_the_parity_verdict_needs_every_size_forward_and_backward():
+    lines = gsplat_compare.parity_lines({
+        "ours[a]": [(100_000, 0.95, 0.99), (1_300_000, 1.0, 0.7)],
+        "ours[b]": [(100_000, 0.9, 0.8), (1_300_000, 1.2, 0.9)],  # one size slower forward
+        "ours[c]": [(100_000, 0.9, 1.01)],  # slower forward + backward
+    })
+    assert lines[0] == ("# parity ours[a] (no slower than gsplat at 0.1 M/1.3 M, forward and fwd+bwd): MET; worst "
+                        "forward 1.00x (1300000), worst fwd+bwd 0.99x (100000)")
+    assert ": not met; worst forward 1.20x (1300000)" in lines[1] and ": not met;" in lines[2]
+    assert gsplat_compare.parity_lines({}) == []
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--variants", "lean", "--backend", "torch"], "--variants needs --backend triton"),
     (["--variants", "default,wrong"], "COMPACTION one of"),

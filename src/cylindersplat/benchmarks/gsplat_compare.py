@@ -174,6 +174,7 @@ def main(argv: list[str] | None = None) -> None:
     device = torch.device(args.device)
     print(f"# pinhole {args.height}x{2 * args.height}, 90 deg horizontal FOV; torch {torch.__version__}"
           + (f"; GPU: {torch.cuda.get_device_name()}" if device.type == "cuda" else "; CPU"))
+    ratios: dict[str, list[tuple[int, float, float]]] = {}
     for num in args.num:
         rows = compare(num, args.height, device, args.backend, args.repeats, args.variants, args.launches,
                        args.profile)
@@ -189,8 +190,27 @@ def main(argv: list[str] | None = None) -> None:
             for name, row in timed.items():
                 if name != "gsplat":
                     ref = timed["gsplat"]
-                    print(f"# {name} vs gsplat ({num} Gaussians): forward {row['forward_ms'] / ref['forward_ms']:.2f}x "
-                          f"gsplat's time, fwd+bwd {row['fwd_bwd_ms'] / ref['fwd_bwd_ms']:.2f}x")
+                    ratio = (row["forward_ms"] / ref["forward_ms"], row["fwd_bwd_ms"] / ref["fwd_bwd_ms"])
+                    ratios.setdefault(name, []).append((num, *ratio))
+                    print(f"# {name} vs gsplat ({num} Gaussians): forward {ratio[0]:.2f}x gsplat's time, fwd+bwd "
+                          f"{ratio[1]:.2f}x")
+    print("\n".join(parity_lines(ratios)))
+
+
+def parity_lines(ratios: dict[str, list[tuple[int, float, float]]]) -> list[str]:
+    """``# parity`` lines: for each of our renderers (its ``(num, forward ratio, fwd+bwd ratio)`` to gsplat's time at
+    each size), whether it is no slower than gsplat at every size, forward and forward + backward (issue 35's
+    pinhole goal), and its worst ratios."""
+    lines = []
+    for name, rows in ratios.items():
+        worst_forward = max(rows, key=lambda r: r[1])
+        worst_both = max(rows, key=lambda r: r[2])
+        met = worst_forward[1] <= 1.0 and worst_both[2] <= 1.0
+        sizes = "/".join(f"{num / 1e6:g} M" for num, *_ in rows)
+        lines.append(f"# parity {name} (no slower than gsplat at {sizes}, forward and fwd+bwd): "
+                     f"{'MET' if met else 'not met'}; worst forward {worst_forward[1]:.2f}x ({worst_forward[0]}), "
+                     f"worst fwd+bwd {worst_both[2]:.2f}x ({worst_both[0]})")
+    return lines
 
 
 if __name__ == "__main__":
