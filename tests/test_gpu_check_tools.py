@@ -180,3 +180,18 @@ def test_gpu_check_skips_what_would_start_past_its_total_budget(tmp_path):
     summary = (out / "summary.md").read_text()
     assert "## render — skipped: the 5-second budget of this run is spent" in summary
     assert "## model — skipped: the 5-second budget of this run is spent" in summary
+
+
+def test_the_scene_line_counts_the_visible_gaussians_and_their_tile_pairs():
+    from cylindersplat.render import Pinhole, RasterSettings
+    from cylindersplat.render.rasterize import bin_to_tiles
+    from cylindersplat.scenes import random_indoor
+
+    line = gsplat_compare.scene_line(3000, 16, torch.device("cpu"), tile_size=8)
+    g = random_indoor(3000)
+    k, h, w = gsplat_compare._camera(16, "cpu")
+    proj = Pinhole(k, h, w).project(g, torch.eye(4)[None], RasterSettings())
+    pairs = len(bin_to_tiles(proj, 8).gaussian)  # the reference binning's own pairs
+    assert 0 < len(proj.depth) < 3000 and pairs > 0
+    assert line == (f"# scene: {len(proj.depth):,} of 3,000 Gaussians visible, {pairs:,} (Gaussian, tile) pairs "
+                    "(8 px tiles)")

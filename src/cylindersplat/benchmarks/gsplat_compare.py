@@ -47,7 +47,7 @@ from .render import (
     triton_variant_name,
 )
 
-__all__ = ["main"]
+__all__ = ["main", "scene_line", "parity_lines"]
 
 
 def _camera(height: int, device) -> tuple[Tensor, int, int]:
@@ -182,6 +182,7 @@ def main(argv: list[str] | None = None) -> None:
             print({k: v for k, v in row.items() if k != "profile"})
         for row in rows:
             print("\n".join(row.get("profile", [])))
+        print(scene_line(num, args.height, device))
         timed = {r["renderer"]: r for r in rows if "forward_ms" in r}
         if any("agreement" in r for r in rows):
             print("# agreement: this scene's overlapping random-coloured splats are ordered by z-depth in gsplat and by"
@@ -195,6 +196,23 @@ def main(argv: list[str] | None = None) -> None:
                     print(f"# {name} vs gsplat ({num} Gaussians): forward {ratio[0]:.2f}x gsplat's time, fwd+bwd "
                           f"{ratio[1]:.2f}x")
     print("\n".join(parity_lines(ratios)))
+
+
+def scene_line(num: int, height: int, device: torch.device, tile_size: int = 16) -> str:
+    """``# scene`` line: how many of the view's Gaussians are visible and how many (Gaussian, tile) pairs they make
+    (the reference projection's visible pairs and tile counts: the work a binning and compositing do, which on a
+    90-degree view differs from a panorama's)."""
+    from cylindersplat.render import RasterSettings
+    from cylindersplat.render.rasterize import tile_spans
+
+    g = random_indoor(num).to(device)
+    k, h, w = _camera(height, device)
+    with torch.no_grad():
+        proj = Pinhole(k.cpu(), h, w).project(g, torch.eye(4, device=device)[None], RasterSettings())
+        spans = tile_spans(proj, tile_size)
+        pairs = int((spans.ny * (spans.nx0 + spans.nx1)).sum())
+    return (f"# scene: {len(proj.depth):,} of {num:,} Gaussians visible, {pairs:,} (Gaussian, tile) pairs "
+            f"({tile_size} px tiles)")
 
 
 def parity_lines(ratios: dict[str, list[tuple[int, float, float]]]) -> list[str]:
