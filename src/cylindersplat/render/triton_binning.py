@@ -40,6 +40,17 @@ _BLOCK = 128
 def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16) -> TileBins:
     """:func:`.rasterize.bin_to_tiles` by a depth sort, per-Gaussian counts, a prefix sum, key emission and one
     sort by tile."""
+    by_depth, centres, ends, total = _counted(proj, tile_size)
+    tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
+    if total == 0:
+        return TileBins(*_pair_fields(0, proj.camera.device), tiles_x, tiles_y)
+    return _write_bins(proj, centres, by_depth, ends, total, tile_size)
+
+
+def _counted(proj: ProjectedGaussians, tile_size: int):
+    """The first half of :func:`bin_to_tiles_by_key` and :func:`bin_ids`: the Gaussians' depth order (None for
+    none), their centres and extents as the kernels read them, the inclusive prefix sum of their pair counts in
+    depth order, and the pair count (the one host synchronisation)."""
     by_depth = None
     if len(proj.depth):
         # Gaussians in depth order (ties by row): their counts and places in that order.
@@ -48,10 +59,7 @@ def bin_to_tiles_by_key(proj: ProjectedGaussians, tile_size: int = 16) -> TileBi
     counts = _depth_order_counts(centres, by_depth, tile_size, proj)
     ends = torch.cumsum(counts, 0)
     total = read_count(proj, ends[-1:]) if len(counts) else 0  # the one host synchronisation: the output size
-    tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
-    if total == 0:
-        return TileBins(*_pair_fields(0, proj.camera.device), tiles_x, tiles_y)
-    return _write_bins(proj, centres, by_depth, ends, total, tile_size)
+    return by_depth, centres, ends, total
 
 
 def tile_key_dtype(num_tiles: int) -> torch.dtype:
@@ -212,13 +220,7 @@ def bin_ids(proj: ProjectedGaussians, tile_size: int) -> PairBins:
     :mod:`.triton_kernels`). 4 bytes a pair written once after the sort, against 56 (``PAIR_FIELD = "rects"``)."""
     from . import triton_binning_kernels as kernels
 
-    by_depth = None
-    if len(proj.depth):
-        by_depth = torch.sort(proj.depth.detach().float(), stable=True).indices
-    centres = _centres_and_extents(proj)
-    counts = _depth_order_counts(centres, by_depth, tile_size, proj)
-    ends = torch.cumsum(counts, 0)
-    total = read_count(proj, ends[-1:]) if len(counts) else 0  # the one host synchronisation: the output size
+    by_depth, centres, ends, total = _counted(proj, tile_size)
     tiles_x, tiles_y = math.ceil(proj.width / tile_size), math.ceil(proj.height / tile_size)
     num_tiles = proj.num_cameras * tiles_x * tiles_y
     device = proj.camera.device
