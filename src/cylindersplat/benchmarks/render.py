@@ -20,7 +20,8 @@ backward launch (PyTorch operations and Triton kernels: on an H100 the Triton pa
 ``triton[default,nonzero]`` with the visible pairs compacted first (:data:`cylindersplat.render.triton_backend.
 COMPACTION`), ``triton[default,torch]`` with the input checks as PyTorch operations
 (:data:`cylindersplat.render.triton_backend.CHECK`), ``triton[lean,ids]`` with pairs that carry only their Gaussian
-(:data:`cylindersplat.render.triton_backend.PAIR_FIELD`) - then ``# agreement`` lines (each variant's image and
+(:data:`cylindersplat.render.triton_backend.PAIR_FIELD`), ``triton[default,row]`` with the next pair's row loaded
+ahead (:data:`cylindersplat.render.triton_backend.LOOKAHEAD`) - then ``# agreement`` lines (each variant's image and
 gradients against the first's, at the timed size), e.g. ``--backend triton --stages --variants default lean
 default,ids``.
 """
@@ -448,7 +449,9 @@ def main(argv: list[str] | None = None) -> None:
                              f"{'|'.join(triton_backend.CHECKS)} (default {triton_backend.CHECK}; torch: some seventy "
                              "PyTorch operations instead of one kernel), pair fields "
                              f"{'|'.join(triton_backend.PAIR_FIELDS)} (default {triton_backend.PAIR_FIELD}; ids: pairs "
-                             "carry only their Gaussian, the compositing computes their pixel rectangles)")
+                             "carry only their Gaussian, the compositing computes their pixel rectangles), lookahead "
+                             f"{'|'.join(triton_backend.LOOKAHEADS)} (default {triton_backend.LOOKAHEAD}; row: the "
+                             "compositing loads the next pair's row while it composites one)")
     parser.add_argument("--launches", action="store_true",
                         help="also count the kernels one forward and its backward launch (PyTorch operations and "
                              "Triton kernels; on any device)")

@@ -90,6 +90,22 @@ def tile_spans(u, v, eu, ev, height, width, TILE: tl.constexpr, WRAP_U: tl.const
 
 
 @triton.jit
+def _sorted_pair(uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, rank_ptr, at, mask, height, width, uv_stride,
+                 ext_stride, tiles_x, tiles_per_camera, TILE: tl.constexpr, WRAP_U: tl.constexpr):
+    """The pair emitted at place ``at`` (the ``k``-th of the Gaussian of depth rank ``rank[at]``): its Gaussian's
+    row, pixel rows ``i0, i1``, first column ``j0``, column intervals ``a0..b0`` / ``a1..b1``, tile row and column,
+    second-interval flag and tile id."""
+    i = tl.load(rank_ptr + at, mask=mask, other=0)
+    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
+    camera = tl.load(camera_ptr + g, mask=mask, other=0)
+    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
+                                                              height, width, TILE, WRAP_U)
+    k = at - (tl.load(end_ptr + i, mask=mask, other=0) - ny * (nx0 + nx1))
+    ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
+    return g, i0, i1, j0, a0, b0, a1, b1, ty, tx, second, tile
+
+
+@triton.jit
 def count_pairs_kernel(
     uv_ptr, ext_ptr, by_depth_ptr, count_ptr, num_gaussians, height, width, uv_stride, ext_stride,
     TILE: tl.constexpr, WRAP_U: tl.constexpr, BLOCK: tl.constexpr,
@@ -140,13 +156,9 @@ def write_fused_pairs_kernel(
     q = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
     mask = q < num_pairs
     at = tl.load(order_ptr + q, mask=mask, other=0)
-    i = tl.load(rank_ptr + at, mask=mask, other=0)
-    g = tl.load(by_depth_ptr + i, mask=mask, other=0)
-    camera = tl.load(camera_ptr + g, mask=mask, other=0)
-    i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
-                                                              height, width, TILE, WRAP_U)
-    k = at - (tl.load(end_ptr + i, mask=mask, other=0) - ny * (nx0 + nx1))
-    ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
+    g, i0, i1, j0, a0, b0, a1, b1, ty, tx, second, tile = _sorted_pair(
+        uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, rank_ptr, at, mask, height, width, uv_stride, ext_stride,
+        tiles_x, tiles_per_camera, TILE, WRAP_U)
     tl.store(gaussian_ptr + q, g.to(tl.int64), mask=mask)
     tl.store(tile_ptr + q, tile.to(tl.int64), mask=mask)
     _store_pair_rect(rows_ptr, cols_ptr, q, i0, i1, a0, b0, a1, b1, ty, tx, second, mask, TILE)
@@ -217,13 +229,9 @@ def write_lean_pairs_kernel(
     mask = q < used
     at = tl.load(order_ptr + q, mask=mask, other=0)
     if RECTS:
-        i = tl.load(rank_ptr + at, mask=mask, other=0)
-        g = tl.load(by_depth_ptr + i, mask=mask, other=0)
-        camera = tl.load(camera_ptr + g, mask=mask, other=0)
-        i0, i1, j0, a0, b0, a1, b1, ny, nx0, nx1 = _spans_strided(uv_ptr, ext_ptr, uv_stride, ext_stride, g, mask,
-                                                                  height, width, TILE, WRAP_U)
-        k = at - (tl.load(end_ptr + i, mask=mask, other=0) - ny * (nx0 + nx1))
-        ty, tx, second, tile = _pair_tile(k, camera, i0, a0, a1, nx0, nx1, tiles_x, tiles_per_camera, TILE)
+        g, i0, i1, j0, a0, b0, a1, b1, ty, tx, second, tile = _sorted_pair(
+            uv_ptr, ext_ptr, camera_ptr, by_depth_ptr, end_ptr, rank_ptr, at, mask, height, width, uv_stride,
+            ext_stride, tiles_x, tiles_per_camera, TILE, WRAP_U)
         tl.store(gaussian_ptr + q, g.to(tl.int32), mask=mask)
         _store_pair_rect(rows_ptr, cols_ptr, q, i0, i1, a0, b0, a1, b1, ty, tx, second, mask, TILE)
     else:

@@ -105,6 +105,23 @@ def _load_pair(geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, g, p, on, GEO_
 
 
 @triton.jit
+def _first_pairs(pair_gaussian_ptr, geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, start, end,
+                 GEO_STRIDE: tl.constexpr, OPAC_STRIDE: tl.constexpr, COLOUR_STRIDE: tl.constexpr,
+                 DEPTH_COL: tl.constexpr, RECTS: tl.constexpr):
+    """Where a tile's walk over its pairs ``start..end`` begins: its first pair's Gaussian, ``-1`` for the pair
+    before it (none), the second pair's Gaussian and the first pair's row (:func:`_load_pair`), each loaded only
+    where the tile has pairs. (A kernel that loads rows when their turn comes leaves the last two unused: the
+    compiler drops those loads.)"""
+    has = start < end
+    g = tl.load(pair_gaussian_ptr + start, mask=has, other=0)
+    g1 = tl.load(pair_gaussian_ptr + tl.maximum(tl.minimum(start + 1, end - 1), start), mask=has, other=0)
+    u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _load_pair(
+        geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, g, start, has, GEO_STRIDE, OPAC_STRIDE, COLOUR_STRIDE,
+        DEPTH_COL, RECTS)
+    return g, g * 0 - 1, g1, u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd
+
+
+@triton.jit
 def _fragment_at(u, v, a, b, c, o, e0, e1, e2, e3, repeated, col0, row, col, height, width, sigma2, alpha_max,
                  alpha_min, TILE: tl.constexpr, WRAP_U: tl.constexpr, RECTS: tl.constexpr):
     """Offsets, alpha and the support mask of a pair (:func:`_load_pair`'s values) at the tile's pixels. Without
@@ -190,14 +207,9 @@ def composite_forward_kernel(
     row, col, inside, pixel, col0 = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
     end = tl.load(tile_start_ptr + tile + 1)
-    has = start < end
-    g = tl.load(pair_gaussian_ptr + start, mask=has, other=0)
-    g_prev = g * 0 - 1  # (none yet: -1)
-    if ROW_AHEAD:
-        g1 = tl.load(pair_gaussian_ptr + tl.maximum(tl.minimum(start + 1, end - 1), start), mask=has, other=0)
-        u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _load_pair(
-            geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, g, start, has, GEO_STRIDE, OPAC_STRIDE, COLOUR_STRIDE,
-            DEPTH_COL, RECTS)
+    g, g_prev, g1, u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _first_pairs(
+        pair_gaussian_ptr, geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, start, end, GEO_STRIDE, OPAC_STRIDE,
+        COLOUR_STRIDE, DEPTH_COL, RECTS)
     trans = tl.where(inside, 1.0, 0.0)
     alive = inside
     acc_r = tl.zeros([TILE * TILE], dtype=tl.float32)
@@ -297,14 +309,9 @@ def composite_backward_kernel(
     prefix = tl.zeros([TILE * TILE], dtype=tl.float32)
     p = start
     n_alive = tl.sum(alive.to(tl.int32), axis=0)
-    has = p < end
-    g = tl.load(pair_gaussian_ptr + p, mask=has, other=0)
-    g_prev = g * 0 - 1  # (none yet: -1)
-    if ROW_AHEAD:
-        g1 = tl.load(pair_gaussian_ptr + tl.maximum(tl.minimum(p + 1, end - 1), p), mask=has, other=0)
-        u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _load_pair(
-            geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, g, p, has, GEO_STRIDE, OPAC_STRIDE, COLOUR_STRIDE,
-            DEPTH_COL, RECTS)
+    g, g_prev, g1, u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _first_pairs(
+        pair_gaussian_ptr, geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, start, end, GEO_STRIDE, OPAC_STRIDE,
+        COLOUR_STRIDE, DEPTH_COL, RECTS)
     while (p < end) & (n_alive > 0):
         if ROW_AHEAD:
             g2 = tl.load(pair_gaussian_ptr + tl.minimum(p + 2, end - 1))
