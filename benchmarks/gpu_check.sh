@@ -15,9 +15,9 @@
 #   model           the paper config end to end (network + one render), 1-4 views;
 #   train           one training step of each curriculum stage at 512x1024, batch 1, bf16 autocast;
 #   run             a short training run of the paper config on procedural 256x512 data (loss must fall).
-# Not in the default run (name them): variants (the Triton forward, compaction and input-check variants side by
-# side, with stages and launch counts, at 0.1 and 1.3 M Gaussians, 512x1024: `bench render --variants ...`, about two
-# minutes; then a profile of three of them at 1.3 M, kernel by kernel; `binning` is its older name),
+# Not in the default run (name them): variants (the Triton backend's variants side by side, with stages and launch
+# counts, at 0.1 and 1.3 M Gaussians, 512x1024: `bench render --variants ...`, about two minutes; then a profile of
+# three of them at 1.3 M, kernel by kernel, and the stages of four on the pinhole view; `binning` is its older name),
 # model_compiled (the model through torch.compile) and base (the `base`
 # preset trained for at most CHECK_BASE_MINUTES (20) in all, resumed by later calls from $CHECK_BASE_DIR,
 # default outputs/gpu_check_base; at its budget the trainer is interrupted cleanly - a checkpoint - and the
@@ -125,12 +125,15 @@ profile_variants="--variants default default,ids default,ids,row"
 # Pinhole views beside gsplat (3.2 M pairs of 0.18 M visible Gaussians at 1.3 M, 512x1024: the pairs' bytes count
 # there), with their launch counts.
 gsplat_variants="--launches --variants default default,ids default,ids,row lean,ids,row"
+pinhole_variants="--variants default default,ids default,ids,row lean,ids,row"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
   render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
   stages_args=(--num 300 --height 8 --device "$device" --backend triton --stages --repeats 1)
   variants_args=(--num 40 --height 8 --device "$device" --backend triton --stages --repeats 1 $variants)
   profile_args=(--num 40 --height 8 --device "$device" --backend triton --repeats 1 --profile $profile_variants)
+  pinhole_args=(--num 40 --height 8 --device "$device" --backend triton --camera pinhole --stages --repeats 1
+                $pinhole_variants)
   gsplat_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1 $gsplat_variants)
   gsplat_profile_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --profile)
   model_args=(--config tiny_paper --height 64 --render --views 1 2 --repeats 1 --device "$device")
@@ -155,6 +158,8 @@ else
   stages_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3)
   variants_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 5 $variants)
   profile_args=(--num 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile $profile_variants)
+  pinhole_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --camera pinhole --stages --repeats 5
+                $pinhole_variants)
   # (10 repeats: a render takes milliseconds, and the median of 3 moved by 1-2 ms between calls, 2026-11-26/27)
   gsplat_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 10 $gsplat_variants)
   # One forward of ours (both forwards) and of gsplat under torch.profiler: host against device time (issue 35's
@@ -252,10 +257,14 @@ for item in $items; do
     variants|binning)  # (binning: its name until the binning variants were removed)
       run_item variants "${CHECK_LIMIT_VARIANTS:-150}" $py -m cylindersplat bench render "${variants_args[@]}"
       excerpt '^[{#|]' "$out/variants.log"
-      # Where the time goes, kernel by kernel (torch.profiler, device time): the default, compacted and lean forwards.
+      # Where the time goes, kernel by kernel (torch.profiler, device time), panorama.
       run_item variants_profile "${CHECK_LIMIT_VARIANTS_PROFILE:-75}" $py -m cylindersplat bench render \
           "${profile_args[@]}"
-      excerpt '^[#]\|Self CUDA\|Self CPU\|^ *[a-zA-Z_].*%' "$out/variants_profile.log" ;;
+      excerpt '^[#]\|Self CUDA\|Self CPU\|^ *[a-zA-Z_].*%' "$out/variants_profile.log"
+      # The same stages through gsplat's kind of camera (the 90-degree pinhole view of the gsplat item).
+      run_item variants_pinhole "${CHECK_LIMIT_VARIANTS_PINHOLE:-90}" $py -m cylindersplat bench render \
+          "${pinhole_args[@]}"
+      excerpt '^[{#|]' "$out/variants_pinhole.log" ;;
     gsplat)
       # (its background build was awaited above, within what is left of the budget)
       [ -n "$gsplat_build" ] && tail -n 1 "$out/gsplat_build.log" 2>/dev/null | sed 's/^/    /' >> "$summary"

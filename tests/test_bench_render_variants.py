@@ -5,6 +5,7 @@ import argparse
 import ast
 
 import pytest
+import torch
 
 from cylindersplat.benchmarks import render as bench_render
 from cylindersplat.render import triton_backend
@@ -98,8 +99,6 @@ def test_a_bad_device_or_backend_is_one_line(argv, message, capsys):
 def test_stages_time_the_numba_backends_own_stages():
     """``--stages`` with the numba backend times its own projection, binning and compositing, not the reference's
     (which it did until session 19): no fragment stage, and the reference's pair count."""
-    import torch
-
     from cylindersplat.render.numba_backend import numba_available
     from cylindersplat.scenes import random_indoor
 
@@ -109,8 +108,28 @@ def test_stages_time_the_numba_backends_own_stages():
     for t in g.tensors().values():
         t.requires_grad_()
     c2w = torch.eye(4)
-    stages = {b: bench_render.stage_breakdown(g, c2w, 8, 16, torch.device("cpu"), 1, b) for b in ("numba", "torch")}
+    camera = bench_render.view_camera("equirect", 8)
+    stages = {b: bench_render.stage_breakdown(g, c2w, camera, torch.device("cpu"), 1, b) for b in ("numba", "torch")}
     assert list(stages["numba"]) == ["checks", "project", "bin", "composite", "backward", "num_pairs"]
     assert "fragments" in stages["torch"] and stages["numba"]["num_pairs"] == stages["torch"]["num_pairs"] > 0
     assert bench_render._stage_kind("auto", torch.device("cpu")) == "numba"
     assert bench_render._stage_kind("auto", torch.device("cuda")) == "triton"
+
+
+def test_the_pinhole_view_is_timed_by_stage_with_the_pairs_gsplat_compare_counts(capsys):
+    from cylindersplat.benchmarks import gsplat_compare
+
+    bench_render.main(["--num", "300", "--height", "16", "--device", "cpu", "--backend", "torch", "numba",
+                       "--repeats", "1", "--stages", "--camera", "pinhole"])
+    rows = [ast.literal_eval(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
+    assert [row["camera"] for row in rows] == ["pinhole", "pinhole"]
+    pairs = {row["stages_ms"]["num_pairs"] for row in rows}
+    line = gsplat_compare.scene_line(300, 16, torch.device("cpu"))  # the same view, the reference's count
+    assert len(pairs) == 1 and f" {next(iter(pairs)):,} (Gaussian, tile) pairs" in line, (pairs, line)
+
+
+def test_the_cubemap_route_is_a_panorama_only_option(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        bench_render.main(["--device", "cpu", "--camera", "pinhole", "--cubemap"])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and "--cubemap renders panoramas" in err and len(err.strip().splitlines()) == 1

@@ -42,6 +42,7 @@ from .render import (
     _peak_mb,
     _sync,
     launch_counts,
+    pinhole_intrinsics,
     profile_forward,
     triton_variant,
     triton_variant_name,
@@ -51,10 +52,8 @@ __all__ = ["main", "scene_line", "parity_lines"]
 
 
 def _camera(height: int, device) -> tuple[Tensor, int, int]:
-    width = 2 * height
-    f = width / 2.0  # 90 degrees horizontally
-    k = torch.tensor([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]], device=device)
-    return k, height, width
+    """``K``, height and width of the benchmarks' 90-degree pinhole view (:func:`.render.pinhole_intrinsics`)."""
+    return pinhole_intrinsics(height, device), height, 2 * height
 
 
 def _gsplat_render(gsplat, g, colours, k, height, width):

@@ -41,7 +41,7 @@ import torch
 
 from cylindersplat.benchmarks.launches import count_render_launches
 from cylindersplat.gaussians import load_ply, save_ply
-from cylindersplat.render import Equirect, api, render_cubemap, render_equirect, triton_backend
+from cylindersplat.render import Equirect, Pinhole, api, render, render_cubemap, render_equirect, triton_backend
 from cylindersplat.render.numba_backend import numba_available
 from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
@@ -91,13 +91,35 @@ def _forward_and_backward_ms(render, params, device, repeats: int) -> tuple[floa
     return _time(forward, device, repeats), _time(forward_backward, device, repeats)
 
 
+CAMERAS = ("equirect", "pinhole")
+
+
+def pinhole_intrinsics(height: int, device="cpu") -> torch.Tensor:
+    """``K (3, 3)`` of the benchmarks' pinhole view: ``height x 2 height`` pixels, 90 degrees horizontally, centred."""
+    width = 2 * height
+    f = width / 2.0
+    return torch.tensor([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]], device=device)
+
+
+def view_camera(kind: str, height: int):
+    """The benchmarks' view of ``random_indoor`` from its centre (identity pose), ``height x 2 height``: the
+    panorama (``"equirect"``) or a 90-degree pinhole view (``"pinhole"``, gsplat's kind of camera: ``bench
+    gsplat_compare`` times the same one)."""
+    if kind == "pinhole":
+        return Pinhole(pinhole_intrinsics(height), height, 2 * height)
+    return Equirect(height, 2 * height)
+
+
 def bench(num: int, height: int, device: torch.device, backend: str, repeats: int, cubemap: bool, stages: bool,
-          launches: bool = False) -> dict:
+          launches: bool = False, camera: str = "equirect") -> dict:
     g = random_indoor(num).to(device)
     params = [t.requires_grad_() for t in g.tensors().values()]
     c2w = torch.eye(4, device=device)
     width = 2 * height
+    model = view_camera(camera, height)
     row = {"num": num, "size": f"{height}x{width}", "device": str(device), "backend": backend}
+    if camera != "equirect":
+        row["camera"] = camera
 
     def measure(prefix: str, render) -> None:
         """Forward and forward+backward of ``render`` into ``row``; out of memory is recorded, not fatal."""
@@ -111,16 +133,16 @@ def bench(num: int, height: int, device: torch.device, backend: str, repeats: in
             row[f"{prefix}error"] = "out of memory"
             _free(params, device)
 
-    measure("", lambda: render_equirect(g, c2w, height, width, backend=backend))
+    measure("", lambda: render(g, c2w, model, backend=backend))
     if cubemap:
         measure("cubemap_", lambda: render_cubemap(g, c2w, height, width, backend=backend))
     if launches and "error" not in row:
         _free(params, device)  # no gradients to accumulate into: the backward counted is a first one
-        row["launches"] = launch_counts(lambda: render_equirect(g, c2w, height, width, backend=backend))
+        row["launches"] = launch_counts(lambda: render(g, c2w, model, backend=backend))
         _free(params, device)
     if stages:
         try:
-            row["stages_ms"] = stage_breakdown(g, c2w, height, width, device, repeats, backend)
+            row["stages_ms"] = stage_breakdown(g, c2w, model, device, repeats, backend)
         except (torch.OutOfMemoryError, MemoryError):
             row["stages_error"] = "out of memory"
             _free(params, device)
@@ -149,7 +171,7 @@ def _stage_kind(backend: str, device: torch.device) -> str:
     return backend if backend in ("triton", "numba") else "torch"
 
 
-def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = "torch") -> dict:
+def stage_breakdown(g, c2w, camera, device, repeats: int, backend: str = "torch") -> dict:
     """Median time of each stage of one forward + backward: the reference's, the Triton backend's or the numba
     backend's (each backend's own projection, binning and compositing)."""
     settings = RasterSettings()
@@ -174,8 +196,8 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
             from cylindersplat.render.projection import flatten_cameras, project_gaussians
             from cylindersplat.render.triton_projection import project_dense_triton
 
-            proj = project_gaussians(*flatten_cameras(g, c2w)[:2], Equirect(height, width), settings,
-                                     project_dense_triton, every_pair=triton_backend.takes_every_pair())
+            proj = project_gaussians(*flatten_cameras(g, c2w)[:2], camera, settings, project_dense_triton,
+                                     every_pair=triton_backend.takes_every_pair())
             mark()
             rects = triton_backend.pairs_carry_rects(proj)
             lean = triton_backend.FORWARD == "lean" or not rects  # PairBins (else TileBins)
@@ -194,12 +216,11 @@ def stage_breakdown(g, c2w, height, width, device, repeats: int, backend: str = 
             from cylindersplat.render.numba_projection import project_dense_numba
             from cylindersplat.render.projection import flatten_cameras, project_gaussians
 
-            proj = project_gaussians(*flatten_cameras(g, c2w)[:2], Equirect(height, width), settings,
-                                     project_dense_numba)
+            proj = project_gaussians(*flatten_cameras(g, c2w)[:2], camera, settings, project_dense_numba)
             mark()
             bins = bin_pairs_numba(proj, settings.tile_size)
         else:
-            proj = Equirect(height, width).project(g, c2w, settings)
+            proj = camera.project(g, c2w, settings)
             mark()
             bins = bin_to_tiles(proj, settings.tile_size)
         mark()
@@ -246,19 +267,20 @@ def _profiled(fn, device: torch.device):
 
 
 def profile(num: int, height: int, device: torch.device, backend: str, rows: int = 20,
-            label: str | None = None) -> None:
+            label: str | None = None, camera: str = "equirect") -> None:
     """Top operators (by device time) of one forward + backward."""
     g = random_indoor(num).to(device)
     for t in g.tensors().values():
         t.requires_grad_()
     c2w = torch.eye(4, device=device)
+    model = view_camera(camera, height)
 
     def step():
-        out = render_equirect(g, c2w, height, 2 * height, backend=backend)
+        out = render(g, c2w, model, backend=backend)
         (out.rgb.sum() + out.depth.sum()).backward()
 
     prof, key = _profiled(step, device)
-    print(f"# profile: {label or backend}, {num} Gaussians, {height}x{2 * height}, one forward + backward")
+    print(f"# profile: {label or backend}, {num} Gaussians, {height}x{2 * height} {camera}, one forward + backward")
     print(prof.key_averages().table(sort_by=key, row_limit=rows, max_name_column_width=60))
 
 
@@ -327,17 +349,19 @@ def triton_variant_name(text: str) -> tuple[str, ...]:
                               if name in chosen and chosen[name] != values[0])
 
 
-def variant_agreement(num: int, height: int, device: torch.device, variants: list[tuple[str, ...]]) -> list[str]:
+def variant_agreement(num: int, height: int, device: torch.device, variants: list[tuple[str, ...]],
+                      camera: str = "equirect") -> list[str]:
     """``# agreement`` lines: each Triton variant's image and gradients against the first variant's, on the
     benchmark's scene (the tests check them on small scenes; this, at the timed size)."""
     g = random_indoor(num).to(device)
     c2w = torch.eye(4, device=device)
+    model = view_camera(camera, height)
     results = []
     for variant in variants:
         params = {k: v.detach().clone().requires_grad_() for k, v in g.tensors().items()}
         with triton_variant(*variant):
             try:
-                out = render_equirect(type(g)(**params), c2w, height, 2 * height, backend="triton")
+                out = render(type(g)(**params), c2w, model, backend="triton")
                 weights = torch.linspace(-1.0, 1.0, out.rgb.numel(), device=device).view_as(out.rgb)
                 grads = torch.autograd.grad((weights * out.rgb).sum() + out.depth.sum(), list(params.values()),
                                             allow_unused=True)
@@ -431,7 +455,10 @@ def main(argv: list[str] | None = None) -> None:
                         help="render backends, timed in one run; ratios are printed against the first "
                              "(%(choices)s)")
     parser.add_argument("--repeats", type=positive_int, default=5)
-    parser.add_argument("--cubemap", action="store_true", help="also time the cubemap route")
+    parser.add_argument("--camera", choices=CAMERAS, default="equirect",
+                        help="the view timed: the 512x1024-style panorama, or a 90-degree pinhole view of the same "
+                             "size (gsplat's kind of camera; `bench gsplat_compare` times gsplat on it)")
+    parser.add_argument("--cubemap", action="store_true", help="also time the cubemap route (panoramas)")
     parser.add_argument("--stages", action="store_true", help="print the per-stage breakdown")
     parser.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads")
     parser.add_argument("--default-malloc", action="store_true", help="skip the glibc allocator tuning")
@@ -458,6 +485,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--ply-view", type=positive_int, nargs="+", default=[], metavar="N",
                         help="also time loading a PLY of N Gaussians and rendering one 512x1024 view, per backend")
     args = parser.parse_args(argv)
+    if args.cubemap and args.camera != "equirect":
+        parser.error("--cubemap renders panoramas: leave out --camera pinhole")
     if args.compile:
         from cylindersplat.render.projection import compile_projection
 
@@ -486,16 +515,17 @@ def main(argv: list[str] | None = None) -> None:
                 for variant in variants:
                     with triton_variant(*(variant or ())):
                         rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, args.cubemap,
-                                          args.stages, args.launches))
+                                          args.stages, args.launches, args.camera))
                         if variant is not None:
                             rows[-1]["backend"] = f"triton[{','.join(variant)}]"
                         print(rows[-1])
                         if args.profile:
-                            profile(num, args.height, torch.device(dev), backend, label=rows[-1]["backend"])
+                            profile(num, args.height, torch.device(dev), backend, label=rows[-1]["backend"],
+                                    camera=args.camera)
             for row in rows[1:]:
                 print(ratio_line(rows[0], row, dev))
             if triton_ran and len(args.variants) > 1:
-                for line in variant_agreement(num, args.height, torch.device(dev), args.variants):
+                for line in variant_agreement(num, args.height, torch.device(dev), args.variants, args.camera):
                     print(line)
             timed += rows
         if args.ply_view:
