@@ -148,14 +148,14 @@ def test_bench_render_reports_a_reference_out_of_memory_instead_of_crashing(monk
     the other backend is still timed."""
     from cylindersplat.benchmarks import render as bench_render
 
-    real = bench_render.render_equirect
+    real = bench_render.render
 
     def reference_out_of_memory(*args, backend="auto", **kwargs):
         if backend == "torch":
             raise torch.OutOfMemoryError("CUDA out of memory. Tried to allocate 40.00 GiB")
         return real(*args, backend=backend, **kwargs)
 
-    monkeypatch.setattr(bench_render, "render_equirect", reference_out_of_memory)
+    monkeypatch.setattr(bench_render, "render", reference_out_of_memory)
     bench_render.main(["--num", "300", "--height", "8", "--device", "cpu", "--backend", "torch", "numba",
                        "--repeats", "1", "--default-malloc"])
     out = capsys.readouterr().out
