@@ -6,10 +6,11 @@ float32 kernel with an analytic backward (:mod:`.triton_projection`, registered 
 :mod:`.api`) for the equirect and pinhole camera models; other camera models are projected by the
 reference. Tile binning is a depth sort, per-Gaussian counts, a prefix sum, key emission and one stable sort by
 tile (:mod:`.triton_binning`). Compositing follows the reference's rules; gradients reach the projected Gaussians
-through the compositing kernels' backward. The forward path, the projection's compaction and the input checks come
-in variants that give the same results (:data:`FORWARDS`, :data:`COMPACTIONS`, :data:`CHECKS`), timed side by side
-by ``bench render --variants`` until one is made the default. (The binning and the backward had variants too until
-an H100 chose between them on 2026-11-26: benchmarks/RESULTS.md.)
+through the compositing kernels' backward. The forward path, the projection's compaction, the input checks, what a
+pair carries and how far ahead the compositing loads come in variants that give the same results (:data:`FORWARDS`,
+:data:`COMPACTIONS`, :data:`CHECKS`, :data:`PAIR_FIELDS`, :data:`LOOKAHEADS`; by name :data:`VARIANT_FIELDS`), timed
+side by side by ``bench render --variants`` until one is made the default. (The binning and the backward had
+variants too until an H100 chose between them on 2026-11-26: benchmarks/RESULTS.md.)
 
 On a CPU, ``TRITON_INTERPRET=1`` (set before the first render) runs the same kernels in Triton's
 interpreter; that is how the test suite checks them on machines without a GPU.
@@ -29,8 +30,7 @@ from .triton_binning import bin_to_tiles_by_key
 
 __all__ = ["triton_available", "triton_backend", "composite_triton", "composite_bins", "FORWARDS", "FORWARD",
            "COMPACTIONS", "COMPACTION", "CHECKS", "CHECK", "PAIR_FIELDS", "PAIR_FIELD", "LOOKAHEADS", "LOOKAHEAD",
-           "VARIANT_FIELDS",
-           "takes_every_pair", "queue_checks", "pairs_carry_rects"]
+           "VARIANT_FIELDS", "takes_every_pair", "queue_checks", "pairs_carry_rects"]
 
 # The forward path's variant: "default" (:func:`.triton_binning.bin_to_tiles_by_key`, which reads the pair count on
 # the host before sizing its buffers, then compositing) or "lean" (:func:`_lean_backend`: the binning's
