@@ -8,26 +8,28 @@ import pytest
 import torch
 
 from cylindersplat.benchmarks import render as bench_render
+from cylindersplat.benchmarks import variants as bench_variants
+from cylindersplat.benchmarks.views import view_camera
 from cylindersplat.render import triton_backend
 
 
 def test_variant_names_are_checked_against_the_backends_lists():
-    assert bench_render.triton_variant_name("lean") == ("lean",)
-    assert bench_render.triton_variant_name("default,nonzero") == ("default", "nonzero")
-    assert bench_render.triton_variant_name("default,none,torch") == ("default", "torch")
+    assert bench_variants.triton_variant_name("lean") == ("lean",)
+    assert bench_variants.triton_variant_name("default,nonzero") == ("default", "nonzero")
+    assert bench_variants.triton_variant_name("default,none,torch") == ("default", "torch")
     # Options in any order, one name per variant (its row's): the forward, then the options that are not their
     # switch's default, in the switches' order.
-    assert bench_render.triton_variant_name("lean,none,fused") == ("lean",)
-    assert bench_render.triton_variant_name("lean,ids,nonzero") == ("lean", "nonzero", "ids")
-    assert bench_render.triton_variant_name("default,rects,id") == ("default",)
-    assert bench_render.triton_variant_name("lean,row,ids,nonzero") == ("lean", "nonzero", "ids", "row")
+    assert bench_variants.triton_variant_name("lean,none,fused") == ("lean",)
+    assert bench_variants.triton_variant_name("lean,ids,nonzero") == ("lean", "nonzero", "ids")
+    assert bench_variants.triton_variant_name("default,rects,id") == ("default",)
+    assert bench_variants.triton_variant_name("lean,row,ids,nonzero") == ("lean", "nonzero", "ids", "row")
     for bad, message in (("thin", "'thin' is not a forward"), ("", "'' is not a forward"),
                          ("ids", "'ids' is not a forward"),
                          ("default,all", "'all' is not an option"), ("lean,none,numpy", "'numpy' is not an option"),
                          ("lean,ids,rects", "gives PAIR_FIELD twice (ids, rects)"),
                          ("fused,joined", "'fused' is not a forward")):  # the old BINNING,BACKWARD form
         with pytest.raises(argparse.ArgumentTypeError, match=message.replace("(", r"\(").replace(")", r"\)")) as e:
-            bench_render.triton_variant_name(bad)
+            bench_variants.triton_variant_name(bad)
         assert "FORWARD one of default, lean" in str(e.value) and "PAIR_FIELD one of rects, ids" in str(e.value)
 
 
@@ -38,12 +40,12 @@ def test_a_variant_holds_inside_and_the_defaults_come_back_even_after_an_error()
 
     before = switches()
     with pytest.raises(RuntimeError):
-        with bench_render.triton_variant("lean", "ids", "nonzero", "row", "torch"):
+        with bench_variants.triton_variant("lean", "ids", "nonzero", "row", "torch"):
             assert switches() == ("lean", "nonzero", "torch", "ids", "row")
             raise RuntimeError("a failing row")
     assert switches() == before
     before = switches()[:3]
-    with bench_render.triton_variant(None, "nonzero"):
+    with bench_variants.triton_variant(None, "nonzero"):
         assert (triton_backend.FORWARD, triton_backend.COMPACTION) == (before[0], "nonzero")
     assert (triton_backend.FORWARD, triton_backend.COMPACTION, triton_backend.CHECK) == before
 
@@ -108,7 +110,7 @@ def test_stages_time_the_numba_backends_own_stages():
     for t in g.tensors().values():
         t.requires_grad_()
     c2w = torch.eye(4)
-    camera = bench_render.view_camera("equirect", 8)
+    camera = view_camera("equirect", 8)
     stages = {b: bench_render.stage_breakdown(g, c2w, camera, torch.device("cpu"), 1, b) for b in ("numba", "torch")}
     assert list(stages["numba"]) == ["checks", "project", "bin", "composite", "backward", "num_pairs"]
     assert "fragments" in stages["torch"] and stages["numba"]["num_pairs"] == stages["torch"]["num_pairs"] > 0

@@ -176,14 +176,15 @@ def test_the_bench_times_the_compacted_variant_beside_the_default(capsys):
     import argparse
 
     from cylindersplat.benchmarks import render as bench_render
+    from cylindersplat.benchmarks import variants as bench_variants
 
-    name = bench_render.triton_variant_name
+    name = bench_variants.triton_variant_name
     assert name("default,nonzero") == ("default", "nonzero")
     assert name("lean,none") == ("lean",)
     assert name("default,none") == ("default",)
     with pytest.raises(argparse.ArgumentTypeError, match="COMPACTION one of none, nonzero"):
         name("lean,sparse")
-    with bench_render.triton_variant("default", "nonzero"):
+    with bench_variants.triton_variant("default", "nonzero"):
         assert triton_backend.COMPACTION == "nonzero"
     assert triton_backend.COMPACTION == "none"
     bench_render.main(["--num", "30", "--height", "8", "--device", DEVICE, "--backend", "triton", "--repeats", "1",

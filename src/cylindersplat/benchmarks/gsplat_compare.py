@@ -37,16 +37,9 @@ from cylindersplat.scenes import random_indoor
 from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
 from cylindersplat.utils.arguments import device as device_name
 
-from .render import (
-    _forward_and_backward_ms,
-    _peak_mb,
-    _sync,
-    launch_counts,
-    pinhole_intrinsics,
-    profile_forward,
-    triton_variant,
-    triton_variant_name,
-)
+from .render import _forward_and_backward_ms, _peak_mb, _sync, launch_counts, profile_forward
+from .variants import triton_variant, triton_variant_name
+from .views import pinhole_intrinsics
 
 __all__ = ["main", "scene_line", "parity_lines"]
 

@@ -29,7 +29,6 @@ default,ids``.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import platform
 import resource
@@ -41,7 +40,7 @@ import torch
 
 from cylindersplat.benchmarks.launches import count_render_launches
 from cylindersplat.gaussians import load_ply, save_ply
-from cylindersplat.render import Equirect, Pinhole, api, render, render_cubemap, render_equirect, triton_backend
+from cylindersplat.render import api, render, render_cubemap, render_equirect, triton_backend
 from cylindersplat.render.numba_backend import numba_available
 from cylindersplat.render.projection import RasterSettings
 from cylindersplat.render.rasterize import bin_to_tiles, composite, expand_fragments
@@ -49,6 +48,9 @@ from cylindersplat.scenes import random_indoor
 from cylindersplat.utils.allocator import keep_freed_memory
 from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
 from cylindersplat.utils.arguments import device as device_name
+
+from .variants import triton_variant, triton_variant_name, variant_agreement
+from .views import CAMERAS, view_camera
 
 
 def _sync(device: torch.device) -> None:
@@ -89,25 +91,6 @@ def _forward_and_backward_ms(render, params, device, repeats: int) -> tuple[floa
             p.grad = None
 
     return _time(forward, device, repeats), _time(forward_backward, device, repeats)
-
-
-CAMERAS = ("equirect", "pinhole")
-
-
-def pinhole_intrinsics(height: int, device="cpu") -> torch.Tensor:
-    """``K (3, 3)`` of the benchmarks' pinhole view: ``height x 2 height`` pixels, 90 degrees horizontally, centred."""
-    width = 2 * height
-    f = width / 2.0
-    return torch.tensor([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]], device=device)
-
-
-def view_camera(kind: str, height: int):
-    """The benchmarks' view of ``random_indoor`` from its centre (identity pose), ``height x 2 height``: the
-    panorama (``"equirect"``) or a 90-degree pinhole view (``"pinhole"``, gsplat's kind of camera: ``bench
-    gsplat_compare`` times the same one)."""
-    if kind == "pinhole":
-        return Pinhole(pinhole_intrinsics(height), height, 2 * height)
-    return Equirect(height, 2 * height)
 
 
 def bench(num: int, height: int, device: torch.device, backend: str, repeats: int, cubemap: bool, stages: bool,
@@ -324,82 +307,6 @@ def ply_view(num: int, device: torch.device, backends: list[str], folder: str, h
             row["error"] = "out of memory" + (f" (needs {need / 2**30:.0f} GiB)" if need else "")
         rows.append(row)
     return rows
-
-
-def triton_variant_name(text: str) -> tuple[str, ...]:
-    """``"FORWARD[,OPTION...]"`` (argparse type): a Triton forward (:data:`.triton_backend.FORWARDS`) and at most one
-    value of each other switch of :data:`.triton_backend.VARIANT_FIELDS` (COMPACTION, CHECK, PAIR_FIELD), in any
-    order: the forward, then the options that are not their switch's default, in the switches' order (every
-    spelling of one variant has one name: its row's)."""
-    forward, *options = text.split(",")
-    fields = triton_backend.VARIANT_FIELDS
-    usage = ("FORWARD[,OPTION...] with FORWARD one of " + ", ".join(triton_backend.FORWARDS) + " and OPTIONs from "
-             + "; ".join(f"{name} one of {', '.join(values)}" for name, values in fields.items() if name != "FORWARD"))
-    if forward not in triton_backend.FORWARDS:
-        raise argparse.ArgumentTypeError(f"{text!r}: {forward!r} is not a forward; use {usage}")
-    chosen: dict[str, str] = {}
-    for option in options:
-        field = next((name for name, values in fields.items() if name != "FORWARD" and option in values), None)
-        if field is None:
-            raise argparse.ArgumentTypeError(f"{text!r}: {option!r} is not an option; use {usage}")
-        if field in chosen:
-            raise argparse.ArgumentTypeError(f"{text!r} gives {field} twice ({chosen[field]}, {option}); use {usage}")
-        chosen[field] = option
-    return (forward,) + tuple(chosen[name] for name, values in fields.items()
-                              if name in chosen and chosen[name] != values[0])
-
-
-def variant_agreement(num: int, height: int, device: torch.device, variants: list[tuple[str, ...]],
-                      camera: str = "equirect") -> list[str]:
-    """``# agreement`` lines: each Triton variant's image and gradients against the first variant's, on the
-    benchmark's scene (the tests check them on small scenes; this, at the timed size)."""
-    g = random_indoor(num).to(device)
-    c2w = torch.eye(4, device=device)
-    model = view_camera(camera, height)
-    results = []
-    for variant in variants:
-        params = {k: v.detach().clone().requires_grad_() for k, v in g.tensors().items()}
-        with triton_variant(*variant):
-            try:
-                out = render(type(g)(**params), c2w, model, backend="triton")
-                weights = torch.linspace(-1.0, 1.0, out.rgb.numel(), device=device).view_as(out.rgb)
-                grads = torch.autograd.grad((weights * out.rgb).sum() + out.depth.sum(), list(params.values()),
-                                            allow_unused=True)
-            except (torch.OutOfMemoryError, MemoryError):
-                results.append(None)
-                continue
-        results.append((out.rgb.detach(), dict(zip(params, grads))))
-        del out
-    lines = []
-    base, name0 = results[0], f"triton[{','.join(variants[0])}]"
-    for variant, res in zip(variants[1:], results[1:]):
-        head = f"# agreement triton[{','.join(variant)}] vs {name0} ({num} Gaussians): "
-        if base is None or res is None:
-            lines.append(head + "out of memory")
-            continue
-        rel = {k: float((res[1][k] - v).abs().max() / v.abs().max().clamp_min(1e-12))
-               for k, v in base[1].items() if v is not None and res[1][k] is not None}
-        lines.append(head + f"rgb max |diff| {float((res[0] - base[0]).abs().max()):.2e}, gradients max |diff| / "
-                     "max |grad|: " + ", ".join(f"{k} {v:.1e}" for k, v in rel.items()))
-    return lines
-
-
-@contextlib.contextmanager
-def triton_variant(forward: str | None = None, *options: str):
-    """The Triton backend with the given forward (None: the current one) and options (values of the other switches
-    of :data:`.triton_backend.VARIANT_FIELDS`, e.g. ``"nonzero"``, ``"ids"``; the rest stay) while inside."""
-    fields = triton_backend.VARIANT_FIELDS
-    saved = {name: getattr(triton_backend, name) for name in fields}
-    try:
-        if forward is not None:
-            triton_backend.FORWARD = forward
-        for option in options:
-            if option is not None:
-                setattr(triton_backend, next(name for name, values in fields.items() if option in values), option)
-        yield
-    finally:
-        for name, value in saved.items():
-            setattr(triton_backend, name, value)
 
 
 def ratio_line(base: dict, row: dict, dev: str) -> str:
