@@ -57,6 +57,21 @@ def test_the_triton_render_path_reads_the_device_once(background):
     assert backward_waits == []
 
 
+def test_a_pinhole_render_reads_its_intrinsics_when_the_camera_is_made_not_per_render():
+    # (intrinsics on a GPU read as numbers each render were four waits for the device a render)
+    from cylindersplat.render import Pinhole, render
+
+    k = torch.tensor([[14.0, 0.0, 12.3], [0.0, 15.0, 9.6], [0.0, 0.0, 1.0]], device=DEVICE)
+    camera = Pinhole(k, 20, 24)
+    params = _params()
+    outputs = []
+    forward_waits = waits_during(lambda: outputs.append(render(Gaussians(**params), torch.eye(4, device=DEVICE),
+                                                               camera, backend="triton")))
+    assert forward_waits == [ONE_READ]
+    assert waits_during(lambda: (outputs[0].rgb.sum() + outputs[0].depth.sum()).backward()) == []
+    assert outputs[0].alpha.max() > 0
+
+
 def test_the_lean_forward_reads_the_device_once_after_compositing(monkeypatch):
     from cylindersplat.render import triton_backend, triton_binning
 

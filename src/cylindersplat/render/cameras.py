@@ -117,6 +117,10 @@ class Pinhole(CameraModel):
         if not torch.isfinite(k).all() or k[0, 0] <= 0 or k[1, 1] <= 0:
             raise ValueError("intrinsics must be finite with positive focal lengths fx, fy")
         object.__setattr__(self, "intrinsics", k)
+        # Read once here: a render reads them as Python numbers, which for intrinsics on a GPU would be four waits
+        # for the device per render.
+        fx, fy, cx, cy = k.detach().double()[[0, 1, 0, 1], [0, 1, 2, 2]].tolist()
+        object.__setattr__(self, "_focal_and_centre", (fx, fy, cx, cy))
 
     @property
     def max_std(self) -> tuple[float, float]:
@@ -124,9 +128,8 @@ class Pinhole(CameraModel):
 
     @property
     def focal_and_centre(self) -> tuple[float, float, float, float]:
-        """``(fx, fy, cx, cy)`` as Python floats."""
-        k = self.intrinsics.double()
-        return float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2])
+        """``(fx, fy, cx, cy)`` as Python floats (of the intrinsics as they were given)."""
+        return self._focal_and_centre
 
     def pixel_map(self, points: Tensor, settings: RasterSettings) -> PixelMap:
         fx, fy, cx, cy = self.focal_and_centre
