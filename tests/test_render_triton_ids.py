@@ -82,15 +82,24 @@ def _render(g, poses, camera, forward, pair_field, monkeypatch, background=None,
     return [out.rgb, out.depth, out.alpha], dict(zip(params, grads))
 
 
+def assert_same_gradient(got, expected, name):
+    """Bit for bit in Triton's interpreter, which runs the tiles one after another; to float32 rounding on a GPU,
+    whose tiles add their atomics in any order (two runs of one variant differ there too)."""
+    if DEVICE == "cpu":
+        assert torch.equal(got, expected), name
+    else:
+        torch.testing.assert_close(got, expected, atol=1e-6, rtol=1e-4, msg=name)
+
+
 def _assert_ids_equal_rects(monkeypatch, g, poses, camera, forward, **kwargs):
     (out_r, grad_r), (out_i, grad_i) = (_render(g, poses, camera, forward, p, monkeypatch, **kwargs)
                                         for p in ("rects", "ids"))
     for name, a, b in zip(("rgb", "depth", "alpha"), out_r, out_i):
-        assert torch.equal(a, b), name
+        assert torch.equal(a, b), name  # each pixel by one program, its pairs in one order: on a GPU too
     for name, expected in grad_r.items():
         assert (expected is None) == (grad_i[name] is None), name
         if expected is not None:
-            assert torch.equal(grad_i[name], expected), name
+            assert_same_gradient(grad_i[name], expected, name)
     return out_r
 
 
