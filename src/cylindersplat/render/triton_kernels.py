@@ -110,8 +110,7 @@ def _first_pairs(pair_gaussian_ptr, geo_ptr, opac_ptr, colour_ptr, rows_ptr, col
                  DEPTH_COL: tl.constexpr, RECTS: tl.constexpr):
     """Where a tile's walk over its pairs ``start..end`` begins: its first pair's Gaussian, ``-1`` for the pair
     before it (none), the second pair's Gaussian and the first pair's row (:func:`_load_pair`), each loaded only
-    where the tile has pairs. (A kernel that loads rows when their turn comes leaves the last two unused: the
-    compiler drops those loads.)"""
+    where the tile has pairs: what the kernels carry into their loop with ``ROW_AHEAD``."""
     has = start < end
     g = tl.load(pair_gaussian_ptr + start, mask=has, other=0)
     g1 = tl.load(pair_gaussian_ptr + tl.maximum(tl.minimum(start + 1, end - 1), start), mask=has, other=0)
@@ -207,9 +206,13 @@ def composite_forward_kernel(
     row, col, inside, pixel, col0 = _pixel_setup(tile, tiles_x, tiles_per_camera, height, width, TILE)
     start = tl.load(tile_start_ptr + tile)
     end = tl.load(tile_start_ptr + tile + 1)
-    g, g_prev, g1, u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _first_pairs(
-        pair_gaussian_ptr, geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, start, end, GEO_STRIDE, OPAC_STRIDE,
-        COLOUR_STRIDE, DEPTH_COL, RECTS)
+    if ROW_AHEAD:  # (else nothing is carried into the loop but the Gaussian ids)
+        g, g_prev, g1, u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _first_pairs(
+            pair_gaussian_ptr, geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, start, end, GEO_STRIDE,
+            OPAC_STRIDE, COLOUR_STRIDE, DEPTH_COL, RECTS)
+    else:
+        g = tl.load(pair_gaussian_ptr + start, mask=start < end, other=0)
+        g_prev = g * 0 - 1  # (none yet: -1)
     trans = tl.where(inside, 1.0, 0.0)
     alive = inside
     acc_r = tl.zeros([TILE * TILE], dtype=tl.float32)
@@ -309,9 +312,13 @@ def composite_backward_kernel(
     prefix = tl.zeros([TILE * TILE], dtype=tl.float32)
     p = start
     n_alive = tl.sum(alive.to(tl.int32), axis=0)
-    g, g_prev, g1, u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _first_pairs(
-        pair_gaussian_ptr, geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, start, end, GEO_STRIDE, OPAC_STRIDE,
-        COLOUR_STRIDE, DEPTH_COL, RECTS)
+    if ROW_AHEAD:  # (else nothing is carried into the loop but the Gaussian ids)
+        g, g_prev, g1, u, v, a, b, c, o, e0, e1, e2, e3, cr, cg, cb, cd = _first_pairs(
+            pair_gaussian_ptr, geo_ptr, opac_ptr, colour_ptr, rows_ptr, cols_ptr, start, end, GEO_STRIDE,
+            OPAC_STRIDE, COLOUR_STRIDE, DEPTH_COL, RECTS)
+    else:
+        g = tl.load(pair_gaussian_ptr + start, mask=start < end, other=0)
+        g_prev = g * 0 - 1  # (none yet: -1)
     while (p < end) & (n_alive > 0):
         if ROW_AHEAD:
             g2 = tl.load(pair_gaussian_ptr + tl.minimum(p + 2, end - 1))
