@@ -31,7 +31,7 @@ import math
 import torch
 from torch import Tensor
 
-from cylindersplat.render import Pinhole, render
+from cylindersplat.render import render
 from cylindersplat.render.covariance import eval_sh
 from cylindersplat.scenes import random_indoor
 from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
@@ -39,7 +39,7 @@ from cylindersplat.utils.arguments import device as device_name
 
 from .render import _forward_and_backward_ms, _peak_mb, _sync, launch_counts, profile_forward
 from .variants import triton_variant, triton_variant_name
-from .views import pinhole_intrinsics
+from .views import pinhole_intrinsics, view_camera
 
 __all__ = ["main", "scene_line", "parity_lines"]
 
@@ -89,7 +89,7 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
     params = [t.requires_grad_() for t in g.tensors().values()]
     k, h, w = _camera(height, device)
     c2w = torch.eye(4, device=device)
-    camera = Pinhole(k.cpu(), h, w)
+    camera = view_camera("pinhole", height)
     rows, images = [], {}
 
     class _Out:  # gsplat's images in the shape _forward_and_backward_ms expects
@@ -198,9 +198,8 @@ def scene_line(num: int, height: int, device: torch.device, tile_size: int = 16)
     from cylindersplat.render.rasterize import tile_spans
 
     g = random_indoor(num).to(device)
-    k, h, w = _camera(height, device)
     with torch.no_grad():
-        proj = Pinhole(k.cpu(), h, w).project(g, torch.eye(4, device=device)[None], RasterSettings())
+        proj = view_camera("pinhole", height).project(g, torch.eye(4, device=device)[None], RasterSettings())
         spans = tile_spans(proj, tile_size)
         pairs = int((spans.ny * (spans.nx0 + spans.nx1)).sum())
     return (f"# scene: {len(proj.depth):,} of {num:,} Gaussians visible, {pairs:,} (Gaussian, tile) pairs "

@@ -13,10 +13,11 @@ CAMERAS = ("equirect", "pinhole")
 
 
 def pinhole_intrinsics(height: int, device="cpu") -> torch.Tensor:
-    """``K (3, 3)`` of the benchmarks' pinhole view: ``height x 2 height`` pixels, 90 degrees horizontally, centred."""
-    width = 2 * height
-    f = width / 2.0
-    return torch.tensor([[f, 0.0, width / 2.0], [0.0, f, height / 2.0], [0.0, 0.0, 1.0]], device=device)
+    """``K (3, 3)`` of the benchmarks' pinhole view: ``height x 2 height`` pixels, 90 degrees horizontally, centred
+    (:func:`cylindersplat.inference.pipeline.pinhole_intrinsics`, the renderer's own)."""
+    from cylindersplat.inference.pipeline import pinhole_intrinsics as centred_intrinsics
+
+    return centred_intrinsics(height, 2 * height, 90.0).to(device)
 
 
 def view_camera(kind: str, height: int):
