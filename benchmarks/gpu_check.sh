@@ -7,8 +7,8 @@
 #   render          rasterizer at 0.1 / 0.5 / 1.3 M Gaussians, 512x1024: reference and Triton (a reference out of
 #                   memory is a table cell, not a crash);
 #   stages          where the Triton path spends its time (projection, binning, compositing, backward);
-#   gsplat          our pinhole renderer against gsplat (speed and agreement; the Triton forwards with every pair
-#                   and with the visible pairs compacted, with their launch counts; then one forward of each
+#   gsplat          our pinhole renderer against gsplat (speed and agreement; the Triton variants with their launch
+#                   counts, and the default replayed as CUDA graphs; then one forward of each
 #                   under torch.profiler, host against device time); gsplat's wheel is carried in
 #                   $CHECK_WHEELS (default .whl: `python3 -m pip download --no-deps gsplat==1.5.3 -d .whl`); its
 #                   CUDA code (a JIT build of about 75 s) is built in the background while the tests run;
@@ -123,8 +123,9 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
 variants="--launches --variants default default,ids default,row default,ids,row lean,ids,row default,torch"
 profile_variants="--variants default default,ids default,ids,row"
 # Pinhole views beside gsplat (3.2 M pairs of 0.18 M visible Gaussians at 1.3 M, 512x1024: the pairs' bytes count
-# there), with their launch counts.
-gsplat_variants="--launches --variants default default,ids default,ids,row lean,ids,row"
+# there), with their launch counts, and the default replayed as CUDA graphs (--graph: render.graphs.RenderGraph, the
+# render's host work made once).
+gsplat_variants="--launches --graph --variants default default,ids default,ids,row lean,ids,row"
 pinhole_variants="--variants default default,ids default,ids,row lean,ids,row"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
@@ -150,7 +151,7 @@ else
   # The GPU kernels' tests only (slow-marked ones included: seconds on a GPU), not the reference's CPU tests.
   test_args=(tests/test_render_triton.py tests/test_render_triton_projection.py tests/test_render_binning.py
              tests/test_render_triton_sync.py tests/test_render_triton_lean.py tests/test_render_triton_ids.py
-             tests/test_render_triton_lookahead.py
+             tests/test_render_triton_lookahead.py tests/test_render_graphs.py
              tests/test_triton_compile.py
              tests/test_render_deferred_checks.py tests/test_render_triton_checks.py
              "tests/test_render_layered.py::test_blending_is_the_normalised_weighted_mean_of_the_front_surface")

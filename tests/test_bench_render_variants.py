@@ -135,3 +135,31 @@ def test_the_cubemap_route_is_a_panorama_only_option(capsys):
         bench_render.main(["--device", "cpu", "--camera", "pinhole", "--cubemap"])
     err = capsys.readouterr().err
     assert exit_info.value.code == 2 and "--cubemap renders panoramas" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_graph_row_replays_renders_with_and_without_gradients(monkeypatch):
+    """``--graph`` (``variants.graphed_render``): a graph without gradients under ``torch.no_grad``, one with the
+    backward otherwise, each made once; both give render()'s images and gradients (here replayed by the graphs'
+    stand-in, ``graph_standin.py``: this machine may have no CUDA)."""
+    from cylindersplat.render import graphs, render
+    from cylindersplat.scenes import random_indoor
+    from graph_standin import RerunGraphReplay
+
+    monkeypatch.setitem(graphs._ENGINES, "cpu", RerunGraphReplay)
+    g = random_indoor(60)
+    params = [t.requires_grad_() for t in g.tensors().values()]
+    c2w, camera = torch.eye(4), view_camera("pinhole", 8)
+    replay = bench_variants.graphed_render(g, c2w, camera)
+    with torch.no_grad():
+        ref = render(g, c2w, camera, backend="triton")
+        for _ in range(2):
+            assert torch.equal(replay().rgb, ref.rgb)
+    out = replay()
+    out.rgb.sum().backward()
+    grads = [p.grad for p in params]
+    for p in params:
+        p.grad = None
+    render(g, c2w, camera, backend="triton").rgb.sum().backward()
+    assert all(torch.equal(a, p.grad) for a, p in zip(grads, params)) and grads[0].abs().max() > 0
+    assert sorted(replay.graphs) == [False, True]
+    assert [graph.captures for graph in replay.graphs.values()] == [1, 1]

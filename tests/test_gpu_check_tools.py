@@ -54,6 +54,18 @@ def test_gsplat_comparison_profiles_one_forward_of_each_renderer(capsys):
     assert all("profile" not in r for r in rows)  # the lines print as lines, not inside the rows
 
 
+def test_gsplat_comparison_has_a_graph_row_that_says_why_it_is_missing_without_cuda(capsys):
+    """``--graph``: one more row, the Triton backend replayed as CUDA graphs (``bench_render_variants`` checks the
+    replayed renderer itself); without CUDA the row says why."""
+    gsplat_compare.main(["--num", "40", "--height", "8", "--device", "cpu", "--backend", "triton", "--repeats", "1",
+                         "--graph"])
+    rows = [ast.literal_eval(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
+    assert {"num": 40, "renderer": "cylindersplat-triton[graph]", "skipped": "CUDA graphs need CUDA"} in rows
+    assert [r["renderer"] for r in rows if "forward_ms" in r] == ["cylindersplat-triton"]
+    assert [x[0] for x in gsplat_compare._our_renderers(["torch", "triton"], [("lean",)], graph=True)] == [
+        "cylindersplat-torch", "cylindersplat-triton[lean]", "cylindersplat-triton[graph]"]
+
+
 def test_the_parity_verdict_needs_every_size_forward_and_backward():
     lines = gsplat_compare.parity_lines({
         "ours[a]": [(100_000, 0.95, 0.99), (1_300_000, 1.0, 0.7)],
@@ -71,6 +83,7 @@ def test_the_parity_verdict_needs_every_size_forward_and_backward():
     (["--variants", "default,wrong"], "COMPACTION one of"),
     (["--num", "0"], "--num"),
     (["--backend", "cuda"], "invalid choice"),
+    (["--graph", "--backend", "torch"], "--graph needs --backend triton"),
 ])
 def test_gsplat_comparison_refuses_bad_arguments_in_one_line(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_info:

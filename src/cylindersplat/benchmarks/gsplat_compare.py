@@ -38,7 +38,7 @@ from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
 from cylindersplat.utils.arguments import device as device_name
 
 from .render import _forward_and_backward_ms, _peak_mb, _sync, launch_counts, profile_forward
-from .variants import triton_variant, triton_variant_name
+from .variants import GRAPH_ROW, graphed_render, triton_variant, triton_variant_name
 from .views import pinhole_intrinsics, view_camera
 
 __all__ = ["main", "scene_line", "parity_lines"]
@@ -68,22 +68,27 @@ def _import_gsplat(device: torch.device):
         return None, f"gsplat not installed ({exc}); carry its wheel (see this module's docstring)"
 
 
-def _our_renderers(backends: list[str], variants: list[tuple[str, ...]]) -> list[tuple[str, str, tuple | None]]:
-    """``(row name, backend, Triton variant or None)`` for each of our renderers timed: the Triton backend once per
-    variant."""
+def _our_renderers(backends: list[str], variants: list[tuple[str, ...]],
+                   graph: bool = False) -> list[tuple[str, str, tuple | None, bool]]:
+    """``(row name, backend, Triton variant or None, replayed as CUDA graphs)`` for each of our renderers timed: the
+    Triton backend once per variant, and once more replayed as CUDA graphs where ``graph``."""
     out = []
     for backend in backends:
         for variant in (variants if backend == "triton" and variants else [None]):
             name = f"cylindersplat-{backend}" + (f"[{','.join(variant)}]" if variant else "")
-            out.append((name, backend, variant))
+            out.append((name, backend, variant, False))
+        if backend == "triton" and graph:
+            out.append((f"cylindersplat-triton[{GRAPH_ROW}]", backend, None, True))
     return out
 
 
 def compare(num: int, height: int, device: torch.device, backends: list[str], repeats: int,
-            variants: list[tuple[str, ...]] = (), launches: bool = False, profile: bool = False) -> list[dict]:
-    """Rows: each of our renderers (``backends``; the Triton one once per variant of ``variants``) and gsplat timed
-    on the same pinhole view, then each of ours' agreement with gsplat's image. ``profile``: each renderer's row
-    also holds ``profile``, the lines of :func:`.render.profile_forward` (host and device totals, top operators)."""
+            variants: list[tuple[str, ...]] = (), launches: bool = False, profile: bool = False,
+            graph: bool = False) -> list[dict]:
+    """Rows: each of our renderers (``backends``; the Triton one once per variant of ``variants``, and replayed as CUDA
+    graphs where ``graph``) and gsplat timed on the same pinhole view, then each of ours' agreement with gsplat's
+    image. ``profile``: each renderer's row also holds ``profile``, the lines of :func:`.render.profile_forward`
+    (host and device totals, top operators)."""
     g = random_indoor(num).to(device)
     g = type(g).from_rgb(g.means, g.scales, g.rotations, g.opacities, eval_sh(g.sh[..., :1, :], None))
     params = [t.requires_grad_() for t in g.tensors().values()]
@@ -96,8 +101,14 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
         def __init__(self, rgb, depth):
             self.rgb, self.depth = rgb, depth
 
-    renders = [(name, variant, lambda b=backend: render(g, c2w, camera, backend=b))
-               for name, backend, variant in _our_renderers(backends, list(variants))]
+    renders, skipped = [], []
+    for name, backend, variant, graphed in _our_renderers(backends, list(variants), graph):
+        if graphed and device.type != "cuda":
+            skipped.append({"num": num, "renderer": name, "skipped": "CUDA graphs need CUDA"})
+        elif graphed:
+            renders.append((name, variant, graphed_render(g, c2w, camera)))
+        else:
+            renders.append((name, variant, lambda b=backend: render(g, c2w, camera, backend=b)))
     gsplat, why_not = _import_gsplat(device)
     if gsplat is not None:
 
@@ -118,7 +129,8 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
                 row["peak_mb"] = _peak_mb(device)
                 with torch.no_grad():
                     images[name] = fn().rgb.float()
-                if launches and name != "gsplat":  # gsplat's kernels are not PyTorch operations: not counted
+                # gsplat's kernels are not PyTorch operations, nor a graph's replay: not counted
+                if launches and name != "gsplat" and GRAPH_ROW not in name:
                     for p in params:
                         p.grad = None
                     row["launches"] = launch_counts(fn)
@@ -130,6 +142,7 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
             p.grad = None
         _sync(device)
         rows.append(row)
+    rows += skipped
     if gsplat is None:
         rows.append({"num": num, "renderer": "gsplat", "skipped": why_not})
     elif "gsplat" in images:
@@ -160,16 +173,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--profile", action="store_true",
                         help="also profile one forward of each renderer (torch.profiler): host and device totals, "
                              "top operators")
+    parser.add_argument("--graph", action="store_true",
+                        help="also time the Triton backend replayed as CUDA graphs (render.graphs.RenderGraph: the "
+                             "render's host work made once, at capture), one more row")
     args = parser.parse_args(argv)
     if args.variants and "triton" not in args.backend:
         parser.error("--variants needs --backend triton")
+    if args.graph and "triton" not in args.backend:
+        parser.error("--graph needs --backend triton")
     device = torch.device(args.device)
     print(f"# pinhole {args.height}x{2 * args.height}, 90 deg horizontal FOV; torch {torch.__version__}"
           + (f"; GPU: {torch.cuda.get_device_name()}" if device.type == "cuda" else "; CPU"))
     ratios: dict[str, list[tuple[int, float, float]]] = {}
     for num in args.num:
         rows = compare(num, args.height, device, args.backend, args.repeats, args.variants, args.launches,
-                       args.profile)
+                       args.profile, args.graph)
         for row in rows:
             print({k: v for k, v in row.items() if k != "profile"})
         for row in rows:

@@ -49,7 +49,7 @@ from cylindersplat.utils.allocator import keep_freed_memory
 from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
 from cylindersplat.utils.arguments import device as device_name
 
-from .variants import triton_variant, triton_variant_name, variant_agreement
+from .variants import GRAPH_ROW, graphed_render, triton_variant, triton_variant_name, variant_agreement
 from .views import CAMERAS, view_camera
 
 
@@ -94,7 +94,9 @@ def _forward_and_backward_ms(render, params, device, repeats: int) -> tuple[floa
 
 
 def bench(num: int, height: int, device: torch.device, backend: str, repeats: int, cubemap: bool, stages: bool,
-          launches: bool = False, camera: str = "equirect") -> dict:
+          launches: bool = False, camera: str = "equirect", graph: bool = False) -> dict:
+    """One row: ``backend``'s forward and forward + backward (``graph``: the Triton backend replayed as CUDA graphs,
+    :func:`.variants.graphed_render`, timed alone), and what else is asked for."""
     g = random_indoor(num).to(device)
     params = [t.requires_grad_() for t in g.tensors().values()]
     c2w = torch.eye(4, device=device)
@@ -116,6 +118,10 @@ def bench(num: int, height: int, device: torch.device, backend: str, repeats: in
             row[f"{prefix}error"] = "out of memory"
             _free(params, device)
 
+    if graph:
+        row["backend"] = f"{backend}[{GRAPH_ROW}]"
+        measure("", graphed_render(g, c2w, model))
+        return row
     measure("", lambda: render(g, c2w, model, backend=backend))
     if cubemap:
         measure("cubemap_", lambda: render_cubemap(g, c2w, height, width, backend=backend))
@@ -389,6 +395,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--launches", action="store_true",
                         help="also count the kernels one forward and its backward launch (PyTorch operations and "
                              "Triton kernels; on any device)")
+    parser.add_argument("--graph", action="store_true",
+                        help="also time the Triton backend replayed as CUDA graphs (render.graphs.RenderGraph: the "
+                             "render's host work made once, at capture), one more row (CUDA only)")
     parser.add_argument("--ply-view", type=positive_int, nargs="+", default=[], metavar="N",
                         help="also time loading a PLY of N Gaussians and rendering one 512x1024 view, per backend")
     args = parser.parse_args(argv)
@@ -429,6 +438,13 @@ def main(argv: list[str] | None = None) -> None:
                         if args.profile:
                             profile(num, args.height, torch.device(dev), backend, label=rows[-1]["backend"],
                                     camera=args.camera)
+                if backend == "triton" and args.graph:
+                    if torch.device(dev).type == "cuda":
+                        rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, False, False,
+                                          camera=args.camera, graph=True))
+                        print(rows[-1])
+                    else:
+                        print(f"# skipping triton[{GRAPH_ROW}] on {dev}: CUDA graphs need CUDA")
             for row in rows[1:]:
                 print(ratio_line(rows[0], row, dev))
             if triton_ran and len(args.variants) > 1:

@@ -14,7 +14,9 @@ from cylindersplat.scenes import random_indoor
 
 from .views import view_camera
 
-__all__ = ["triton_variant_name", "triton_variant", "variant_agreement"]
+__all__ = ["triton_variant_name", "triton_variant", "variant_agreement", "graphed_render", "GRAPH_ROW"]
+
+GRAPH_ROW = "graph"  # the row name's tag of renders replayed as CUDA graphs (``--graph``)
 
 
 def triton_variant_name(text: str) -> tuple[str, ...]:
@@ -39,6 +41,25 @@ def triton_variant_name(text: str) -> tuple[str, ...]:
         chosen[field] = option
     return (forward,) + tuple(chosen[name] for name, values in fields.items()
                               if name in chosen and chosen[name] != values[0])
+
+
+def graphed_render(gaussians, c2w: torch.Tensor, camera):
+    """``render(gaussians, c2w, camera, backend="triton")`` replayed by :class:`cylindersplat.render.graphs.
+    RenderGraph` (CUDA only): one graph without gradients, used under ``torch.no_grad``, and one with the backward,
+    used otherwise, each captured at its first call (the benchmarks' warm-up call); ``.graphs`` holds them by
+    ``backward``."""
+    from cylindersplat.render.graphs import RenderGraph
+
+    made = {}
+
+    def run():
+        backward = torch.is_grad_enabled()
+        if backward not in made:
+            made[backward] = RenderGraph(gaussians, c2w, camera, backward=backward)
+        return made[backward](gaussians, c2w)
+
+    run.graphs = made
+    return run
 
 
 @contextlib.contextmanager

@@ -32,6 +32,7 @@ map, :func:`ewa_footprint` the caps), documented so the fast backend can match t
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -43,7 +44,7 @@ from ..geometry.rotations import quaternion_to_matrix
 from .covariance import eval_sh
 
 __all__ = ["ProjectedGaussians", "RasterSettings", "UnsupportedSettings", "PixelMap", "flatten_cameras",
-           "DeferredValues", "InputCheckFailed", "read_count",
+           "DeferredValues", "InputCheckFailed", "read_count", "RecordedRead", "recording_reads",
            "to_camera_frame",
            "ewa_footprint", "project_dense", "project_gaussians", "compile_projection"]
 
@@ -100,21 +101,34 @@ class DeferredValues:
     """Device-side values a render reads together with its one host read (the backend's pair count) instead of on
     their own (issue 35): one-element integer or bool tensors, ``values[0]`` the flag of the input checks that stop
     the render (any non-zero: :class:`InputCheckFailed` at the read), the rest read for the caller (:attr:`host`).
-    They are joined only at the read, with the count: one concatenation, one copy."""
+    They are joined only at the read, with the count: one concatenation, one copy. While reads are recorded
+    (:func:`recording_reads`), nothing is read: the joined values stay on the device (:class:`RecordedRead`)."""
 
     def __init__(self, values: list[Tensor]):
         self.values = [v.reshape(1) for v in values]
         self.host: list[int] | None = None
+        self.recorded = False
+
+    def joined_with(self, count: Tensor) -> Tensor:
+        """``(1 + len(values),)`` int64 on the device: ``count`` then :attr:`values` (the one copy's source)."""
+        return torch.cat((count.reshape(1).long(), *self.values))  # (cat promotes the flags to int64)
 
     def read_with(self, count: Tensor) -> int:
         """The value of ``count`` (a one-element integer device tensor), read in one copy with :attr:`values`."""
-        count_value, *self.host = torch.cat((count.reshape(1).long(), *self.values)).tolist()
+        count_value, *self.host = self.joined_with(count).tolist()
         self._stop_on_failed_checks()
         return count_value
 
-    def read(self) -> list[int]:
-        """:attr:`values` on the host: read now where no backend read them with its pair count."""
+    def read(self) -> list[int] | None:
+        """:attr:`values` on the host: read now where no backend read them with its pair count; None where they were
+        recorded for a later read (:func:`recording_reads`)."""
+        if self.recorded:
+            return None
         if self.host is None:
+            if _RECORDS:  # no backend read: the values alone are recorded
+                _RECORDS[-1].note(self.joined_with(torch.zeros(1, dtype=torch.long, device=self.values[0].device)))
+                self.recorded = True
+                return None
             self.host = torch.cat(self.values).long().tolist()
         self._stop_on_failed_checks()
         return self.host
@@ -124,9 +138,60 @@ class DeferredValues:
             raise InputCheckFailed("an input check failed (the render checks its inputs on the host to name it)")
 
 
-def read_count(proj: "ProjectedGaussians", count: Tensor) -> int:
+@dataclass
+class RecordedRead:
+    """A render's one host read, recorded instead of made (:func:`recording_reads`; for a render captured as a CUDA
+    graph, which cannot wait for the device: :mod:`.graphs`).
+
+    values:       ``(1 + k,)`` int64 on the device, written by the render's work: the pair count, then the render's
+                  deferred values (:class:`DeferredValues`: the input checks' flag, the cameras-too-far flag and,
+                  where the projection kept every pair, the number visible); None before the render reads
+    capacity:     the pair buffers' size the render was made with (the count must not exceed it)
+    capacity_key: the binning's cache key of that size (:func:`.triton_binning.grow_capacity`)"""
+
+    values: Tensor | None = None
+    capacity: int | None = None
+    capacity_key: tuple | None = None
+
+    def note(self, values: Tensor, capacity: int | None = None, capacity_key: tuple | None = None) -> None:
+        if self.values is not None:
+            raise RuntimeError("a recorded render read the device twice; a recorded render may read it once")
+        self.values, self.capacity, self.capacity_key = values, capacity, capacity_key
+
+
+_RECORDS: list[RecordedRead] = []  # the innermost recording_reads() last
+
+
+@contextmanager
+def recording_reads():
+    """Within: a render's one host read is not made but recorded (:class:`RecordedRead`, yielded), and the render
+    goes on as if its pairs fit their buffers and its checks passed: the caller reads the values once the work has
+    run, and redoes the render where they say otherwise. Only a backend that sizes nothing by the read can be
+    recorded (the Triton backend's lean forward); another raises."""
+    record = RecordedRead()
+    _RECORDS.append(record)
+    try:
+        yield record
+    finally:
+        _RECORDS.remove(record)
+
+
+def read_count(proj: "ProjectedGaussians", count: Tensor, capacity: int | None = None,
+               capacity_key: tuple | None = None) -> int:
     """A backend's one host read: the value of ``count`` (one element, on the device), with the render's deferred
-    values (:attr:`ProjectedGaussians.deferred`) in the same copy where it has some."""
+    values (:attr:`ProjectedGaussians.deferred`) in the same copy where it has some. ``capacity`` (and its cache
+    key): the size of the buffers the count must fit, where the backend sized them before this read; only such a
+    read can be recorded (:func:`recording_reads`: then 0 is returned and nothing is read)."""
+    if _RECORDS:
+        if capacity is None:
+            raise RuntimeError("this render sizes its buffers by its pair count, which a recorded render (a CUDA graph "
+                               "capture) cannot read: record the Triton backend's lean forward")
+        deferred = proj.deferred
+        _RECORDS[-1].note(count.reshape(1).long() if deferred is None else deferred.joined_with(count), capacity,
+                          capacity_key)
+        if deferred is not None:
+            deferred.recorded = True
+        return 0
     return int(count) if proj.deferred is None else proj.deferred.read_with(count)
 
 

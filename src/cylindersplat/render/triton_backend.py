@@ -240,14 +240,17 @@ def pairs_carry_rects(proj: ProjectedGaussians) -> bool:
 def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background: Tensor | None, rects: bool = True):
     """The ``"lean"`` forward: :func:`.triton_binning.bin_lean` into the cached capacity of this kind of render,
     compositing, then one read of the pair count (the GPU has the whole forward queued by then); where the pairs
-    did not fit, the capacity grows to hold them and the binning and compositing run again: no pair is dropped."""
+    did not fit, the capacity grows to hold them and the binning and compositing run again: no pair is dropped. While
+    reads are recorded (:func:`.projection.recording_reads`, a CUDA graph's capture), the count is recorded with the
+    capacity and the forward returns: its recorder redoes it where the pairs did not fit."""
     from .triton_binning import bin_lean, grow_capacity, lean_capacity
 
     key, capacity = lean_capacity(proj, settings.tile_size)
     while True:
         bins = bin_lean(proj, settings.tile_size, capacity, rects)
         out = composite_bins(proj, bins, settings, background)
-        needed = read_count(proj, bins.total)  # the one host synchronisation, after the compositing is queued
+        # The one host synchronisation, after the compositing is queued (recorded instead in a graph capture).
+        needed = read_count(proj, bins.total, capacity, key)
         if needed <= capacity:
             return out
         capacity = grow_capacity(key, needed)

@@ -1,0 +1,238 @@
+"""Renders replayed as CUDA graphs (``render.graphs.RenderGraph``, issue 35) against :func:`render` itself.
+
+On a machine without a GPU the Triton backend runs in Triton's interpreter (conftest.py), which has no graphs: there
+the graph engine's captures are replaced by reruns of the captured work (``graph_standin.py``), which checks what
+``RenderGraph`` and the engine do around a capture - the recorded read (no wait for the device inside what is
+captured), copies into and out of the graph's tensors, the backward replay and its gradients, the buffers' growth,
+the fallback to :func:`render` for its errors and warnings, the refusals. With CUDA the same tests replay real
+graphs. The reference is :func:`render` with the backend's default forward: images, depths
+and alphas bit for bit, gradients too on the CPU (to float32 rounding on a GPU, where atomics add in any order).
+"""
+
+import warnings
+
+import pytest
+import torch
+
+pytest.importorskip("triton")
+
+from cylindersplat.gaussians import Gaussians  # noqa: E402
+from cylindersplat.render import Equirect, Pinhole, graphs, render, triton_backend, triton_binning  # noqa: E402
+from cylindersplat.render.projection import recording_reads  # noqa: E402
+from graph_standin import RerunGraphReplay  # noqa: E402
+from render_scenes import shell_scene, yaw_pose  # noqa: E402
+from tensor_waits import waits_during  # noqa: E402
+
+CUDA = torch.cuda.is_available()
+DEVICE = "cuda" if CUDA else "cpu"
+F32 = torch.float32
+CAMERAS = {"equirect": Equirect(8, 16),
+           "pinhole": Pinhole(torch.tensor([[9.0, 0.0, 8.0], [0.0, 9.0, 6.0], [0.0, 0.0, 1.0]]), 12, 16)}
+
+
+@pytest.fixture(autouse=True)
+def _replay_where_no_graphs(monkeypatch):
+    if not CUDA:
+        monkeypatch.setitem(graphs._ENGINES, "cpu", RerunGraphReplay)
+    monkeypatch.setattr(triton_binning, "_CAPACITY", {})
+
+
+def _scene(seed=1, n=30, scale=(0.1, 0.3)):
+    g = shell_scene(n, seed=seed, scale=scale, dtype=F32)
+    return Gaussians(**{k: v.to(DEVICE) for k, v in g.tensors().items()})
+
+
+def _pose(angle):
+    return yaw_pose(angle, dtype=F32).to(DEVICE)
+
+
+def _same(a, b):
+    if CUDA:  # atomics add in any order on a GPU: gradients to rounding
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    else:
+        assert torch.equal(a, b)
+
+
+def _assert_same_render(out, ref):
+    for name in ("rgb", "depth", "alpha"):
+        assert torch.equal(getattr(out, name), getattr(ref, name)), name
+
+
+@pytest.mark.parametrize("camera", list(CAMERAS))
+def test_replays_equal_render_for_new_poses_and_values(camera):
+    g, cam = _scene(), CAMERAS[camera]
+    graph = graphs.RenderGraph(g, _pose(0.0), cam)
+    for angle, scene in ((0.0, g), (0.7, g), (-1.9, _scene(seed=2))):
+        out = graph(scene, _pose(angle))
+        _assert_same_render(out, render(scene, _pose(angle), cam, backend="triton"))
+    assert graph.captures == 1 and graph.renders == 3
+    assert out.alpha.max() > 0
+
+
+def test_outputs_are_the_callers_own():
+    g = _scene()
+    graph = graphs.RenderGraph(g, _pose(0.0), CAMERAS["equirect"])
+    first = graph(g, _pose(0.0))
+    kept = first.rgb.clone()
+    graph(g, _pose(2.0))  # the graph's buffers now hold another image
+    assert torch.equal(first.rgb, kept) and not torch.equal(first.rgb, graph(g, _pose(2.0)).rgb)
+
+
+def test_a_background_is_fixed_at_capture():
+    g = _scene()
+    graph = graphs.RenderGraph(g, _pose(0.0), CAMERAS["pinhole"], background=[0.2, 0.3, 0.4])
+    ref = render(g, _pose(0.5), CAMERAS["pinhole"], background=(0.2, 0.3, 0.4), backend="triton")
+    _assert_same_render(graph(g, _pose(0.5)), ref)
+
+
+@pytest.mark.parametrize("camera", list(CAMERAS))
+def test_backward_graph_gives_renders_gradients(camera):
+    cam = CAMERAS[camera]
+    params = {k: v.detach().requires_grad_() for k, v in _scene().tensors().items()}
+    ref_params = {k: v.detach().clone().requires_grad_() for k, v in params.items()}
+    graph = graphs.RenderGraph(Gaussians(**params), _pose(0.0), cam, backward=True)
+    for angle in (0.3, 1.1):
+        out = graph(Gaussians(**params), _pose(angle))
+        ref = render(Gaussians(**ref_params), _pose(angle), cam, backend="triton")
+        _assert_same_render(out, ref)
+        (out.rgb.square().sum() + out.depth.sum() + 0.5 * out.alpha.sum()).backward()
+        (ref.rgb.square().sum() + ref.depth.sum() + 0.5 * ref.alpha.sum()).backward()
+        for name in params:
+            assert params[name].grad.abs().max() > 0, name
+            _same(params[name].grad, ref_params[name].grad)
+            params[name].grad = ref_params[name].grad = None
+
+
+def test_gradients_accumulate_as_renders_do():
+    # The graph's gradient buffers are overwritten by its next backward: what reaches .grad must be a copy, or a
+    # second backward would add a buffer to itself.
+    params = {k: v.detach().requires_grad_() for k, v in _scene().tensors().items()}
+    ref_params = {k: v.detach().clone().requires_grad_() for k, v in params.items()}
+    graph = graphs.RenderGraph(Gaussians(**params), _pose(0.0), CAMERAS["pinhole"], backward=True)
+    for angle in (0.2, 0.9, 1.6):
+        graph(Gaussians(**params), _pose(angle)).rgb.sum().backward()
+        render(Gaussians(**ref_params), _pose(angle), CAMERAS["pinhole"], backend="triton").rgb.sum().backward()
+    kept = params["means"].grad.clone()
+    graph(Gaussians(**params), _pose(-0.5)).depth.sum().backward()
+    render(Gaussians(**ref_params), _pose(-0.5), CAMERAS["pinhole"], backend="triton").depth.sum().backward()
+    for name in params:
+        _same(params[name].grad, ref_params[name].grad)
+    assert not torch.equal(params["means"].grad, kept)
+
+
+def test_a_backward_after_the_next_render_is_refused():
+    params = {k: v.detach().requires_grad_() for k, v in _scene().tensors().items()}
+    graph = graphs.RenderGraph(Gaussians(**params), _pose(0.0), CAMERAS["equirect"], backward=True)
+    first = graph(Gaussians(**params), _pose(0.0))
+    second = graph(Gaussians(**params), _pose(1.0))
+    with pytest.raises(RuntimeError, match="call backward before the next render"):
+        first.rgb.sum().backward()
+    second.rgb.sum().backward()  # the latest render's backward is fine
+    assert params["means"].grad.abs().max() > 0
+
+
+def test_the_capture_reads_the_device_nowhere():
+    # A CUDA graph cannot wait for the device while it is captured: the captured function records its one read.
+    g = _scene()
+    graph = graphs.RenderGraph(g, _pose(0.0), CAMERAS["equirect"])
+    inputs = graph._checked_inputs(g, _pose(0.3))
+    graph(g, _pose(0.3))  # sizes the buffers
+    outputs = []
+    assert waits_during(lambda: outputs.append(graph._render_recorded(*inputs))) == []
+    count, problem, far, visible = outputs[0][3].tolist()
+    ref = render(g, _pose(0.3), CAMERAS["equirect"], backend="torch")
+    assert (problem, far) == (0, 0) and visible == 30 and 0 < count <= graph._record.capacity
+    assert torch.equal(outputs[0][0], graph(g, _pose(0.3)).rgb)
+    torch.testing.assert_close(outputs[0][0], ref.rgb, rtol=1e-4, atol=1e-5)  # and it is the scene's image
+
+
+def test_the_pair_count_is_the_reference_binnings():
+    from cylindersplat.render import RasterSettings
+    from cylindersplat.render.projection import flatten_cameras, project_gaussians
+    from cylindersplat.render.rasterize import bin_to_tiles
+    from cylindersplat.render.triton_projection import project_dense_triton
+
+    g, pose = _scene(), _pose(0.4)
+    with graphs._capturable_forward():
+        render(g, pose, CAMERAS["pinhole"], backend="triton")  # sizes the buffers
+        with recording_reads() as record:
+            render(g, pose, CAMERAS["pinhole"], backend="triton")
+    proj = project_gaussians(*flatten_cameras(g, pose[None])[:2], CAMERAS["pinhole"], RasterSettings(),
+                             project_dense_triton, every_pair=True)
+    assert int(record.values[0]) == len(bin_to_tiles(proj, 16).gaussian)
+
+
+def test_recording_the_default_forward_is_refused():
+    with recording_reads(), pytest.raises(RuntimeError, match="lean forward"):
+        render(_scene(), _pose(0.0), CAMERAS["equirect"], backend="triton")
+    assert triton_backend.FORWARD == "default"
+
+
+def test_pairs_that_outgrow_the_graph_are_captured_again():
+    from cylindersplat.render import RasterSettings
+
+    small, large = _scene(scale=(0.01, 0.02)), _scene(scale=(0.3, 0.6))
+    camera, settings = Equirect(32, 64), RasterSettings(tile_size=8)
+    # the binning's cache key of this kind of render (device, cameras, size, tile, Gaussians' bit length): room for
+    # the small scene's pairs, not the large one's
+    triton_binning._CAPACITY[(str(small.device), 1, 32, 64, 8, (30).bit_length())] = 64
+    graph = graphs.RenderGraph(small, _pose(0.0), camera, settings=settings)
+    _assert_same_render(graph(small, _pose(0.0)), render(small, _pose(0.0), camera, backend="triton",
+                                                         settings=settings))
+    assert graph._record.capacity == 64
+    out = graph(large, _pose(0.0))  # more pairs than the first capture's buffers hold
+    assert graph.captures == 2 and graph._record.capacity > 64
+    _assert_same_render(out, render(large, _pose(0.0), camera, backend="triton", settings=settings))
+
+
+def test_bad_values_raise_what_render_raises():
+    g = _scene()
+    graph = graphs.RenderGraph(g, _pose(0.0), CAMERAS["equirect"])
+    means = g.means.clone()
+    means[3, 1] = float("nan")
+    bad = Gaussians(means, g.scales, g.rotations, g.opacities, g.sh)
+    with pytest.raises(ValueError) as from_render:
+        render(bad, _pose(0.0), CAMERAS["equirect"], backend="triton")
+    with pytest.raises(ValueError) as from_graph:
+        graph(bad, _pose(0.0))
+    assert str(from_graph.value) == str(from_render.value) and "means" in str(from_graph.value)
+    pose = _pose(0.0)
+    pose[0, 0] = float("inf")
+    with pytest.raises(ValueError, match="c2w"):
+        graph(g, pose)
+    _assert_same_render(graph(g, _pose(0.0)), render(g, _pose(0.0), CAMERAS["equirect"], backend="triton"))
+
+
+def test_a_far_camera_warns_as_render_does():
+    g = _scene()
+    graph = graphs.RenderGraph(g, _pose(0.0), CAMERAS["equirect"])
+    far = yaw_pose(0.0, translation=(5e4, 0.0, 0.0), dtype=F32).to(DEVICE)
+    with pytest.warns(RuntimeWarning, match="from the origin"):
+        out = graph(g, far)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _assert_same_render(out, render(g, far, CAMERAS["equirect"], backend="triton"))
+
+
+def test_other_sizes_and_gradients_without_backward_are_refused():
+    g = _scene()
+    graph = graphs.RenderGraph(g, _pose(0.0), CAMERAS["equirect"])
+    with pytest.raises(ValueError, match=r"captured for means of shape \(30, 3\)"):
+        graph(_scene(n=31), _pose(0.0))
+    with pytest.raises(ValueError, match="c2w"):
+        graph(g, torch.stack([_pose(0.0), _pose(1.0)]))
+    with pytest.raises(ValueError, match="float32"):
+        graph(g.to(torch.float64), _pose(0.0))
+    wanting = Gaussians(**{k: v.detach().requires_grad_() for k, v in g.tensors().items()})
+    with pytest.raises(ValueError, match="backward=True"):
+        graph(wanting, _pose(0.0))
+    with torch.no_grad():
+        _assert_same_render(graph(wanting, _pose(0.0)), render(g, _pose(0.0), CAMERAS["equirect"], backend="triton"))
+    with pytest.raises(TypeError, match="Gaussians"):
+        graph(g.means, _pose(0.0))
+
+
+def test_a_device_without_graphs_is_refused(monkeypatch):
+    monkeypatch.delitem(graphs._ENGINES, "cpu", raising=False)
+    with pytest.raises(ValueError, match="needs the Gaussians on a CUDA device"):
+        graphs.RenderGraph(_scene().to("cpu"), _pose(0.0).cpu(), CAMERAS["equirect"])
