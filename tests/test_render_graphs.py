@@ -120,6 +120,27 @@ def test_gradients_accumulate_as_renders_do():
     assert not torch.equal(params["means"].grad, kept)
 
 
+def test_a_training_loop_renders_its_parameters_as_they_are_updated_in_place():
+    # The graph reads a leaf tensor where it is: a step's in-place update is what the next replay renders.
+    params = {k: v.detach().requires_grad_() for k, v in _scene().tensors().items()}
+    graph = graphs.RenderGraph(Gaussians(**params), _pose(0.0), CAMERAS["equirect"], backward=True)
+    optimiser = torch.optim.SGD(params.values(), lr=0.05)
+    for step in range(3):
+        optimiser.zero_grad()
+        out = graph(Gaussians(**params), _pose(0.3 * step))
+        with torch.no_grad():
+            _assert_same_render(out, render(Gaussians(**params), _pose(0.3 * step), CAMERAS["equirect"],
+                                            backend="triton"))
+        (out.rgb - 0.5).square().mean().backward()
+        optimiser.step()
+    assert graph.captures == 1
+    # a network's output (not a leaf) is copied in: its graph still reaches the network's parameters
+    scale = torch.ones(1, device=DEVICE, requires_grad=True)
+    moved = Gaussians(**{**params, "means": params["means"] * scale})
+    graphs.RenderGraph(moved, _pose(0.0), CAMERAS["equirect"], backward=True)(moved, _pose(0.0)).rgb.sum().backward()
+    assert scale.grad is not None and scale.grad.abs().item() > 0
+
+
 def test_a_backward_after_the_next_render_is_refused():
     params = {k: v.detach().requires_grad_() for k, v in _scene().tensors().items()}
     graph = graphs.RenderGraph(Gaussians(**params), _pose(0.0), CAMERAS["equirect"], backward=True)

@@ -249,7 +249,10 @@ class RenderGraph:
         gaussians, c2w = Gaussians(**dict(zip(self._names, inputs[:-1]))), inputs[-1]
         with _capturable_forward(), torch.no_grad():
             render(gaussians.detach(), c2w, self.camera, self.background, backend="triton", settings=self.settings)
-        sample = tuple(t.detach().clone().requires_grad_(t.requires_grad and self.backward) for t in inputs)
+        # The graph reads its inputs where they are: a leaf tensor (a scene's, a trained parameter) is read in place,
+        # with no copy where the same tensor comes again; another (a network's output) through a copy of its own.
+        sample = tuple(t if t.grad_fn is None else t.detach().clone().requires_grad_(t.requires_grad and self.backward)
+                       for t in inputs)
         self.captures += 1
         return _ENGINES[self._device.type](self._render_recorded, sample, self.backward)
 
