@@ -15,11 +15,13 @@ backends (``"torch"`` reference, ``"triton"`` on CUDA, ``"numba"`` on the CPU, o
 :func:`register_backend`) rasterize projected Gaussians of any camera model; ``"auto"`` picks the device's.
 :func:`render_layered` draws two sets as layers (a model's pixel Gaussians over its volume Gaussians; a
 :class:`FrontLayer` says how, :meth:`cylindersplat.model.CylinderSplat.front_layer` gives a model's).
+:class:`RenderGraph` replays a render of fixed sizes as CUDA graphs (:mod:`.graphs`).
 """
 
 from .api import Backend, RenderOutput, available_backends, register_backend, render, render_equirect
 from .cameras import CameraModel, Equirect, Pinhole, cubemap_face
 from .cubemap import render_cubemap
+from .graphs import RenderGraph
 from .layered import FrontLayer, render_layered
 from .pinhole import render_pinhole
 from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings
@@ -27,5 +29,5 @@ from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings
 __all__ = [
     "RenderOutput", "render", "render_equirect", "render_pinhole", "render_cubemap", "available_backends",
     "register_backend", "Backend", "CameraModel", "Equirect", "Pinhole", "cubemap_face", "ProjectedGaussians",
-    "RasterSettings", "UnsupportedSettings", "FrontLayer", "render_layered",
+    "RasterSettings", "UnsupportedSettings", "FrontLayer", "render_layered", "RenderGraph",
 ]
