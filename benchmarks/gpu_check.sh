@@ -4,7 +4,8 @@
 # total budget is skipped, and says so in the summary):
 #   tests           the GPU kernels only (Triton fused projection, key binning, compositing; sm_90 compile),
 #                   against the reference - not the reference's slow CPU tests;
-#   render          rasterizer at 0.1 / 0.5 / 1.3 M Gaussians, 512x1024: reference and Triton (a reference out of
+#   render          rasterizer at 0.1 / 0.5 / 1.3 M Gaussians, 512x1024: reference, Triton and Triton replayed as
+#                   CUDA graphs (a reference out of
 #                   memory is a table cell, not a crash);
 #   stages          where the Triton path spends its time (projection, binning, compositing, backward);
 #   gsplat          our pinhole renderer against gsplat (speed and agreement; the Triton variants with their launch
@@ -129,7 +130,7 @@ gsplat_variants="--launches --graph --variants default default,ids default,ids,r
 pinhole_variants="--variants default default,ids default,ids,row lean,ids,row"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
-  render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
+  render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1 --graph)
   stages_args=(--num 300 --height 8 --device "$device" --backend triton --stages --repeats 1)
   variants_args=(--num 40 --height 8 --device "$device" --backend triton --stages --repeats 1 $variants)
   profile_args=(--num 40 --height 8 --device "$device" --backend triton --repeats 1 --profile $profile_variants)
@@ -155,7 +156,7 @@ else
              tests/test_triton_compile.py
              tests/test_render_deferred_checks.py tests/test_render_triton_checks.py
              "tests/test_render_layered.py::test_blending_is_the_normalised_weighted_mean_of_the_front_surface")
-  render_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --repeats 10)
+  render_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --repeats 10 --graph)
   stages_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3)
   variants_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 5 $variants)
   profile_args=(--num 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile $profile_variants)
