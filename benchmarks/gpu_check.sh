@@ -4,15 +4,17 @@
 # total budget is skipped, and says so in the summary):
 #   tests           the GPU kernels only (Triton fused projection, key binning, compositing; sm_90 compile),
 #                   against the reference - not the reference's slow CPU tests;
-#   render          rasterizer at 0.1 / 0.5 / 1.3 M Gaussians, 512x1024: reference, Triton and Triton replayed as
-#                   CUDA graphs (a reference out of
+#   render          rasterizer at 0.1 / 0.5 / 1.3 M Gaussians, 512x1024: reference and Triton (a reference out of
 #                   memory is a table cell, not a crash);
 #   stages          where the Triton path spends its time (projection, binning, compositing, backward);
 #   gsplat          our pinhole renderer against gsplat (speed and agreement; the Triton variants with their launch
-#                   counts, and the default replayed as CUDA graphs; then one forward of each
+#                   counts; then one forward of each
 #                   under torch.profiler, host against device time); gsplat's wheel is carried in
 #                   $CHECK_WHEELS (default .whl: `python3 -m pip download --no-deps gsplat==1.5.3 -d .whl`); its
 #                   CUDA code (a JIT build of about 75 s) is built in the background while the tests run;
+#   graphs          the Triton render replayed as CUDA graphs (render.graphs.RenderGraph: the host's work made once)
+#                   beside the default and gsplat on the pinhole view, then on the panorama; its own processes, so
+#                   that a capture that fails cannot take the gsplat item's figures with it;
 #   model           the paper config end to end (network + one render), 1-4 views;
 #   train           one training step of each curriculum stage at 512x1024, batch 1, bf16 autocast;
 #   run             a short training run of the paper config on procedural 256x512 data (loss must fall).
@@ -24,7 +26,7 @@
 # default outputs/gpu_check_base; at its budget the trainer is interrupted cleanly - a checkpoint - and the
 # item ends with the run's summary line).
 # Usage: bash benchmarks/gpu_check.sh [--smoke] [--append] [OUT_DIR] [ITEMS]
-#   ITEMS (default: tests render stages gsplat model train run); also variants model_compiled base
+#   ITEMS (default: tests render stages gsplat graphs model train run); also variants model_compiled base
 #   --smoke: every item at tiny sizes on whatever machine this is (Triton's CPU interpreter without a
 #   GPU; training runs use the reference renderer there; model_compiled is left out), to show that the
 #   script works end to end; its numbers mean nothing.
@@ -40,8 +42,8 @@ while [ $# -gt 0 ]; do
   case $1 in --smoke) smoke=1; shift ;; --append) append=1; shift ;; *) break ;; esac
 done
 out=$(realpath -m "${1:-outputs/gpu_check}")
-all_items="tests render stages variants gsplat model model_compiled train run base"
-items=${2:-tests render stages gsplat model train run}
+all_items="tests render stages variants gsplat graphs model model_compiled train run base"
+items=${2:-tests render stages gsplat graphs model train run}
 total=${CHECK_TOTAL_SECONDS:-540}
 deadline=$((SECONDS + total))  # every item ends by then (the archive and summary take a few seconds more)
 work=${CHECK_WORK:-/tmp/cylindersplat_gpu_check}  # synthetic data and the short run (not results)
@@ -124,13 +126,12 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
 variants="--launches --variants default default,ids default,row default,ids,row lean,ids,row default,torch"
 profile_variants="--variants default default,ids default,ids,row"
 # Pinhole views beside gsplat (3.2 M pairs of 0.18 M visible Gaussians at 1.3 M, 512x1024: the pairs' bytes count
-# there), with their launch counts, and the default replayed as CUDA graphs (--graph: render.graphs.RenderGraph, the
-# render's host work made once).
-gsplat_variants="--launches --graph --variants default default,ids default,ids,row lean,ids,row"
+# there), with their launch counts.
+gsplat_variants="--launches --variants default default,ids default,ids,row lean,ids,row"
 pinhole_variants="--variants default default,ids default,ids,row lean,ids,row"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
-  render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1 --graph)
+  render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
   stages_args=(--num 300 --height 8 --device "$device" --backend triton --stages --repeats 1)
   variants_args=(--num 40 --height 8 --device "$device" --backend triton --stages --repeats 1 $variants)
   profile_args=(--num 40 --height 8 --device "$device" --backend triton --repeats 1 --profile $profile_variants)
@@ -138,6 +139,8 @@ if [ $smoke = 1 ]; then
                 $pinhole_variants)
   gsplat_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1 $gsplat_variants)
   gsplat_profile_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --profile)
+  graphs_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --graph)
+  graphs_render_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --graph)
   model_args=(--config tiny_paper --height 64 --render --views 1 2 --repeats 1 --device "$device")
   train_args=(--config tiny_paper --height 64 --steps 1 --warmup 0 --lpips off --device "$device")
   synth_args=(--scenes 4 --resolution 64x128)
@@ -156,7 +159,7 @@ else
              tests/test_triton_compile.py
              tests/test_render_deferred_checks.py tests/test_render_triton_checks.py
              "tests/test_render_layered.py::test_blending_is_the_normalised_weighted_mean_of_the_front_surface")
-  render_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --repeats 10 --graph)
+  render_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend torch triton --repeats 10)
   stages_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 3)
   variants_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --stages --repeats 5 $variants)
   profile_args=(--num 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile $profile_variants)
@@ -168,6 +171,8 @@ else
   # pinhole gap: is it our launches or our kernels?)
   gsplat_profile_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile
                        --variants default default,ids,row)
+  graphs_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 10 --graph)
+  graphs_render_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 10 --graph)
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
   train_args=(--config paper --height 512 --steps 3)
   synth_args=(--scenes 12 --resolution 256x512)
@@ -224,7 +229,7 @@ base_train() {  # the base preset, in chunks of base_chunk steps, until finished
 
 # gsplat compiles its CUDA code at first use (about 75 s): build it in the background while the tests run.
 gsplat_build=
-if [[ " $items " == *" gsplat "* ]] && $py -c "import gsplat" 2>/dev/null; then
+if [[ " $items " == *" gsplat "* || " $items " == *" graphs "* ]] && $py -c "import gsplat" 2>/dev/null; then
   (timeout 400 $py -c "from gsplat.cuda._backend import _C; print('gsplat CUDA build:', 'ok' if _C is not None else 'unavailable')" \
      > "$out/gsplat_build.log" 2>&1) &
   gsplat_build=$!
@@ -275,6 +280,12 @@ for item in $items; do
       run_item gsplat_profile "${CHECK_LIMIT_GSPLAT_PROFILE:-60}" $py -m cylindersplat bench gsplat_compare \
           "${gsplat_profile_args[@]}"
       excerpt '^# profile\|^#  ' "$out/gsplat_profile.log" ;;
+    graphs)
+      run_item graphs "${CHECK_LIMIT_GRAPHS:-90}" $py -m cylindersplat bench gsplat_compare "${graphs_args[@]}"
+      excerpt '^[{#]' "$out/graphs.log"
+      run_item graphs_render "${CHECK_LIMIT_GRAPHS_RENDER:-60}" $py -m cylindersplat bench render \
+          "${graphs_render_args[@]}"
+      excerpt '^[{#|]' "$out/graphs_render.log" ;;
     model)
       run_item model "${CHECK_LIMIT_MODEL:-60}" $py -m cylindersplat bench model "${model_args[@]}"
       excerpt '^[|#(]' "$out/model.log" ;;

@@ -163,3 +163,21 @@ def test_the_graph_row_replays_renders_with_and_without_gradients(monkeypatch):
     assert all(torch.equal(a, p.grad) for a, p in zip(grads, params)) and grads[0].abs().max() > 0
     assert sorted(replay.graphs) == [False, True]
     assert [graph.captures for graph in replay.graphs.values()] == [1, 1]
+
+
+def test_a_graph_that_fails_to_capture_is_a_row_not_a_crash(monkeypatch, capsys):
+    """The graph row is new on a device: a capture that fails there (e.g. a wait for the device inside it) fills its
+    row's error cell and prints its traceback; the benchmark goes on."""
+    from cylindersplat.render import graphs
+
+    class FailingCapture:
+        def __init__(self, *args):
+            raise RuntimeError("operation not permitted when stream is capturing\n(more lines)")
+
+    monkeypatch.setitem(graphs._ENGINES, "cpu", FailingCapture)
+    row = bench_render.bench(30, 8, torch.device("cpu"), "triton", 1, False, False, graph=True)
+    assert row["backend"] == "triton[graph]" and "forward_ms" not in row
+    assert row["error"] == "graph failed: RuntimeError: operation not permitted when stream is capturing"
+    assert "Traceback" in capsys.readouterr().err
+    cell = "graph failed: RuntimeError: operation not permitted when stream is capturing"
+    assert bench_render.table([row])[-1] == f"| cpu | triton[graph] | 30 | 8x16 | {cell} | {cell} |  |"

@@ -38,7 +38,7 @@ from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
 from cylindersplat.utils.arguments import device as device_name
 
 from .render import _forward_and_backward_ms, _peak_mb, _sync, launch_counts, profile_forward
-from .variants import GRAPH_ROW, graphed_render, triton_variant, triton_variant_name
+from .variants import GRAPH_ROW, graph_failure, graphed_render, triton_variant, triton_variant_name
 from .views import pinhole_intrinsics, view_camera
 
 __all__ = ["main", "scene_line", "parity_lines"]
@@ -101,12 +101,12 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
         def __init__(self, rgb, depth):
             self.rgb, self.depth = rgb, depth
 
-    renders, skipped = [], []
+    renders, graphed_renders, skipped = [], [], []
     for name, backend, variant, graphed in _our_renderers(backends, list(variants), graph):
         if graphed and device.type != "cuda":
             skipped.append({"num": num, "renderer": name, "skipped": "CUDA graphs need CUDA"})
-        elif graphed:
-            renders.append((name, variant, graphed_render(g, c2w, camera)))
+        elif graphed:  # timed last: a capture that fails takes none of the other rows with it
+            graphed_renders.append((name, variant, graphed_render(g, c2w, camera)))
         else:
             renders.append((name, variant, lambda b=backend: render(g, c2w, camera, backend=b)))
     gsplat, why_not = _import_gsplat(device)
@@ -118,7 +118,7 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
             return _Out(rgb, depth)
 
         renders.append(("gsplat", None, gsplat_render))
-    for name, variant, fn in renders:
+    for name, variant, fn in renders + graphed_renders:
         row = {"num": num, "size": f"{h}x{w}", "device": str(device), "renderer": name}
         if device.type == "cuda":
             torch.cuda.reset_peak_memory_stats()
@@ -138,6 +138,10 @@ def compare(num: int, height: int, device: torch.device, backends: list[str], re
                     row["profile"] = profile_forward(fn, device, f"{name}, {num} Gaussians")
             except (torch.OutOfMemoryError, MemoryError):
                 row["error"] = "out of memory"
+            except Exception as exc:  # noqa: BLE001 - a graph's capture is new on a device: its failure is a row
+                if GRAPH_ROW not in name:
+                    raise
+                row["error"] = graph_failure(exc)
         for p in params:
             p.grad = None
         _sync(device)

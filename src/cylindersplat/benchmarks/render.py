@@ -49,7 +49,7 @@ from cylindersplat.utils.allocator import keep_freed_memory
 from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
 from cylindersplat.utils.arguments import device as device_name
 
-from .variants import GRAPH_ROW, graphed_render, triton_variant, triton_variant_name, variant_agreement
+from .variants import GRAPH_ROW, graph_failure, graphed_render, triton_variant, triton_variant_name, variant_agreement
 from .views import CAMERAS, view_camera
 
 
@@ -120,7 +120,10 @@ def bench(num: int, height: int, device: torch.device, backend: str, repeats: in
 
     if graph:
         row["backend"] = f"{backend}[{GRAPH_ROW}]"
-        measure("", graphed_render(g, c2w, model))
+        try:
+            measure("", graphed_render(g, c2w, model))
+        except Exception as exc:  # noqa: BLE001 - a graph's capture is new on a device: its failure is a row
+            row["error"] = graph_failure(exc)
         return row
     measure("", lambda: render(g, c2w, model, backend=backend))
     if cubemap:

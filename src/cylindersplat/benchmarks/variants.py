@@ -14,7 +14,7 @@ from cylindersplat.scenes import random_indoor
 
 from .views import view_camera
 
-__all__ = ["triton_variant_name", "triton_variant", "variant_agreement", "graphed_render", "GRAPH_ROW"]
+__all__ = ["triton_variant_name", "triton_variant", "variant_agreement", "graphed_render", "graph_failure", "GRAPH_ROW"]
 
 GRAPH_ROW = "graph"  # the row name's tag of renders replayed as CUDA graphs (``--graph``)
 
@@ -60,6 +60,17 @@ def graphed_render(gaussians, c2w: torch.Tensor, camera):
 
     run.graphs = made
     return run
+
+
+def graph_failure(exc: BaseException) -> str:
+    """A graph row's error cell for ``exc`` (its traceback printed to stderr for the log): the row fails, the
+    benchmark goes on."""
+    import sys
+    import traceback
+
+    traceback.print_exception(exc, file=sys.stderr)
+    first = (str(exc).strip().splitlines() or [""])[0]
+    return f"graph failed: {type(exc).__name__}: {first[:300]}"
 
 
 @contextlib.contextmanager
