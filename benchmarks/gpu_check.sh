@@ -139,8 +139,10 @@ if [ $smoke = 1 ]; then
                 $pinhole_variants)
   gsplat_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1 $gsplat_variants)
   gsplat_profile_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --profile)
-  graphs_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --graph)
-  graphs_render_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --graph)
+  graphs_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --graph
+               --variants default default,ids,row)
+  graphs_render_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --graph
+                      --variants default default,ids,row)
   model_args=(--config tiny_paper --height 64 --render --views 1 2 --repeats 1 --device "$device")
   train_args=(--config tiny_paper --height 64 --steps 1 --warmup 0 --lpips off --device "$device")
   synth_args=(--scenes 4 --resolution 64x128)
@@ -171,8 +173,11 @@ else
   # pinhole gap: is it our launches or our kernels?)
   gsplat_profile_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile
                        --variants default default,ids,row)
-  graphs_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 10 --graph)
-  graphs_render_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 10 --graph)
+  # (each variant eager, then replayed as CUDA graphs: the ids and lookahead options timed without the host's noise)
+  graphs_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 10 --graph
+               --variants default default,ids,row)
+  graphs_render_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 10 --graph
+                      --variants default default,ids,row)
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
   train_args=(--config paper --height 512 --steps 3)
   synth_args=(--scenes 12 --resolution 256x512)

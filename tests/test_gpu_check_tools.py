@@ -66,6 +66,16 @@ def test_gsplat_comparison_has_a_graph_row_that_says_why_it_is_missing_without_c
         "cylindersplat-torch", "cylindersplat-triton[lean]", "cylindersplat-triton[graph]"]
 
 
+def test_graph_rows_are_one_per_set_of_the_variants_options():
+    # A graph captures the lean forward with every pair projected, whatever the variant's forward and compaction.
+    from cylindersplat.benchmarks.variants import graph_variants
+
+    assert graph_variants([]) == [("graph", None)]
+    assert graph_variants([("default",), ("default", "ids", "row"), ("lean", "ids", "row"), ("default", "nonzero"),
+                           ("default", "row")]) == [
+        ("graph", ("lean",)), ("graph,ids,row", ("lean", "ids", "row")), ("graph,row", ("lean", "row"))]
+
+
 def test_the_parity_verdict_needs_every_size_forward_and_backward():
     lines = gsplat_compare.parity_lines({
         "ours[a]": [(100_000, 0.95, 0.99), (1_300_000, 1.0, 0.7)],

@@ -38,7 +38,7 @@ from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
 from cylindersplat.utils.arguments import device as device_name
 
 from .render import _forward_and_backward_ms, _peak_mb, _sync, launch_counts, profile_forward
-from .variants import GRAPH_ROW, graph_failure, graphed_render, triton_variant, triton_variant_name
+from .variants import GRAPH_ROW, graph_failure, graph_variants, graphed_render, triton_variant, triton_variant_name
 from .views import pinhole_intrinsics, view_camera
 
 __all__ = ["main", "scene_line", "parity_lines"]
@@ -71,14 +71,16 @@ def _import_gsplat(device: torch.device):
 def _our_renderers(backends: list[str], variants: list[tuple[str, ...]],
                    graph: bool = False) -> list[tuple[str, str, tuple | None, bool]]:
     """``(row name, backend, Triton variant or None, replayed as CUDA graphs)`` for each of our renderers timed: the
-    Triton backend once per variant, and once more replayed as CUDA graphs where ``graph``."""
+    Triton backend once per variant, and where ``graph`` replayed as CUDA graphs once per set of the variants' options
+    (:func:`.variants.graph_variants`)."""
     out = []
     for backend in backends:
         for variant in (variants if backend == "triton" and variants else [None]):
             name = f"cylindersplat-{backend}" + (f"[{','.join(variant)}]" if variant else "")
             out.append((name, backend, variant, False))
         if backend == "triton" and graph:
-            out.append((f"cylindersplat-triton[{GRAPH_ROW}]", backend, None, True))
+            out += [(f"cylindersplat-triton[{tag}]", backend, variant, True)
+                    for tag, variant in graph_variants(variants)]
     return out
 
 

@@ -49,7 +49,15 @@ from cylindersplat.utils.allocator import keep_freed_memory
 from cylindersplat.utils.arguments import OneLineErrorParser, positive_int
 from cylindersplat.utils.arguments import device as device_name
 
-from .variants import GRAPH_ROW, graph_failure, graphed_render, triton_variant, triton_variant_name, variant_agreement
+from .variants import (
+    GRAPH_ROW,
+    graph_failure,
+    graph_variants,
+    graphed_render,
+    triton_variant,
+    triton_variant_name,
+    variant_agreement,
+)
 from .views import CAMERAS, view_camera
 
 
@@ -441,13 +449,15 @@ def main(argv: list[str] | None = None) -> None:
                         if args.profile:
                             profile(num, args.height, torch.device(dev), backend, label=rows[-1]["backend"],
                                     camera=args.camera)
-                if backend == "triton" and args.graph:
-                    if torch.device(dev).type == "cuda":
+                for tag, variant in graph_variants(args.variants) if backend == "triton" and args.graph else []:
+                    if torch.device(dev).type != "cuda":
+                        print(f"# skipping triton[{tag}] on {dev}: CUDA graphs need CUDA")
+                        continue
+                    with triton_variant(*(variant or ())):
                         rows.append(bench(num, args.height, torch.device(dev), backend, args.repeats, False, False,
                                           camera=args.camera, graph=True))
-                        print(rows[-1])
-                    else:
-                        print(f"# skipping triton[{GRAPH_ROW}] on {dev}: CUDA graphs need CUDA")
+                    rows[-1]["backend"] = f"triton[{tag}]"
+                    print(rows[-1])
             for row in rows[1:]:
                 print(ratio_line(rows[0], row, dev))
             if triton_ran and len(args.variants) > 1:

@@ -14,7 +14,8 @@ from cylindersplat.scenes import random_indoor
 
 from .views import view_camera
 
-__all__ = ["triton_variant_name", "triton_variant", "variant_agreement", "graphed_render", "graph_failure", "GRAPH_ROW"]
+__all__ = ["triton_variant_name", "triton_variant", "variant_agreement", "graphed_render", "graph_failure",
+           "graph_variants", "GRAPH_ROW"]
 
 GRAPH_ROW = "graph"  # the row name's tag of renders replayed as CUDA graphs (``--graph``)
 
@@ -60,6 +61,17 @@ def graphed_render(gaussians, c2w: torch.Tensor, camera):
 
     run.graphs = made
     return run
+
+
+def graph_variants(variants: list[tuple[str, ...]]) -> list[tuple[str, tuple[str, ...] | None]]:
+    """``(row tag, variant)`` of the graph rows for the timed ``variants``: one per distinct set of options (a graph
+    always captures the lean forward, every pair projected: the forward and the compaction are not the variant's),
+    tagged ``graph`` and the options, e.g. ``graph,ids,row``; no variants: the defaults, ``graph``."""
+    rows: dict[str, tuple[str, ...] | None] = {}
+    for variant in variants or [None]:
+        options = () if variant is None else tuple(o for o in variant[1:] if o not in triton_backend.COMPACTIONS)
+        rows.setdefault(",".join((GRAPH_ROW, *options)), ("lean", *options) if variant else None)
+    return list(rows.items())
 
 
 def graph_failure(exc: BaseException) -> str:
