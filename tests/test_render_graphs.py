@@ -257,3 +257,13 @@ def test_a_device_without_graphs_is_refused(monkeypatch):
     monkeypatch.delitem(graphs._ENGINES, "cpu", raising=False)
     with pytest.raises(ValueError, match="needs the Gaussians on a CUDA device"):
         graphs.RenderGraph(_scene().to("cpu"), _pose(0.0).cpu(), CAMERAS["equirect"])
+
+
+def test_deferred_values_read_alone_are_recorded_with_no_count():
+    from cylindersplat.render.projection import DeferredValues
+
+    values = DeferredValues([torch.tensor(False), torch.tensor(3)])
+    with recording_reads() as record:
+        assert values.read() is None and values.read() is None  # recorded once, read by nobody
+    assert record.values.tolist() == [0, 0, 3] and record.capacity is None
+    assert DeferredValues([torch.tensor(False), torch.tensor(3)]).read() == [0, 3]  # outside: read now
