@@ -167,6 +167,48 @@ def test_the_capture_reads_the_device_nowhere():
     torch.testing.assert_close(outputs[0][0], ref.rgb, rtol=1e-4, atol=1e-5)  # and it is the scene's image
 
 
+# What a CUDA graph cannot hold: a value read from the device (a wait), a size that depends on one, a tensor made from
+# host data (a host-to-device copy, replayed from the same host memory each time).
+_NOT_CAPTURABLE = {"_local_scalar_dense", "nonzero", "masked_select", "unique", "_unique2", "lift_fresh",
+                   "lift_fresh_copy", "repeat_interleave"}
+
+
+def _operations(fn) -> list[str]:
+    """The PyTorch operations ``fn`` dispatches outside Triton's kernels (the interpreter's own copies excluded)."""
+    from torch.utils._python_dispatch import TorchDispatchMode
+
+    from cylindersplat.benchmarks.launches import LaunchCount, _triton_launches
+
+    names, inside = [], [False]
+
+    class Watch(TorchDispatchMode):
+        def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+            if not inside[0]:
+                names.append(func.overloadpacket.__name__)
+            return func(*args, **(kwargs or {}))
+
+    with _triton_launches(LaunchCount(), inside), Watch():
+        fn()
+    return names
+
+
+@pytest.mark.parametrize("camera", list(CAMERAS))
+def test_the_captured_forward_and_backward_hold_nothing_a_graph_cannot(camera):
+    params = {k: v.detach().requires_grad_() for k, v in _scene().tensors().items()}
+    graph = graphs.RenderGraph(Gaussians(**params), _pose(0.0), CAMERAS[camera], background=(0.1, 0.2, 0.3),
+                               backward=True)
+    graph(Gaussians(**params), _pose(0.3))  # sizes the buffers, warms the caches (as the capture's warm-up does)
+    inputs = graph._checked_inputs(Gaussians(**params), _pose(0.3))
+    outputs = []
+    forward = _operations(lambda: outputs.append(graph._render_recorded(*inputs)))
+    rgb, depth, alpha, _ = outputs[0]
+    backward = _operations(lambda: torch.autograd.grad([rgb, depth, alpha], inputs[:-1],
+                                                       [torch.ones_like(rgb), torch.ones_like(depth),
+                                                        torch.ones_like(alpha)]))
+    assert "sort" in forward and len(backward) > 0  # the watch saw the work
+    assert [name for name in forward + backward if name in _NOT_CAPTURABLE] == []
+
+
 def test_the_pair_count_is_the_reference_binnings():
     from cylindersplat.render import RasterSettings
     from cylindersplat.render.projection import flatten_cameras, project_gaussians
