@@ -141,6 +141,17 @@ def test_a_training_loop_renders_its_parameters_as_they_are_updated_in_place():
     assert scale.grad is not None and scale.grad.abs().item() > 0
 
 
+def test_a_graph_made_under_autocast_renders_as_render_does():
+    # (a training step's bf16 autocast: the capture turns it off; the render is float32 either way)
+    g = _scene()
+    with torch.autocast(device_type=DEVICE, dtype=torch.bfloat16):
+        graph = graphs.RenderGraph(g, _pose(0.0), CAMERAS["pinhole"])
+        out = graph(g, _pose(0.4))
+        ref = render(g, _pose(0.4), CAMERAS["pinhole"], backend="triton")
+    assert out.rgb.dtype == torch.float32
+    _assert_same_render(out, ref)
+
+
 def test_a_backward_after_the_next_render_is_refused():
     params = {k: v.detach().requires_grad_() for k, v in _scene().tensors().items()}
     graph = graphs.RenderGraph(Gaussians(**params), _pose(0.0), CAMERAS["equirect"], backward=True)

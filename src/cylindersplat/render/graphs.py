@@ -69,7 +69,9 @@ class _CudaGraphReplay:
         wanted = [inputs[i] for i in self._wanting]
 
         def forward():
-            with torch.set_grad_enabled(backward):
+            # (autocast off: its cache of cast copies, made and freed around a capture, cannot be held by a graph;
+            # the render computes in float32 whatever autocast says)
+            with torch.autocast(device_type="cuda", enabled=False), torch.set_grad_enabled(backward):
                 return fn(*inputs)
 
         def gradients(outputs, output_grads):
