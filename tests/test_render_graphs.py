@@ -173,7 +173,7 @@ def test_the_capture_reads_the_device_nowhere():
     assert waits_during(lambda: outputs.append(graph._render_recorded(*inputs))) == []
     count, problem, far, visible = outputs[0][3].tolist()
     ref = render(g, _pose(0.3), CAMERAS["equirect"], backend="torch")
-    assert (problem, far) == (0, 0) and visible == 30 and 0 < count <= graph._record.capacity
+    assert (problem, far) == (0, 0) and visible == 30 and 0 < count <= graph.capacity
     assert torch.equal(outputs[0][0], graph(g, _pose(0.3)).rgb)
     torch.testing.assert_close(outputs[0][0], ref.rgb, rtol=1e-4, atol=1e-5)  # and it is the scene's image
 
@@ -242,21 +242,31 @@ def test_recording_the_default_forward_is_refused():
     assert triton_backend.FORWARD == "default"
 
 
-def test_pairs_that_outgrow_the_graph_are_captured_again():
+def test_pairs_that_outgrow_the_graph_are_captured_again(monkeypatch):
     from cylindersplat.render import RasterSettings
 
+    monkeypatch.setattr(graphs, "CAPACITY_HEADROOM", 1.0)  # buffers of exactly the first inputs' pairs
+    monkeypatch.setattr(graphs, "CAPACITY_EXTRA", 0)
     small, large = _scene(scale=(0.01, 0.02)), _scene(scale=(0.3, 0.6))
     camera, settings = Equirect(32, 64), RasterSettings(tile_size=8)
-    # the binning's cache key of this kind of render (device, cameras, size, tile, Gaussians' bit length): room for
-    # the small scene's pairs, not the large one's
-    triton_binning._CAPACITY[(str(small.device), 1, 32, 64, 8, (30).bit_length())] = 64
     graph = graphs.RenderGraph(small, _pose(0.0), camera, settings=settings)
     _assert_same_render(graph(small, _pose(0.0)), render(small, _pose(0.0), camera, backend="triton",
                                                          settings=settings))
-    assert graph._record.capacity == 64
+    pairs = graph.capacity
+    assert 30 <= pairs < 100  # the small scene's own pairs, not the lean binning's first guess (4 per Gaussian + 1024)
     out = graph(large, _pose(0.0))  # more pairs than the first capture's buffers hold
-    assert graph.captures == 2 and graph._record.capacity > 64
+    assert graph.captures == 2 and graph.capacity > pairs
     _assert_same_render(out, render(large, _pose(0.0), camera, backend="triton", settings=settings))
+    assert graph(small, _pose(0.0)).alpha.max() > 0 and graph.captures == 2  # fewer pairs fit: no capture
+
+
+def test_the_buffers_hold_the_first_inputs_pairs_with_headroom():
+    g = _scene()
+    graph = graphs.RenderGraph(g, _pose(0.0), CAMERAS["pinhole"])
+    graph(g, _pose(0.0))
+    with graphs._capturable_forward(), recording_reads() as record:
+        render(g, _pose(0.0), CAMERAS["pinhole"], backend="triton")
+    assert graph.capacity == int(int(record.values[0]) * graphs.CAPACITY_HEADROOM) + graphs.CAPACITY_EXTRA
 
 
 def test_bad_values_raise_what_render_raises():
@@ -270,6 +280,10 @@ def test_bad_values_raise_what_render_raises():
     with pytest.raises(ValueError) as from_graph:
         graph(bad, _pose(0.0))
     assert str(from_graph.value) == str(from_render.value) and "means" in str(from_graph.value)
+    first_bad = graphs.RenderGraph(bad, _pose(0.0), CAMERAS["equirect"])
+    with pytest.raises(ValueError, match="means"):
+        first_bad(bad, _pose(0.0))  # refused before any capture
+    assert first_bad.captures == 0
     pose = _pose(0.0)
     pose[0, 0] = float("inf")
     with pytest.raises(ValueError, match="c2w"):

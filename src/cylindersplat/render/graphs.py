@@ -39,8 +39,16 @@ from ..gaussians import Gaussians
 from .api import RenderOutput, render
 from .cameras import CameraModel
 from .projection import RasterSettings, recording_reads
+from .triton_binning import pinned_capacity
 
-__all__ = ["RenderGraph"]
+__all__ = ["RenderGraph", "CAPACITY_HEADROOM", "CAPACITY_EXTRA"]
+
+# A graph's pair buffers: the pairs of the inputs it is captured with, times this, plus that. Another view of the
+# scene may make more pairs (the graph is then captured again, for tens of milliseconds); every place is sorted and
+# written at each replay, used or not (a pinhole view of 1.3 M Gaussians made 3.2 M pairs, for which the lean
+# binning's first guess, 4 per Gaussian, keeps 5.2 M).
+CAPACITY_HEADROOM = 1.2
+CAPACITY_EXTRA = 1024
 
 
 @contextlib.contextmanager
@@ -206,7 +214,7 @@ class RenderGraph:
                         for name, t in zip((*self._names, "c2w"), self._inputs(gaussians, c2w.to(device)), strict=True)}
         self._device = device
         self._replay = None
-        self._record = None  # the capture's recorded read: its capacity and the binning's cache key
+        self.capacity = 0  # the graph's pair buffers (sized at capture for the pairs of its inputs, with headroom)
         self.renders = 0  # replays made (a handed-out output's backward must belong to the latest)
         self.captures = 0  # graphs captured (again where the pairs outgrew a graph's buffers)
 
@@ -236,21 +244,31 @@ class RenderGraph:
 
     def _render_recorded(self, *inputs: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         """The captured function: ``(*Gaussian tensors, c2w) -> (rgb, depth, alpha, read)``, ``read`` the recorded
-        values (:class:`.projection.RecordedRead`)."""
+        values (:class:`.projection.RecordedRead`), in pair buffers of :attr:`capacity`."""
         *tensors, c2w = inputs
-        with _capturable_forward(), recording_reads() as record:
+        with pinned_capacity(self.capacity), _capturable_forward(), recording_reads() as record:
             out = render(Gaussians(**dict(zip(self._names, tensors))), c2w, self.camera, self.background,
                          backend="triton", settings=self.settings)
-        if record.values is None or record.capacity is None:
-            raise RuntimeError("the captured render made no recorded read of its pair count: it cannot be replayed")
-        self._record = record
+        if record.values is None or record.capacity != self.capacity:
+            raise RuntimeError("the captured render made no recorded read of its pair count in the graph's buffers: "
+                               "it cannot be replayed")
         return out.rgb, out.depth, out.alpha, record.values
 
-    def _capture(self, inputs: tuple[Tensor, ...]):
-        # One render as usual first: it sizes the pair buffers (the binning's capacity cache) for these inputs.
-        gaussians, c2w = Gaussians(**dict(zip(self._names, inputs[:-1]))), inputs[-1]
-        with _capturable_forward(), torch.no_grad():
-            render(gaussians.detach(), c2w, self.camera, self.background, backend="triton", settings=self.settings)
+    def _pair_count(self, inputs: tuple[Tensor, ...]) -> int:
+        """The pairs of ``inputs``, by one render as the graph makes it (its output dropped); inputs that fail a
+        check are refused here, by :func:`.render`'s own error."""
+        gaussians = Gaussians(**dict(zip(self._names, (t.detach() for t in inputs[:-1]))))
+        with torch.no_grad():
+            with _capturable_forward(), recording_reads() as record:
+                render(gaussians, inputs[-1], self.camera, self.background, backend="triton", settings=self.settings)
+            count, problem, *_ = record.values.tolist() + [0]
+            if problem:
+                render(gaussians, inputs[-1], self.camera, self.background, backend="triton", settings=self.settings)
+        return count
+
+    def _capture(self, inputs: tuple[Tensor, ...], count: int):
+        """The engine of a graph whose buffers hold ``count`` pairs with headroom (:data:`CAPACITY_HEADROOM`)."""
+        self.capacity = int(count * CAPACITY_HEADROOM) + CAPACITY_EXTRA
         # The graph reads its inputs where they are: a leaf tensor (a scene's, a trained parameter) is read in place,
         # with no copy where the same tensor comes again; another (a network's output) through a copy of its own.
         sample = tuple(t if t.grad_fn is None else t.detach().clone().requires_grad_(t.requires_grad and self.backward)
@@ -260,19 +278,16 @@ class RenderGraph:
 
     def __call__(self, gaussians: Gaussians, c2w: Tensor) -> RenderOutput:
         """``render(gaussians, c2w, camera, background, backend="triton", settings)``, by the graph."""
-        from .triton_binning import grow_capacity
-
         inputs = self._checked_inputs(gaussians, c2w)
+        if self._replay is None:
+            self._replay = self._capture(inputs, self._pair_count(inputs))
         while True:
-            if self._replay is None:
-                self._replay = self._capture(inputs)
             rgb, depth, alpha, read = self._replay(*inputs)
             self.renders += 1
             count, *flags = read.tolist()  # the one wait for the device
-            if count <= self._record.capacity:
+            if count <= self.capacity:
                 break
-            grow_capacity(self._record.capacity_key, count)  # the pairs outgrew the graph's buffers
-            self._replay = None
+            self._replay = self._capture(inputs, count)  # the pairs outgrew the graph's buffers
         problem, far, *visible = flags  # the deferred checks (DeferredValues), the number visible where counted
         if problem or far or (visible and visible[0] == 0):  # render() raises or warns, as it does
             return render(gaussians, c2w, self.camera, self.background, backend="triton", settings=self.settings)

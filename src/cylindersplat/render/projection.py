@@ -143,20 +143,18 @@ class RecordedRead:
     """A render's one host read, recorded instead of made (:func:`recording_reads`; for a render captured as a CUDA
     graph, which cannot wait for the device: :mod:`.graphs`).
 
-    values:       ``(1 + k,)`` int64 on the device, written by the render's work: the pair count, then the render's
-                  deferred values (:class:`DeferredValues`: the input checks' flag, the cameras-too-far flag and,
-                  where the projection kept every pair, the number visible); None before the render reads
-    capacity:     the pair buffers' size the render was made with (the count must not exceed it)
-    capacity_key: the binning's cache key of that size (:func:`.triton_binning.grow_capacity`)"""
+    values:   ``(1 + k,)`` int64 on the device, written by the render's work: the pair count, then the render's
+              deferred values (:class:`DeferredValues`: the input checks' flag, the cameras-too-far flag and, where
+              the projection kept every pair, the number visible); None before the render reads
+    capacity: the pair buffers' size the render was made with (the count must not exceed it)"""
 
     values: Tensor | None = None
     capacity: int | None = None
-    capacity_key: tuple | None = None
 
-    def note(self, values: Tensor, capacity: int | None = None, capacity_key: tuple | None = None) -> None:
+    def note(self, values: Tensor, capacity: int | None = None) -> None:
         if self.values is not None:
             raise RuntimeError("a recorded render read the device twice; a recorded render may read it once")
-        self.values, self.capacity, self.capacity_key = values, capacity, capacity_key
+        self.values, self.capacity = values, capacity
 
 
 _RECORDS: list[RecordedRead] = []  # the innermost recording_reads() last
@@ -176,19 +174,17 @@ def recording_reads():
         _RECORDS.remove(record)
 
 
-def read_count(proj: "ProjectedGaussians", count: Tensor, capacity: int | None = None,
-               capacity_key: tuple | None = None) -> int:
+def read_count(proj: "ProjectedGaussians", count: Tensor, capacity: int | None = None) -> int:
     """A backend's one host read: the value of ``count`` (one element, on the device), with the render's deferred
-    values (:attr:`ProjectedGaussians.deferred`) in the same copy where it has some. ``capacity`` (and its cache
-    key): the size of the buffers the count must fit, where the backend sized them before this read; only such a
-    read can be recorded (:func:`recording_reads`: then 0 is returned and nothing is read)."""
+    values (:attr:`ProjectedGaussians.deferred`) in the same copy where it has some. ``capacity``: the size of the
+    buffers the count must fit, where the backend sized them before this read; only such a read can be recorded
+    (:func:`recording_reads`: then 0 is returned and nothing is read)."""
     if _RECORDS:
         if capacity is None:
             raise RuntimeError("this render sizes its buffers by its pair count, which a recorded render (a CUDA graph "
                                "capture) cannot read: record the Triton backend's lean forward")
         deferred = proj.deferred
-        _RECORDS[-1].note(count.reshape(1).long() if deferred is None else deferred.joined_with(count), capacity,
-                          capacity_key)
+        _RECORDS[-1].note(count.reshape(1).long() if deferred is None else deferred.joined_with(count), capacity)
         if deferred is not None:
             deferred.recorded = True
         return 0

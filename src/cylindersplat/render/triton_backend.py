@@ -250,7 +250,7 @@ def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background
         bins = bin_lean(proj, settings.tile_size, capacity, rects)
         out = composite_bins(proj, bins, settings, background)
         # The one host synchronisation, after the compositing is queued (recorded instead in a graph capture).
-        needed = read_count(proj, bins.total, capacity, key)
+        needed = read_count(proj, bins.total, capacity)
         if needed <= capacity:
             return out
         capacity = grow_capacity(key, needed)

@@ -23,6 +23,7 @@ before the compositing is queued.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -155,10 +156,25 @@ class PairBins:
     tiles_y: int
 
 
+_PINNED: list[int] = []  # pinned_capacity(): the innermost's capacity last
+
+
+@contextlib.contextmanager
+def pinned_capacity(capacity: int):
+    """Within: every lean binning uses buffers of ``capacity`` pairs, whatever the cache says (a CUDA graph's
+    capture: its buffers are sized for its own renders, :mod:`.graphs`)."""
+    _PINNED.append(int(capacity))
+    try:
+        yield
+    finally:
+        _PINNED.pop()
+
+
 def lean_capacity(proj: ProjectedGaussians, tile_size: int) -> tuple[tuple, int]:
-    """The cache key of ``proj``'s kind of render and its current pair capacity (first guess: 4 per Gaussian)."""
+    """The cache key of ``proj``'s kind of render and its current pair capacity (first guess: 4 per Gaussian; a
+    :func:`pinned_capacity` where one holds)."""
     key = (str(proj.camera.device), proj.num_cameras, proj.height, proj.width, tile_size, len(proj.depth).bit_length())
-    return key, _CAPACITY.get(key, 4 * len(proj.depth) + 1024)
+    return key, (_PINNED[-1] if _PINNED else _CAPACITY.get(key, 4 * len(proj.depth) + 1024))
 
 
 def grow_capacity(key: tuple, needed: int) -> int:
