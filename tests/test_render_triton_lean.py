@@ -140,6 +140,30 @@ def test_a_capacity_too_small_drops_no_pair_and_grows(monkeypatch):
     assert calls == [triton_binning._CAPACITY[key]]  # the next render of this kind fits at once
 
 
+def test_the_first_render_of_a_kind_sizes_its_capacity_by_its_pairs(monkeypatch):
+    # (the first guess, 4 per Gaussian, is sorted and written in full at every render where the pairs are fewer)
+    monkeypatch.setattr(triton_binning, "_CAPACITY", {})
+    g = shell_scene(200, seed=3, scale=(0.02, 0.05), dtype=F32)
+    camera, settings = Equirect(16, 32), RasterSettings(tile_size=4)
+    proj = camera.project(g.to(DEVICE), torch.eye(4, device=DEVICE), settings)
+    needed = len(bin_to_tiles(proj, 4).gaussian)
+    key, first = triton_binning.lean_capacity(proj, 4)
+    settled = math.floor(needed * triton_binning.CAPACITY_HEADROOM) + 1024
+    assert settled < first
+    calls = []
+    original = triton_binning.bin_lean
+    monkeypatch.setattr(triton_binning, "bin_lean", lambda *a: calls.append(a[2]) or original(*a))
+    from cylindersplat.render.projection import recording_reads
+
+    with recording_reads():  # a recorded render (a graph's capture) reads no count: it settles nothing
+        _render(g, torch.eye(4), camera, "lean", settings=settings)
+    assert triton_binning._CAPACITY == {}
+    calls.clear()
+    _assert_same_as_default(g, torch.eye(4), camera, settings=settings)
+    _render(g, torch.eye(4), camera, "lean", settings=settings)
+    assert calls == [first, settled] and triton_binning._CAPACITY[key] == settled
+
+
 def test_unknown_forward_is_refused_by_name(monkeypatch):
     monkeypatch.setattr(triton_backend, "FORWARD", "skinny")
     with pytest.raises(ValueError, match="unknown Triton forward 'skinny'.*lean"):

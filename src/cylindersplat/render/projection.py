@@ -45,6 +45,7 @@ from .covariance import eval_sh
 
 __all__ = ["ProjectedGaussians", "RasterSettings", "UnsupportedSettings", "PixelMap", "flatten_cameras",
            "DeferredValues", "InputCheckFailed", "read_count", "RecordedRead", "recording_reads",
+           "is_recording",
            "to_camera_frame",
            "ewa_footprint", "project_dense", "project_gaussians", "compile_projection"]
 
@@ -172,6 +173,11 @@ def recording_reads():
         yield record
     finally:
         _RECORDS.remove(record)
+
+
+def is_recording() -> bool:
+    """Whether reads are recorded now (:func:`recording_reads`): a recorded read's value is not the count."""
+    return bool(_RECORDS)
 
 
 def read_count(proj: "ProjectedGaussians", count: Tensor, capacity: int | None = None) -> int:

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings, read_count
+from .projection import ProjectedGaussians, RasterSettings, UnsupportedSettings, is_recording, read_count
 from .rasterize import TileBins, over_background, pack_projected
 from .triton_binning import bin_to_tiles_by_key
 
@@ -240,10 +240,11 @@ def pairs_carry_rects(proj: ProjectedGaussians) -> bool:
 def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background: Tensor | None, rects: bool = True):
     """The ``"lean"`` forward: :func:`.triton_binning.bin_lean` into the cached capacity of this kind of render,
     compositing, then one read of the pair count (the GPU has the whole forward queued by then); where the pairs
-    did not fit, the capacity grows to hold them and the binning and compositing run again: no pair is dropped. While
+    did not fit, the capacity grows to hold them and the binning and compositing run again: no pair is dropped (the
+    first render of a kind sets its capacity by its pairs, :func:`.triton_binning.settle_capacity`). While
     reads are recorded (:func:`.projection.recording_reads`, a CUDA graph's capture), the count is recorded with the
     capacity and the forward returns: its recorder redoes it where the pairs did not fit."""
-    from .triton_binning import bin_lean, grow_capacity, lean_capacity
+    from .triton_binning import bin_lean, grow_capacity, lean_capacity, settle_capacity
 
     key, capacity = lean_capacity(proj, settings.tile_size)
     while True:
@@ -251,6 +252,8 @@ def _lean_backend(proj: ProjectedGaussians, settings: RasterSettings, background
         out = composite_bins(proj, bins, settings, background)
         # The one host synchronisation, after the compositing is queued (recorded instead in a graph capture).
         needed = read_count(proj, bins.total, capacity)
+        if not is_recording():  # (a recorded read returns 0: no count to learn from)
+            settle_capacity(key, needed)
         if needed <= capacity:
             return out
         capacity = grow_capacity(key, needed)
