@@ -13,8 +13,9 @@
 #                   $CHECK_WHEELS (default .whl: `python3 -m pip download --no-deps gsplat==1.5.3 -d .whl`); its
 #                   CUDA code (a JIT build of about 75 s) is built in the background while the tests run;
 #   graphs          the Triton render replayed as CUDA graphs (render.graphs.RenderGraph: the host's work made once)
-#                   beside the default and gsplat on the pinhole view, then on the panorama; its own processes, so
-#                   that a capture that fails cannot take the gsplat item's figures with it;
+#                   beside the default and gsplat on the pinhole view, then on the panorama, then one forward of
+#                   each under torch.profiler (a replay's time is the device's alone); its own processes, so that a
+#                   capture that fails cannot take the gsplat item's figures with it;
 #   model           the paper config end to end (network + one render), 1-4 views;
 #   train           one training step of each curriculum stage at 512x1024, batch 1, bf16 autocast;
 #   run             a short training run of the paper config on procedural 256x512 data (loss must fall).
@@ -143,6 +144,8 @@ if [ $smoke = 1 ]; then
                --variants default default,ids,row)
   graphs_render_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --graph
                       --variants default default,ids,row)
+  graphs_profile_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --graph
+                       --variants default,ids,row --profile)
   model_args=(--config tiny_paper --height 64 --render --views 1 2 --repeats 1 --device "$device")
   train_args=(--config tiny_paper --height 64 --steps 1 --warmup 0 --lpips off --device "$device")
   synth_args=(--scenes 4 --resolution 64x128)
@@ -178,6 +181,8 @@ else
                --variants default default,ids,row)
   graphs_render_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 10 --graph
                       --variants default default,ids,row)
+  graphs_profile_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 3 --graph
+                       --variants default,ids,row --profile)
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
   train_args=(--config paper --height 512 --steps 3)
   synth_args=(--scenes 12 --resolution 256x512)
@@ -290,7 +295,11 @@ for item in $items; do
       excerpt '^[{#]' "$out/graphs.log"
       run_item graphs_render "${CHECK_LIMIT_GRAPHS_RENDER:-60}" $py -m cylindersplat bench render \
           "${graphs_render_args[@]}"
-      excerpt '^[{#|]' "$out/graphs_render.log" ;;
+      excerpt '^[{#|]' "$out/graphs_render.log"
+      # One forward of each under torch.profiler: a graph's replay is the device's time alone, beside gsplat's.
+      run_item graphs_profile "${CHECK_LIMIT_GRAPHS_PROFILE:-45}" $py -m cylindersplat bench gsplat_compare \
+          "${graphs_profile_args[@]}"
+      excerpt '^# profile\|^#  ' "$out/graphs_profile.log" ;;
     model)
       run_item model "${CHECK_LIMIT_MODEL:-60}" $py -m cylindersplat bench model "${model_args[@]}"
       excerpt '^[|#(]' "$out/model.log" ;;
