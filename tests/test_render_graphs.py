@@ -78,11 +78,20 @@ def test_outputs_are_the_callers_own():
     assert torch.equal(first.rgb, kept) and not torch.equal(first.rgb, graph(g, _pose(2.0)).rgb)
 
 
-def test_a_background_is_fixed_at_capture():
+def test_a_background_is_fixed_at_capture_and_kept_by_the_graph():
+    from cylindersplat.render import api
+
     g = _scene()
     graph = graphs.RenderGraph(g, _pose(0.0), CAMERAS["pinhole"], background=[0.2, 0.3, 0.4])
     ref = render(g, _pose(0.5), CAMERAS["pinhole"], background=(0.2, 0.3, 0.4), backend="triton")
     _assert_same_render(graph(g, _pose(0.5)), ref)
+    api._BACKGROUNDS.clear()  # render()'s cache of backgrounds made on the device drops them when full
+    for value in range(api._MAX_BACKGROUNDS + 2):
+        render(g, _pose(0.5), CAMERAS["pinhole"], background=(value / 20, 0.0, 1.0), backend="triton")
+    _assert_same_render(graph(g, _pose(0.5)), ref)
+    assert graph.captures == 1
+    with pytest.raises(ValueError, match="background must be finite"):
+        graphs.RenderGraph(g, _pose(0.0), CAMERAS["pinhole"], background=(0.0, float("nan"), 0.0))(g, _pose(0.0))
 
 
 @pytest.mark.parametrize("camera", list(CAMERAS))

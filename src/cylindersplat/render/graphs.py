@@ -206,8 +206,10 @@ class RenderGraph:
             raise ValueError(f"RenderGraph captures CUDA graphs and needs the Gaussians on a CUDA device, got "
                              f"{device}; render() there instead")
         self.camera, self.settings, self.backward = camera, settings, bool(backward)
+        # The graph reads the background where it is: a tensor this graph keeps (numbers are made on the device once;
+        # render()'s own cache of them may drop one that a graph still reads).
         if background is not None and not isinstance(background, Tensor):
-            background = tuple(float(x) for x in background)  # made on the device once (render caches it)
+            background = torch.as_tensor([float(x) for x in background], dtype=gaussians.dtype).to(device)
         self.background = background
         self._names = [f.name for f in fields(Gaussians)]
         self._shapes = {name: (tuple(t.shape), t.dtype, t.requires_grad if backward else None)
