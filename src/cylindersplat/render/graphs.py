@@ -23,8 +23,9 @@ a render's backward must come before the graph's next render (which replaces wha
 comes after raises.
 
 The capture runs the Triton backend's lean forward (:data:`.triton_backend.FORWARD` ``"lean"``, no compaction),
-whose one read is recorded, not made (:func:`.projection.recording_reads`); the images and gradients are those of
-that forward, which equal the default one's bit for bit (``tests/test_render_graphs.py``).
+whose one read is recorded, not made (:func:`.projection.recording_reads`); the images are those of that forward,
+which equal the default one's bit for bit, and so are the gradients (to float32 rounding on a GPU, whose atomics
+add in any order; ``tests/test_render_graphs.py``).
 """
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ from .triton_binning import pinned_capacity
 __all__ = ["RenderGraph", "CAPACITY_HEADROOM", "CAPACITY_EXTRA"]
 
 # A graph's pair buffers: the pairs of the inputs it is captured with, times this, plus that. Another view of the
-# scene may make more pairs (the graph is then captured again, for tens of milliseconds); every place is sorted and
+# scene may make more pairs (the graph is then captured again: a render and a capture); every place is sorted and
 # written at each replay, used or not (a pinhole view of 1.3 M Gaussians made 3.2 M pairs, for which the lean
 # binning's first guess, 4 per Gaussian, keeps 5.2 M).
 CAPACITY_HEADROOM = 1.2
