@@ -47,8 +47,8 @@ def _pose(angle):
 
 
 def _same(a, b):
-    if CUDA:  # atomics add in any order on a GPU: gradients to rounding
-        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    if CUDA:  # atomics add in any order on a GPU: gradients to float32 rounding of their sums
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6 + 1e-5 * float(b.abs().max()))
     else:
         assert torch.equal(a, b)
 
@@ -184,7 +184,7 @@ def test_the_capture_reads_the_device_nowhere():
     ref = render(g, _pose(0.3), CAMERAS["equirect"], backend="torch")
     assert (problem, far) == (0, 0) and visible == 30 and 0 < count <= graph.capacity
     assert torch.equal(outputs[0][0], graph(g, _pose(0.3)).rgb)
-    torch.testing.assert_close(outputs[0][0], ref.rgb, rtol=1e-4, atol=1e-5)  # and it is the scene's image
+    torch.testing.assert_close(outputs[0][0], ref.rgb, rtol=1e-4, atol=2e-4)  # test_render_triton's tolerance
 
 
 # What a CUDA graph cannot hold: a value read from the device (a wait), a size that depends on one, a tensor made from
