@@ -12,6 +12,7 @@ pytest.importorskip("triton")
 
 from cylindersplat.gaussians import Gaussians  # noqa: E402
 from cylindersplat.render import Equirect, Pinhole, RasterSettings, render, triton_backend, triton_binning  # noqa: E402
+from cylindersplat.render.projection import recording_reads  # noqa: E402
 from cylindersplat.render.rasterize import bin_to_tiles  # noqa: E402
 from render_scenes import shell_scene, yaw_pose  # noqa: E402
 
@@ -121,17 +122,25 @@ def test_lean_forward_of_an_empty_scene_is_the_background():
     assert torch.allclose(out.rgb, torch.tensor([0.2, 0.3, 0.4], device=DEVICE).view(3, 1, 1).expand(3, 20, 24))
 
 
-def test_a_capacity_too_small_drops_no_pair_and_grows(monkeypatch):
+def _watched_lean_binning(monkeypatch, g):
+    """An empty capacity cache, the scene's camera and settings (16x32 panorama, 4 px tiles), its pair count (the
+    reference binning's), the cache key and first guess of its kind of render, and the list of capacities that
+    each lean binning gets from then on."""
     monkeypatch.setattr(triton_binning, "_CAPACITY", {})
-    g = shell_scene(20, seed=34, scale=(0.2, 0.6), dtype=F32)
     camera, settings = Equirect(16, 32), RasterSettings(tile_size=4)
     proj = camera.project(g.to(DEVICE), torch.eye(4, device=DEVICE), settings)
     needed = len(bin_to_tiles(proj, 4).gaussian)
     key, first = triton_binning.lean_capacity(proj, 4)
-    triton_binning._CAPACITY[key] = 3  # far too small: the first binning misses most pairs
     calls = []
     original = triton_binning.bin_lean
     monkeypatch.setattr(triton_binning, "bin_lean", lambda *a: calls.append(a[2]) or original(*a))
+    return camera, settings, needed, key, first, calls
+
+
+def test_a_capacity_too_small_drops_no_pair_and_grows(monkeypatch):
+    g = shell_scene(20, seed=34, scale=(0.2, 0.6), dtype=F32)
+    camera, settings, needed, key, first, calls = _watched_lean_binning(monkeypatch, g)
+    triton_binning._CAPACITY[key] = 3  # far too small: the first binning misses most pairs
     _assert_same_as_default(g, torch.eye(4), camera, settings=settings)
     assert calls == [3, math.floor(needed * triton_binning.CAPACITY_HEADROOM) + 1024]  # one rerun, all pairs
     assert triton_binning._CAPACITY[key] == calls[-1]
@@ -142,19 +151,10 @@ def test_a_capacity_too_small_drops_no_pair_and_grows(monkeypatch):
 
 def test_the_first_render_of_a_kind_sizes_its_capacity_by_its_pairs(monkeypatch):
     # (the first guess, 4 per Gaussian, is sorted and written in full at every render where the pairs are fewer)
-    monkeypatch.setattr(triton_binning, "_CAPACITY", {})
     g = shell_scene(200, seed=3, scale=(0.02, 0.05), dtype=F32)
-    camera, settings = Equirect(16, 32), RasterSettings(tile_size=4)
-    proj = camera.project(g.to(DEVICE), torch.eye(4, device=DEVICE), settings)
-    needed = len(bin_to_tiles(proj, 4).gaussian)
-    key, first = triton_binning.lean_capacity(proj, 4)
+    camera, settings, needed, key, first, calls = _watched_lean_binning(monkeypatch, g)
     settled = math.floor(needed * triton_binning.CAPACITY_HEADROOM) + 1024
     assert settled < first
-    calls = []
-    original = triton_binning.bin_lean
-    monkeypatch.setattr(triton_binning, "bin_lean", lambda *a: calls.append(a[2]) or original(*a))
-    from cylindersplat.render.projection import recording_reads
-
     with recording_reads():  # a recorded render (a graph's capture) reads no count: it settles nothing
         _render(g, torch.eye(4), camera, "lean", settings=settings)
     assert triton_binning._CAPACITY == {}

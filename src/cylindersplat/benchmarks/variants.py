@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import sys
+import traceback
 
 import torch
 
@@ -77,9 +79,6 @@ def graph_variants(variants: list[tuple[str, ...]]) -> list[tuple[str, tuple[str
 def graph_failure(exc: BaseException) -> str:
     """A graph row's error cell for ``exc`` (its traceback printed to stderr for the log): the row fails, the
     benchmark goes on."""
-    import sys
-    import traceback
-
     traceback.print_exception(exc, file=sys.stderr)
     first = (str(exc).strip().splitlines() or [""])[0]
     return f"graph failed: {type(exc).__name__}: {first[:300]}"

@@ -184,6 +184,13 @@ class _Handout(torch.autograd.Function):
         return None, None, grad_rgb, grad_depth, grad_alpha
 
 
+def _check_types(gaussians, c2w) -> None:
+    if not isinstance(gaussians, Gaussians):
+        raise TypeError(f"gaussians must be a cylindersplat.gaussians.Gaussians, got {type(gaussians).__name__}")
+    if not isinstance(c2w, Tensor):
+        raise TypeError(f"c2w must be a tensor of 4x4 camera-to-world poses, got {type(c2w).__name__}")
+
+
 class RenderGraph:
     """:func:`.render` on the Triton backend, captured once as a CUDA graph for inputs of the sizes of ``gaussians``
     and ``c2w`` and replayed at each call (module docstring).
@@ -198,10 +205,7 @@ class RenderGraph:
     def __init__(self, gaussians: Gaussians, c2w: Tensor, camera: CameraModel,
                  background: Tensor | tuple[float, float, float] | None = None,
                  settings: RasterSettings | None = None, backward: bool = False):
-        if not isinstance(gaussians, Gaussians):
-            raise TypeError(f"gaussians must be a cylindersplat.gaussians.Gaussians, got {type(gaussians).__name__}")
-        if not isinstance(c2w, Tensor):
-            raise TypeError(f"c2w must be a tensor of 4x4 camera-to-world poses, got {type(c2w).__name__}")
+        _check_types(gaussians, c2w)
         device = gaussians.device
         if device.type not in _ENGINES:
             raise ValueError(f"RenderGraph captures CUDA graphs and needs the Gaussians on a CUDA device, got "
@@ -225,10 +229,7 @@ class RenderGraph:
         return (*(getattr(gaussians, name) for name in self._names), c2w)
 
     def _checked_inputs(self, gaussians: Gaussians, c2w: Tensor) -> tuple[Tensor, ...]:
-        if not isinstance(gaussians, Gaussians):
-            raise TypeError(f"gaussians must be a cylindersplat.gaussians.Gaussians, got {type(gaussians).__name__}")
-        if not isinstance(c2w, Tensor):
-            raise TypeError(f"c2w must be a tensor of 4x4 camera-to-world poses, got {type(c2w).__name__}")
+        _check_types(gaussians, c2w)
         inputs = self._inputs(gaussians, c2w.to(self._device))
         for name, t in zip(self._shapes, inputs, strict=True):
             shape, dtype, grad = self._shapes[name]
