@@ -115,6 +115,12 @@ excerpt() {  # lines of the logs matching a pattern, indented into the summary
   grep -h -- "$pattern" "$@" 2>/dev/null | cut -c1-600 | sed 's/^/    /' >> "$summary"
 }
 
+run_excerpted() {  # name, limit, pattern, command...: run_item, then its log's lines matching the pattern (excerpt)
+  local name=$1 limit=$2 pattern=$3; shift 3
+  run_item "$name" "$limit" "$@"
+  excerpt "$pattern" "$out/$name.log"
+}
+
 # Item sizes: full (the issue's) or smoke (seconds on a CPU).
 # The default forward beside the lean one (no host sync before compositing: triton_backend.FORWARD), with pairs that
 # carry only their Gaussian (",ids": triton_backend.PAIR_FIELD; the default "rects" writes each pair's pixel
@@ -266,61 +272,53 @@ for item in $items; do
           "${test_args[@]}"
       tail -n 3 "$out/tests.log" | sed 's/^/    /' >> "$summary" ;;
     render)
-      run_item render "${CHECK_LIMIT_RENDER:-120}" $py -m cylindersplat bench render "${render_args[@]}"
-      excerpt '^[{#|]' "$out/render.log" ;;
+      run_excerpted render "${CHECK_LIMIT_RENDER:-120}" '^[{#|]' \
+          $py -m cylindersplat bench render "${render_args[@]}" ;;
     stages)
-      run_item stages "${CHECK_LIMIT_STAGES:-60}" $py -m cylindersplat bench render "${stages_args[@]}"
-      excerpt '^[{#]' "$out/stages.log" ;;
+      run_excerpted stages "${CHECK_LIMIT_STAGES:-60}" '^[{#]' $py -m cylindersplat bench render "${stages_args[@]}" ;;
     variants|binning)  # (binning: its name until the binning variants were removed)
-      run_item variants "${CHECK_LIMIT_VARIANTS:-150}" $py -m cylindersplat bench render "${variants_args[@]}"
-      excerpt '^[{#|]' "$out/variants.log"
+      run_excerpted variants "${CHECK_LIMIT_VARIANTS:-150}" '^[{#|]' \
+          $py -m cylindersplat bench render "${variants_args[@]}"
       # Where the time goes, kernel by kernel (torch.profiler, device time), panorama.
-      run_item variants_profile "${CHECK_LIMIT_VARIANTS_PROFILE:-75}" $py -m cylindersplat bench render \
-          "${profile_args[@]}"
-      excerpt '^[#]\|Self CUDA\|Self CPU\|^ *[a-zA-Z_].*%' "$out/variants_profile.log"
+      run_excerpted variants_profile "${CHECK_LIMIT_VARIANTS_PROFILE:-75}" '^[#]\|Self CUDA\|Self CPU\|^ *[a-zA-Z_].*%' \
+          $py -m cylindersplat bench render "${profile_args[@]}"
       # The same stages through gsplat's kind of camera (the 90-degree pinhole view of the gsplat item).
-      run_item variants_pinhole "${CHECK_LIMIT_VARIANTS_PINHOLE:-90}" $py -m cylindersplat bench render \
-          "${pinhole_args[@]}"
-      excerpt '^[{#|]' "$out/variants_pinhole.log" ;;
+      run_excerpted variants_pinhole "${CHECK_LIMIT_VARIANTS_PINHOLE:-90}" '^[{#|]' \
+          $py -m cylindersplat bench render "${pinhole_args[@]}" ;;
     gsplat)
       # (its background build was awaited above, within what is left of the budget)
       [ -n "$gsplat_build" ] && tail -n 1 "$out/gsplat_build.log" 2>/dev/null | sed 's/^/    /' >> "$summary"
-      run_item gsplat "${CHECK_LIMIT_GSPLAT:-120}" $py -m cylindersplat bench gsplat_compare "${gsplat_args[@]}"
-      excerpt '^[{#]' "$out/gsplat.log"
-      run_item gsplat_profile "${CHECK_LIMIT_GSPLAT_PROFILE:-60}" $py -m cylindersplat bench gsplat_compare \
-          "${gsplat_profile_args[@]}"
-      excerpt '^# profile\|^#  ' "$out/gsplat_profile.log" ;;
+      run_excerpted gsplat "${CHECK_LIMIT_GSPLAT:-120}" '^[{#]' \
+          $py -m cylindersplat bench gsplat_compare "${gsplat_args[@]}"
+      run_excerpted gsplat_profile "${CHECK_LIMIT_GSPLAT_PROFILE:-60}" '^# profile\|^#  ' \
+          $py -m cylindersplat bench gsplat_compare "${gsplat_profile_args[@]}" ;;
     graphs)
-      run_item graphs "${CHECK_LIMIT_GRAPHS:-90}" $py -m cylindersplat bench gsplat_compare "${graphs_args[@]}"
-      excerpt '^[{#]' "$out/graphs.log"
-      run_item graphs_render "${CHECK_LIMIT_GRAPHS_RENDER:-60}" $py -m cylindersplat bench render \
-          "${graphs_render_args[@]}"
-      excerpt '^[{#|]' "$out/graphs_render.log"
+      run_excerpted graphs "${CHECK_LIMIT_GRAPHS:-90}" '^[{#]' \
+          $py -m cylindersplat bench gsplat_compare "${graphs_args[@]}"
+      run_excerpted graphs_render "${CHECK_LIMIT_GRAPHS_RENDER:-60}" '^[{#|]' \
+          $py -m cylindersplat bench render "${graphs_render_args[@]}"
       # One forward of each under torch.profiler: a graph's replay is the device's time alone, beside gsplat's.
-      run_item graphs_profile "${CHECK_LIMIT_GRAPHS_PROFILE:-45}" $py -m cylindersplat bench gsplat_compare \
-          "${graphs_profile_args[@]}"
-      excerpt '^# profile\|^#  ' "$out/graphs_profile.log" ;;
+      run_excerpted graphs_profile "${CHECK_LIMIT_GRAPHS_PROFILE:-45}" '^# profile\|^#  ' \
+          $py -m cylindersplat bench gsplat_compare "${graphs_profile_args[@]}" ;;
     model)
-      run_item model "${CHECK_LIMIT_MODEL:-60}" $py -m cylindersplat bench model "${model_args[@]}"
-      excerpt '^[|#(]' "$out/model.log" ;;
+      run_excerpted model "${CHECK_LIMIT_MODEL:-60}" '^[|#(]' $py -m cylindersplat bench model "${model_args[@]}" ;;
     model_compiled)
       if [ $smoke = 1 ]; then { echo; echo "## model_compiled — left out of the smoke run (torch.compile)"; } >> "$summary"; continue; fi
-      run_item model_compiled "${CHECK_LIMIT_MODEL:-240}" $py -m cylindersplat bench model --config paper --height 512 \
-          --render --views 2 3 4 --repeats 5 --warmup 2 --compile
-      excerpt '^[|#(]' "$out/model_compiled.log" ;;
+      run_excerpted model_compiled "${CHECK_LIMIT_MODEL:-240}" '^[|#(]' \
+          $py -m cylindersplat bench model --config paper --height 512 --render --views 2 3 4 --repeats 5 --warmup 2 \
+          --compile ;;
     train)
-      run_item train "${CHECK_LIMIT_TRAIN:-60}" $py -m cylindersplat bench train "${train_args[@]}"
-      excerpt '^[|#]' "$out/train.log" ;;
+      run_excerpted train "${CHECK_LIMIT_TRAIN:-60}" '^[|#]' $py -m cylindersplat bench train "${train_args[@]}" ;;
     run)
       run_item run_data 60 $py -m cylindersplat data synth --out "$work/synth" "${synth_args[@]}" --spacing 0.5:1.5
       for backend in ${CHECK_RUN_BACKENDS:-$run_backends}; do
-        run_item run_$backend "${CHECK_LIMIT_RUN:-90}" bash -c "train_run $backend"
-        excerpt 'training run\|skipped\|diverged\|Error' "$out/run_$backend.log"
+        run_excerpted run_$backend "${CHECK_LIMIT_RUN:-90}" 'training run\|skipped\|diverged\|Error' \
+            bash -c "train_run $backend"
       done ;;
     base)  # the budget is enforced inside (chunks + resume, SIGINT at the end); the limit is a safety net
       base_call_seconds=$(( $(left_s) - 30 )); export base_call_seconds
-      run_item base "${CHECK_LIMIT_BASE:-$((base_minutes * 60 + 300))}" bash -c base_train
-      excerpt 'training run\|^base:\|Error' "$out/base.log" ;;
+      run_excerpted base "${CHECK_LIMIT_BASE:-$((base_minutes * 60 + 300))}" 'training run\|^base:\|Error' \
+          bash -c base_train ;;
     *) echo "unknown item $item ($all_items)"; exit 2 ;;
   esac
 done
