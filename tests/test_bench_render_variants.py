@@ -90,8 +90,11 @@ def test_bad_variants_stop_the_command_in_one_line(capsys):
 
 
 @pytest.mark.parametrize("argv, message", [(["--device", "tpu"], "not a torch device: 'tpu'"),
-                                           (["--backend", "nope"], "invalid choice: 'nope'")])
-def test_a_bad_device_or_backend_is_one_line(argv, message, capsys):
+                                           (["--backend", "nope"], "invalid choice: 'nope'"),
+                                           (["--graph"], "--graph needs --backend triton"),
+                                           (["--variants", "lean", "--backend", "torch", "numba"],
+                                            "--variants needs --backend triton")])
+def test_a_bad_device_backend_or_triton_only_flag_is_one_line(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_info:
         bench_render.main(argv)
     err = capsys.readouterr().err

@@ -151,7 +151,7 @@ def test_a_capacity_too_small_drops_no_pair_and_grows(monkeypatch):
 
 def test_the_first_render_of_a_kind_sizes_its_capacity_by_its_pairs(monkeypatch):
     # (the first guess, 4 per Gaussian, is sorted and written in full at every render where the pairs are fewer)
-    g = shell_scene(200, seed=3, scale=(0.02, 0.05), dtype=F32)
+    g = shell_scene(60, seed=3, scale=(0.02, 0.05), dtype=F32)
     camera, settings, needed, key, first, calls = _watched_lean_binning(monkeypatch, g)
     settled = math.floor(needed * triton_binning.CAPACITY_HEADROOM) + 1024
     assert settled < first

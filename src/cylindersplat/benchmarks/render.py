@@ -414,6 +414,9 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.cubemap and args.camera != "equirect":
         parser.error("--cubemap renders panoramas: leave out --camera pinhole")
+    for flag, given in (("--variants", args.variants), ("--graph", args.graph)):
+        if given and "triton" not in args.backend:  # it times Triton rows only: refused, not silently ignored
+            parser.error(f"{flag} needs --backend triton")
     if args.compile:
         from cylindersplat.render.projection import compile_projection
 
