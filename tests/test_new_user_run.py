@@ -3,8 +3,9 @@ fixtures copied into a folder as a user has it (RGB panoramas and their depth, d
 `data poses` -> `render` -> `export` -> `view --screenshot`, each in its own process at its defaults.
 
 The README's two commands (`bash scripts/demo.sh`, `bash scripts/test.sh`) install the package this test runs in;
-the commands below are those of docs/inference.md, "Unposed panoramas". All sizes are the defaults (on the shared
-2-core dev machine: data poses ~6 s, render ~17 s, export ~18 s, view --screenshot at 480x640 ~26 s).
+the commands below are those of docs/inference.md, "Unposed panoramas". All sizes are the defaults (on the idle
+2-core dev machine, 2026-11-27: data poses ~4 s, render ~6 s, export ~3.5 s, view --screenshot at 480x640 ~2.6 s;
+earlier figures of 6 / 17 / 18 / 26 s were taken under the load of other jobs).
 """
 
 import hashlib
