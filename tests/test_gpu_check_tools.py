@@ -186,6 +186,8 @@ def test_bench_render_reports_a_reference_out_of_memory_instead_of_crashing(monk
     assert "| cpu | torch | 300 | 8x16 | out of memory | out of memory |  |" in out
     numba_row = next(line for line in out.splitlines() if line.startswith("| cpu | numba | 300 |"))
     assert float(numba_row.split("|")[5]) > 0  # its forward was timed
+    # the CPU's peak is the process's so far (it read the reference's ~1.9 GB as numba's): said under the table
+    assert "# peak MB on the CPU: the process's peak resident memory up to that row" in out
 
 
 def test_gpu_check_skips_what_would_start_past_its_total_budget(tmp_path):

@@ -476,6 +476,10 @@ def main(argv: list[str] | None = None) -> None:
                         timed.append(row)
     print()
     print("\n".join(table(timed)))
+    if any(row.get("device") == "cpu" and "peak_mb" in row for row in timed):
+        print("# peak MB on the CPU: the process's peak resident memory up to that row, so a row includes the rows "
+              "before it (time one backend per command to compare their memory); on CUDA, "
+              "torch.cuda.max_memory_allocated of the row's renders")
     if _load_note():  # other jobs on a shared machine slow every row: the load before and after says how much
         print(f"#{_load_note().removeprefix(',')} at the end")
 
