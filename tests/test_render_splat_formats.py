@@ -65,6 +65,14 @@ def test_render_reads_splat_files(tmp_path, capsys):
                  "--out", str(tmp_path / "obj")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "unknown splat format" in err[0]
+    (tmp_path / "scene.ply").mkdir()  # a folder (e.g. of posed panoramas) given as the splat file
+    assert main(["render", "--ply", str(tmp_path / "scene.ply"), "--views", str(tmp_path / "views.json"),
+                 "--out", str(tmp_path / "folder")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "scene.ply is a folder: give a splat file" in err[0] and "--input" in err[0], err
+    assert not (tmp_path / "folder").exists()
+    with pytest.raises(ValueError, match="is a folder, not a splat file"):
+        load_gaussians(tmp_path / "scene.ply")
 
 
 @pytest.mark.parametrize("name", ["room.spz", "room.sog", "room.compressed.ply"])

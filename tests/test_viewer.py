@@ -176,6 +176,10 @@ def test_view_names_what_is_missing(tmp_path, capsys, monkeypatch):
     assert "pip install 'cylindersplat[view]'" in capsys.readouterr().err
     assert main(["view"]) == 1
     assert "give a splat file" in capsys.readouterr().err
+    assert main(["view", str(tmp_path), "--screenshot", str(tmp_path / "shot.png")]) == 1  # a folder, positionally
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is a folder: give a splat file" in err[0] and f"--input {tmp_path}" in err[0], err
+    assert not (tmp_path / "shot.png").exists()
 
 
 def _browser_skip_reason() -> str | None:

@@ -128,6 +128,9 @@ def run(args: argparse.Namespace) -> int:
     if args.ply:  # an existing 3DGS scene: no model, no input panoramas
         from ..gaussians.formats import READ_FORMATS, splat_format
 
+        if Path(args.ply).is_dir():
+            raise ValueError(f"--ply {args.ply} is a folder: give a splat file ({', '.join(READ_FORMATS)}), or "
+                             f"--input {args.ply} for a folder of posed panoramas")
         splat_format(args.ply, READ_FORMATS)  # an unknown format fails before anything is read
         if args.input or args.checkpoint:
             raise ValueError("give either --ply or --input/--checkpoint, not both")

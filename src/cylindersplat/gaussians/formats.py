@@ -203,6 +203,8 @@ def _looks_compressed_ply(path: Path) -> bool:
 def load_gaussians(path: str | Path, device=None, dtype=torch.float32) -> Gaussians:
     """Read any of :data:`READ_FORMATS` (a compressed PLY is recognised by its header too)."""
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path} is a folder, not a splat file ({', '.join(READ_FORMATS)})")
     if not path.is_file():
         raise FileNotFoundError(f"splat file not found: {path}")
     fmt = splat_format(path, READ_FORMATS)
