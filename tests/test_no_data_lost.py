@@ -115,6 +115,32 @@ def test_earlier_render_files_are_removed_only_once_the_new_set_is_in_place(pano
     assert sorted(_files(out)) == ["views/poses.json", "views/view_000_depth.png", "views/view_000_rgb.png"]
 
 
+def test_a_render_refuses_an_out_where_it_would_replace_or_remove_what_it_reads(panorama_folder, tiny_checkpoint,
+                                                                               tmp_path, capsys):
+    """A render's views are posed panoramas: reconstructing from them (--input OUT/views) into the same OUT replaced
+    the panoramas and poses file it read and removed the views it did not write again. Refused before any work;
+    --input IN --out IN stays allowed (a render's files there are its own)."""
+    import shutil
+
+    out = tmp_path / "render"
+    assert main(_render(panorama_folder[0], tiny_checkpoint, out)) == 0
+    capsys.readouterr()
+    before = _files(out)
+    views = out / "views"
+    assert main(_render(views, tiny_checkpoint, out, "--depth-prior", "constant:2")) == 1
+    assert _one_line(capsys).endswith(f"error: --out {out} would replace or remove {views}/poses.json (and 1 more), "
+                                      "which this render reads (--input): choose another --out")
+    assert main(_render(panorama_folder[0], tiny_checkpoint, out, "--views", str(views / "poses.json"))) == 1
+    assert "which this render reads (--views): choose another --out" in _one_line(capsys)
+    assert _files(out) == before  # same files, same bytes, not replaced
+    scene = tmp_path / "own"
+    shutil.copytree(panorama_folder[0], scene)
+    inputs = _files(scene)
+    for _ in range(2):  # into the input folder itself, twice: the second run replaces only the first one's files
+        assert main(_render(scene, tiny_checkpoint, scene)) == 0
+    assert {k: v for k, v in _files(scene).items() if k in inputs} == inputs
+
+
 def test_an_export_that_hits_a_file_size_limit_keeps_the_earlier_file(panorama_folder, tiny_checkpoint, tmp_path,
                                                                       monkeypatch, capsys):
     import plyfile

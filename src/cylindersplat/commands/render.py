@@ -76,6 +76,24 @@ def _earlier_render(out: Path, keep) -> list[Path]:
     return [p for p in stale if p.resolve() not in kept]
 
 
+def _refuse_replacing_inputs(args) -> None:
+    """Refuse, before any work, an --out where this render would replace or remove (as an earlier render's) a file
+    it reads: a panorama, depth or poses file of --input (e.g. --input OUT/views, the views of an earlier render), a
+    --views or --camera-path file (the --ply is never replaced: :func:`_earlier_render` keeps it)."""
+    from ..data.folder import input_files
+
+    reads = [(p, "--input") for p in (input_files(args.input, args.poses_file, args.allow_outside_paths)
+                                      if args.input and not args.ply else [])]
+    reads += [(p, option) for p, option in ((args.views, "--views"), (args.camera_path, "--camera-path"))
+              if p is not None]
+    at_risk = {p.resolve() for p in _earlier_render(args.out, keep=[args.ply])}  # (the --ply is kept, not written)
+    clashes = [(p, option) for p, option in reads if Path(p).resolve() in at_risk]
+    if clashes:
+        (first, option), more = clashes[0], len(clashes) - 1
+        raise ValueError(f"--out {args.out} would replace or remove {first}{f' (and {more} more)' if more else ''}, "
+                         f"which this render reads ({option}): choose another --out")
+
+
 def _warn_if_little_covered(covered: int, pixels: int, camera) -> None:
     """Panoramas see every direction: one that shows the scene in a few % of its pixels points at a scene far
     smaller than the cameras' distances (a unit mistake, e.g. millimetres read as metres) or cameras outside it."""
@@ -143,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
                              "render an existing 3DGS scene")
     if args.output_resolution:
         _camera(args, *args.output_resolution)  # a bad size fails now, not after the reconstruction
+    _refuse_replacing_inputs(args)
     turn = _yaw(args.yaw)
 
     if args.ply:

@@ -57,7 +57,7 @@ from .repeated_frames import repeated_frames
 from .views import ViewSplit, select_views
 
 __all__ = ["FolderDataset", "FOLDER_VIEWS", "IMAGE_SUFFIXES", "POSES_FILE", "TRANSFORMS_FILE", "POSE_CONVENTIONS",
-           "read_poses_file", "list_panoramas", "is_input_folder", "poses_path"]
+           "read_poses_file", "list_panoramas", "input_files", "is_input_folder", "poses_path"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".bmp", ".tif", ".tiff")
 POSES_FILE = "poses.json"
@@ -219,6 +219,16 @@ def list_panoramas(folder: str | Path, poses_file: str | Path | None = None) -> 
     folder = Path(folder)
     _check_folder(folder)
     return [folder / name for name, _, _ in _folder_entries(folder, poses_path(folder, poses_file))[0]]
+
+
+def input_files(folder: str | Path, poses_file: str | Path | None = None, allow_outside: bool = False) -> list[Path]:
+    """What reading an input folder reads: its poses file, and each frame's panorama and depth file (a command that
+    writes into a folder must not replace or remove them)."""
+    folder = Path(folder)
+    _check_folder(folder)
+    poses = poses_path(folder, poses_file)
+    frames, _ = _folder_frames(folder, poses, allow_outside)
+    return [poses, *(f.rgb for f in frames), *(f.depth for f in frames if f.depth is not None)]
 
 
 def _folder_frames(folder: Path, poses_file: Path, allow_outside: bool = False) -> tuple[list[FrameRef], float]:
