@@ -287,6 +287,25 @@ def test_render_failures_are_one_line_and_keep_earlier_views(tmp_path, panorama_
     assert view.read_bytes() == PREVIOUS and (tmp_path / "FILE").read_bytes() == PREVIOUS
 
 
+@pytest.mark.parametrize("argv,message", [
+    (["render", "--camera", "pinhole", "--fov", "180"], "argument --fov: expected a field of view in degrees between "
+                                                        "0 and 180 (e.g. 90), got '180'"),
+    (["render", "--fov", "nan"], "argument --fov: expected a field of view in degrees between 0 and 180"),
+    (["render", "--yaw", "nan"], "argument --yaw: expected a finite number, got 'nan'"),
+    (["view", "--fov", "0"], "argument --fov: expected a field of view in degrees between 0 and 180 (e.g. 90), "
+                             "got '0'"),
+])
+def test_angles_are_checked_before_any_work(tmp_path, panorama_folder, tiny_checkpoint, capsys, argv, message):
+    """(They were refused after the reconstruction, a NaN yaw as 'c2w contains non-finite values'.)"""
+    base = ["--input", str(panorama_folder[0]), "--checkpoint", str(tiny_checkpoint)]
+    out = ["--out", str(tmp_path / "out")] if argv[0] == "render" else ["--screenshot", str(tmp_path / "s.png")]
+    with pytest.raises(SystemExit) as exit_info:
+        main([argv[0], *base, *out, *argv[1:]])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and len(err.strip().splitlines()) == 1 and message in err, err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "s.png").exists()
+
+
 @pytest.mark.parametrize("case,fragments", [
     ("out_is_file", ["--out", "is a file, but this command writes a folder"]),
     ("out_under_file", ["--out", "is a file, not a folder"]),

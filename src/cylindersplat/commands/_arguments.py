@@ -12,6 +12,8 @@ from ..utils.arguments import (  # noqa: F401  (the commands import them from he
     count_list,
     device,
     equirect_resolution,
+    field_of_view,
+    finite_float,
     fraction,
     image_resolution,
     int_at_least,

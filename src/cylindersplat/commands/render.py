@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 
 from ..utils.atomic import output_set
-from ._arguments import check_output, image_resolution, memory_advice, positive_int
+from ._arguments import check_output, field_of_view, finite_float, image_resolution, memory_advice, positive_int
 from ._inference import add_input_arguments, reconstruct_from_args
 
 VIEW_PATTERNS = ("view_*_rgb.png", "view_*_depth.png", "view_*_depth.npy", "view_*_depth_mm.png", "poses.json")
@@ -262,9 +262,9 @@ def register(subparsers) -> None:
                         "or nerfstudio transforms.json")
     parser.add_argument("--camera", choices=["equirect", "pinhole"], default="equirect",
                         help="equirect panoramas (default) or pinhole (perspective) views looking along each pose's +z")
-    parser.add_argument("--fov", type=float, default=90.0,
+    parser.add_argument("--fov", type=field_of_view, default=90.0,
                         help="pinhole horizontal field of view in degrees (default 90)")
-    parser.add_argument("--yaw", type=float, default=0.0,
+    parser.add_argument("--yaw", type=finite_float, default=0.0,
                         help="turn every rendered camera by this many degrees about its own vertical axis, positive to "
                         "the right (e.g. to point a pinhole view elsewhere than the panorama's centre column)")
     parser.add_argument("--output-resolution", type=image_resolution,

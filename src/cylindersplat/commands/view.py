@@ -7,7 +7,7 @@ import contextlib
 import os
 from pathlib import Path
 
-from ._arguments import image_resolution
+from ._arguments import field_of_view, image_resolution
 from ._inference import add_input_arguments, reconstruct_from_args
 
 
@@ -183,7 +183,7 @@ def register(subparsers) -> None:
                         "memory is rendered in bands of rows")
     parser.add_argument("--screenshot-size", type=image_resolution, default=None,
                         help="HxW of --screenshot (default 480x640, with --panorama 512x1024)")
-    parser.add_argument("--fov", type=float, default=90.0,
+    parser.add_argument("--fov", type=field_of_view, default=90.0,
                         help="horizontal field of view of --screenshot in degrees (default 90)")
     parser.add_argument("--panorama", action="store_true", help="--screenshot renders an equirect panorama from the "
                         "first input camera (or the origin) instead (a --screenshot-size must be H x 2H)")

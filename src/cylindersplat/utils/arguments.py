@@ -145,6 +145,29 @@ def stage_list(text: str) -> str:
     return ",".join(parts)
 
 
+def field_of_view(text: str) -> float:
+    """A pinhole camera's horizontal field of view in degrees, in (0, 180); an argparse type."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value < 180:  # also false for nan
+        raise argparse.ArgumentTypeError(f"expected a field of view in degrees between 0 and 180 (e.g. 90), got "
+                                         f"{text!r}")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """Any finite number (an angle, an offset); an argparse type."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
 def opacity_threshold(text: str) -> float:
     """A minimum opacity in [0, 1) (``--min-opacity``: 1 or more would drop every Gaussian); an argparse type."""
     try:
