@@ -306,6 +306,26 @@ def test_angles_are_checked_before_any_work(tmp_path, panorama_folder, tiny_chec
     assert not (tmp_path / "out").exists() and not (tmp_path / "s.png").exists()
 
 
+@pytest.mark.parametrize("argv,message", [
+    (["view", "scene.ply", "--frustum-scale", "nan", "--html", "x.html"], "argument --frustum-scale: expected a "
+                                                                          "positive number, got 'nan'"),
+    (["view", "scene.ply", "--duration", "-5"], "argument --duration: expected a positive number, got '-5'"),
+    (["ablate", "--lr", "nan"], "argument --lr: expected a positive number, got 'nan'"),
+    (["demo", "--lr", "0"], "argument --lr: expected a positive number, got '0'"),
+    (["data", "import-poses", "t.txt", "--from", "tum", "--out", "p.json", "--fps", "inf"],
+     "argument --fps: expected a positive number, got 'inf'"),
+])
+def test_numbers_that_make_no_sense_are_refused_at_parse_time(tmp_path, monkeypatch, capsys, argv, message):
+    """(A NaN frustum size wrote a page of NaN frustums; a negative --duration served for no time; a NaN learning
+    rate trained to NaN.)"""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and len(err.strip().splitlines()) == 1 and message in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("case,fragments", [
     ("out_is_file", ["--out", "is a file, but this command writes a folder"]),
     ("out_under_file", ["--out", "is a file, not a folder"]),

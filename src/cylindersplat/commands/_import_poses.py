@@ -6,6 +6,8 @@ import argparse
 import os
 from pathlib import Path
 
+from ..utils.arguments import positive_float
+
 
 class _FormatNames:
     """``--from`` choices: the pose registry's names, read when ``import-poses`` parses or prints its help (the
@@ -159,7 +161,7 @@ def register(sub) -> None:
     parser.add_argument("--images", type=Path,
                         help="folder of the panoramas: OpenSfM/COLMAP/Metashape/OpenMVG image names are looked up "
                         "there; TUM/KITTI poses are matched to its images in name order, or by timestamp with --fps")
-    parser.add_argument("--fps", type=float,
+    parser.add_argument("--fps", type=positive_float,
                         help="TUM: the pose at time t belongs to image number round(t * fps) of --images (frames "
                         "numbered from 0, as stella_vslam times a video)")
     parser.add_argument("--start-time", metavar="SECONDS|first",

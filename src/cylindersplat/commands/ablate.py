@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..utils.atomic import atomic_write_text
 from ..utils.jsonfile import json_text
-from ._arguments import device, fill_list, model_resolution, positive_int
+from ._arguments import device, fill_list, model_resolution, positive_float, positive_int
 
 
 def _steps(text: str) -> tuple[int, int, int]:
@@ -43,7 +43,7 @@ def register(subparsers) -> None:
     p.add_argument("--steps", type=_steps, default=(300, 150, 150),
                    help="optimizer steps of stages 1,2,3 of the full model; other variants get the same "
                         "total (default 300,150,150)")
-    p.add_argument("--lr", type=float, default=2e-3, help="peak learning rate (default 2e-3)")
+    p.add_argument("--lr", type=positive_float, default=2e-3, help="peak learning rate (default 2e-3)")
     p.add_argument("--scenes", type=positive_int, default=28,
                    help="scenes to generate when --data is not given (default 28)")
     p.add_argument("--held-out", type=int, default=8, help="last N scenes are scored, not trained on (default 8)")

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from ..utils.atomic import atomic_write_text, output_set, written_at_once
 from ..utils.jsonfile import json_text
-from ._arguments import device, model_resolution, positive_int
+from ._arguments import device, model_resolution, positive_float, positive_int
 
 DEFAULT_STEPS = "400,100,100"
 
@@ -44,7 +44,8 @@ def register(subparsers) -> None:
     p.add_argument("--steps", default=DEFAULT_STEPS,
                    help=f"training steps of curriculum stages 1 (pixel), 2 (volume) and 3 (joint); 0 skips a stage "
                    f"(default {DEFAULT_STEPS})")
-    p.add_argument("--lr", type=float, default=2e-3, help="peak learning rate of the short CPU schedule (default 2e-3)")
+    p.add_argument("--lr", type=positive_float, default=2e-3,
+                   help="peak learning rate of the short CPU schedule (default 2e-3)")
     p.add_argument("--checkpoint", help="use these weights (a .safetensors file, a run folder or a shipped model name)")
     p.add_argument("--train", action="store_true",
                    help="train the tiny model on the demo's scenes (a few minutes on CPU) instead of using the shipped "
