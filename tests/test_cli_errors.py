@@ -263,8 +263,6 @@ def test_export_failures_are_one_line_and_keep_earlier_outputs(tmp_path, panoram
 
 
 @pytest.mark.parametrize("argv,fragments", [
-    (["--fps", "0"], ["--fps must be >= 1"]),
-    (["--frames", "-1"], ["--frames must be >= 0"]),
     (["--background", "nan", "0", "0"], ["--background", "[0, 1]", "nan"]),
     (["--background", "0", "inf", "0"], ["--background", "inf"]),
     (["--out", "FILE"], ["--out", "is a file, but this command writes a folder"]),
@@ -314,10 +312,17 @@ def test_angles_are_checked_before_any_work(tmp_path, panorama_folder, tiny_chec
     (["demo", "--lr", "0"], "argument --lr: expected a positive number, got '0'"),
     (["data", "import-poses", "t.txt", "--from", "tum", "--out", "p.json", "--fps", "inf"],
      "argument --fps: expected a positive number, got 'inf'"),
+    (["view", "scene.ply", "--port", "-1"], "argument --port: expected a port number from 1 to 65535, got '-1'"),
+    (["render", "--ply", "s.ply", "--fps", "0"], "argument --fps: expected an integer >= 1, got '0'"),
+    (["render", "--ply", "s.ply", "--frames", "-1"], "argument --frames: expected 0 (no fly-through) or a number of "
+                                                     "frames >= 2, got '-1'"),
+    (["render", "--ply", "s.ply", "--frames", "1"], "argument --frames: expected 0 (no fly-through) or a number"),
+    (["demo", "--frames", "-2"], "argument --frames: expected 0 (no fly-through) or a number of frames >= 2"),
 ])
 def test_numbers_that_make_no_sense_are_refused_at_parse_time(tmp_path, monkeypatch, capsys, argv, message):
     """(A NaN frustum size wrote a page of NaN frustums; a negative --duration served for no time; a NaN learning
-    rate trained to NaN.)"""
+    rate trained to NaN; port -1 left the viewer hanging on a dead server; a one-frame fly-through was refused after
+    the reconstruction, by `demo` after its whole run.)"""
     monkeypatch.chdir(tmp_path)
     with pytest.raises(SystemExit) as exit_info:
         main(argv)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from ..utils.atomic import atomic_write_text, output_set, written_at_once
 from ..utils.jsonfile import json_text
-from ._arguments import device, model_resolution, positive_float, positive_int
+from ._arguments import device, frame_count, model_resolution, positive_float, positive_int
 
 DEFAULT_STEPS = "400,100,100"
 
@@ -51,7 +51,7 @@ def register(subparsers) -> None:
                    help="train the tiny model on the demo's scenes (a few minutes on CPU) instead of using the shipped "
                    "weights; a later --train run reuses OUT/train/model.safetensors")
     p.add_argument("--retrain", action="store_true", help="train anew even if OUT/train/model.safetensors exists")
-    p.add_argument("--frames", type=int, default=16, help="fly-through frames, 0 = none (default 16)")
+    p.add_argument("--frames", type=frame_count, default=16, help="fly-through frames, 0 = none (default 16)")
     p.add_argument("--device", type=device, default="auto",
                    help="auto (CUDA when available), cpu, cuda[:N] (default auto)")
     p.add_argument("--room", action="store_true", help="only render the built-in Gaussian room (renderer smoke test)")

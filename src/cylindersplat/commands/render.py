@@ -8,7 +8,15 @@ import math
 from pathlib import Path
 
 from ..utils.atomic import output_set
-from ._arguments import check_output, field_of_view, finite_float, image_resolution, memory_advice, positive_int
+from ._arguments import (
+    check_output,
+    field_of_view,
+    finite_float,
+    frame_count,
+    image_resolution,
+    memory_advice,
+    positive_int,
+)
 from ._inference import add_input_arguments, reconstruct_from_args
 
 VIEW_PATTERNS = ("view_*_rgb.png", "view_*_depth.png", "view_*_depth.npy", "view_*_depth_mm.png", "poses.json")
@@ -127,10 +135,6 @@ def run(args: argparse.Namespace) -> int:
     from ..inference.pipeline import iter_views, raster_settings, sampled_depth_limits, write_metric_depth
     from ..inference.video import video_path_with_fallback
 
-    if args.frames < 0:
-        raise ValueError("--frames must be >= 0")
-    if args.fps < 1:
-        raise ValueError("--fps must be >= 1")
     if not all(math.isfinite(c) and 0 <= c <= 1 for c in args.background):
         raise ValueError("--background must be three numbers in [0, 1] (R G B), got "
                          f"{' '.join(map(str, args.background))}")
@@ -276,13 +280,13 @@ def register(subparsers) -> None:
     parser.add_argument("--metric-depth", action="store_true",
                         help="also write each view's depth in metres: view_NNN_depth.npy (float32) and "
                         "view_NNN_depth_mm.png (16-bit millimetres)")
-    parser.add_argument("--frames", type=int, default=48,
+    parser.add_argument("--frames", type=frame_count, default=48,
                         help="frames of the generated fly-through through the input cameras (or --views); 0 skips "
                         "the video (default 48)")
     parser.add_argument("--camera-path", type=Path,
                         help="fly-through along exactly these poses, one frame each (poses file, e.g. an earlier "
                         "render's flythrough_poses.json); overrides --frames")
-    parser.add_argument("--fps", type=int, default=12, help="fly-through frame rate (default 12)")
+    parser.add_argument("--fps", type=positive_int, default=12, help="fly-through frame rate (default 12)")
     parser.add_argument("--video-format", default="gif", choices=["gif", "mp4", "webm"],
                         help="fly-through format (default gif; mp4/webm need imageio-ffmpeg, else a GIF is written)")
     parser.add_argument("--background", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("R", "G", "B"),

@@ -7,7 +7,7 @@ import contextlib
 import os
 from pathlib import Path
 
-from ._arguments import field_of_view, image_resolution, positive_float
+from ._arguments import field_of_view, image_resolution, port_number, positive_float
 from ._inference import add_input_arguments, reconstruct_from_args
 
 
@@ -172,7 +172,8 @@ def register(subparsers) -> None:
     # add_input_arguments' --poses-file also gives the cameras to show with a splat file.
     parser.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1; 0.0.0.0 for every "
                         "interface)")
-    parser.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    parser.add_argument("--port", type=port_number, default=8080,
+                        help="port (default 8080; the next free one if taken)")
     parser.add_argument("--duration", type=positive_float,
                         help="stop serving after this many seconds (default: until Ctrl+C)")
     parser.add_argument("--frustum-scale", type=positive_float, default=0.2,

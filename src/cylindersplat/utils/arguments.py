@@ -145,6 +145,28 @@ def stage_list(text: str) -> str:
     return ",".join(parts)
 
 
+def frame_count(text: str) -> int:
+    """A fly-through's length: 0 (none) or 2 frames or more; an argparse type."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0 or value == 1:
+        raise argparse.ArgumentTypeError(f"expected 0 (no fly-through) or a number of frames >= 2, got {text!r}")
+    return value
+
+
+def port_number(text: str) -> int:
+    """A TCP port, 1-65535; an argparse type."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if not 1 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a port number from 1 to 65535, got {text!r}")
+    return value
+
+
 def field_of_view(text: str) -> float:
     """A pinhole camera's horizontal field of view in degrees, in (0, 180); an argparse type."""
     try:
