@@ -318,6 +318,8 @@ def test_angles_are_checked_before_any_work(tmp_path, panorama_folder, tiny_chec
                                                      "frames >= 2, got '-1'"),
     (["render", "--ply", "s.ply", "--frames", "1"], "argument --frames: expected 0 (no fly-through) or a number"),
     (["demo", "--frames", "-2"], "argument --frames: expected 0 (no fly-through) or a number of frames >= 2"),
+    (["data", "preview", "--data", "d", "--out", "p.png", "--height", "-5"],
+     "argument --height: expected an integer >= 1, got '-5'"),
 ])
 def test_numbers_that_make_no_sense_are_refused_at_parse_time(tmp_path, monkeypatch, capsys, argv, message):
     """(A NaN frustum size wrote a page of NaN frustums; a negative --duration served for no time; a NaN learning

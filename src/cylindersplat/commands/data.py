@@ -197,7 +197,8 @@ def register(subparsers) -> None:
                               "panoramas or of such folders)")
     preview.add_argument("--out", required=True, help="output PNG path")
     preview.add_argument("--count", type=positive_int, default=4, help="number of examples (rows, default 4)")
-    preview.add_argument("--height", type=int, default=128, help="tile height in pixels (width = 2x, default 128)")
+    preview.add_argument("--height", type=positive_int, default=128,
+                         help="tile height in pixels (width = 2x, default 128)")
     preview.add_argument("--allow-outside-paths", action="store_true", help=OUTSIDE_HELP)
     preview.set_defaults(func=_preview)
 
