@@ -312,7 +312,8 @@ def test_angles_are_checked_before_any_work(tmp_path, panorama_folder, tiny_chec
     (["demo", "--lr", "0"], "argument --lr: expected a positive number, got '0'"),
     (["data", "import-poses", "t.txt", "--from", "tum", "--out", "p.json", "--fps", "inf"],
      "argument --fps: expected a positive number, got 'inf'"),
-    (["view", "scene.ply", "--port", "-1"], "argument --port: expected a port number from 1 to 65535, got '-1'"),
+    (["view", "scene.ply", "--port", "-1"], "argument --port: expected a port number from 1 to 65535 (0: any free "
+                                            "port), got '-1'"),
     (["render", "--ply", "s.ply", "--fps", "0"], "argument --fps: expected an integer >= 1, got '0'"),
     (["render", "--ply", "s.ply", "--frames", "-1"], "argument --frames: expected 0 (no fly-through) or a number of "
                                                      "frames >= 2, got '-1'"),

@@ -173,7 +173,7 @@ def register(subparsers) -> None:
     parser.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1; 0.0.0.0 for every "
                         "interface)")
     parser.add_argument("--port", type=port_number, default=8080,
-                        help="port (default 8080; the next free one if taken)")
+                        help="port (default 8080; the next free one if taken; 0: one the system picks)")
     parser.add_argument("--duration", type=positive_float,
                         help="stop serving after this many seconds (default: until Ctrl+C)")
     parser.add_argument("--frustum-scale", type=positive_float, default=0.2,

@@ -157,13 +157,13 @@ def frame_count(text: str) -> int:
 
 
 def port_number(text: str) -> int:
-    """A TCP port, 1-65535; an argparse type."""
+    """A TCP port, 0-65535 (0: one the system picks); an argparse type."""
     try:
         value = int(text)
     except ValueError:
-        value = 0
-    if not 1 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"expected a port number from 1 to 65535, got {text!r}")
+        value = -1
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"expected a port number from 1 to 65535 (0: any free port), got {text!r}")
     return value
 
 
