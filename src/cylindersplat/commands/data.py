@@ -69,7 +69,8 @@ def _synth(args) -> int:
     start = time.perf_counter()
     out = write_synthetic_dataset(args.out, args.scenes, args.resolution, cfg, seed=args.seed)
     seconds = time.perf_counter() - start
-    print(f"wrote {args.scenes} scenes x {cfg.frames} frames ({args.profile} profile) to {out} in {seconds:.1f} s")
+    scenes, frames = ("scene" if args.scenes == 1 else "scenes"), ("frame" if cfg.frames == 1 else "frames")
+    print(f"wrote {args.scenes} {scenes} x {cfg.frames} {frames} ({args.profile} profile) to {out} in {seconds:.1f} s")
     return 0
 
 
