@@ -288,12 +288,12 @@ for item in $items; do
     gsplat)
       # (its background build was awaited above, within what is left of the budget)
       [ -n "$gsplat_build" ] && tail -n 1 "$out/gsplat_build.log" 2>/dev/null | sed 's/^/    /' >> "$summary"
-      run_excerpted gsplat "${CHECK_LIMIT_GSPLAT:-120}" '^[{#]' \
+      run_excerpted gsplat "${CHECK_LIMIT_GSPLAT:-120}" '^[{#|]' \
           $py -m cylindersplat bench gsplat_compare "${gsplat_args[@]}"
       run_excerpted gsplat_profile "${CHECK_LIMIT_GSPLAT_PROFILE:-60}" '^# profile\|^#  ' \
           $py -m cylindersplat bench gsplat_compare "${gsplat_profile_args[@]}" ;;
     graphs)
-      run_excerpted graphs "${CHECK_LIMIT_GRAPHS:-90}" '^[{#]' \
+      run_excerpted graphs "${CHECK_LIMIT_GRAPHS:-90}" '^[{#|]' \
           $py -m cylindersplat bench gsplat_compare "${graphs_args[@]}"
       run_excerpted graphs_render "${CHECK_LIMIT_GRAPHS_RENDER:-60}" '^[{#|]' \
           $py -m cylindersplat bench render "${graphs_render_args[@]}"

@@ -88,6 +88,25 @@ def test_the_parity_verdict_needs_every_size_forward_and_backward():
     assert gsplat_compare.parity_lines({}) == []
 
 
+def test_the_comparison_table_puts_each_renderer_beside_gsplat_at_every_size():
+    rows = [
+        {"num": 100_000, "renderer": "ours[a]", "forward_ms": 1.5, "fwd_bwd_ms": 3.0},
+        {"num": 100_000, "renderer": "gsplat", "forward_ms": 1.0, "fwd_bwd_ms": 4.0},
+        {"num": 100_000, "renderer": "ours[graph]", "skipped": "CUDA graphs need CUDA"},
+        {"num": 100_000, "agreement": "ours[a] vs gsplat", "mean_abs": 0.1, "psnr_db": 30.0},
+        {"num": 1_300_000, "renderer": "ours[a]", "forward_ms": 2.0, "fwd_bwd_ms": 5.0},
+        {"num": 1_300_000, "renderer": "gsplat", "error": "out of memory"},
+    ]
+    assert gsplat_compare.comparison_table(rows) == [
+        "| renderer | 0.1 M: fwd / fwd+bwd ms (x gsplat) | 1.3 M: fwd / fwd+bwd ms (x gsplat) |",
+        "|---|---|---|",
+        "| ours[a] | 1.50 / 3.00 (1.50x / 0.75x) | 2.00 / 5.00 |",
+        "| gsplat | 1.00 / 4.00 | out of memory |",
+        "| ours[graph] | CUDA graphs need CUDA |  |",
+    ]
+    assert gsplat_compare.comparison_table([]) == []
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--variants", "lean", "--backend", "torch"], "--variants needs --backend triton"),
     (["--variants", "default,wrong"], "COMPACTION one of"),

@@ -191,9 +191,11 @@ def main(argv: list[str] | None = None) -> None:
     print(f"# pinhole {args.height}x{2 * args.height}, 90 deg horizontal FOV; torch {torch.__version__}"
           + (f"; GPU: {torch.cuda.get_device_name()}" if device.type == "cuda" else "; CPU"))
     ratios: dict[str, list[tuple[int, float, float]]] = {}
+    every_row: list[dict] = []
     for num in args.num:
         rows = compare(num, args.height, device, args.backend, args.repeats, args.variants, args.launches,
                        args.profile, args.graph)
+        every_row += rows
         for row in rows:
             print({k: v for k, v in row.items() if k != "profile"})
         for row in rows:
@@ -212,6 +214,35 @@ def main(argv: list[str] | None = None) -> None:
                     print(f"# {name} vs gsplat ({num} Gaussians): forward {ratio[0]:.2f}x gsplat's time, fwd+bwd "
                           f"{ratio[1]:.2f}x")
     print("\n".join(parity_lines(ratios)))
+    print()
+    print("\n".join(comparison_table(every_row)))
+
+
+def comparison_table(rows: list[dict]) -> list[str]:
+    """A Markdown table of the timed rows: one line per renderer, one column per number of Gaussians, each cell
+    ``forward / fwd+bwd`` ms and, where gsplat was timed at that size, the renderer's times as multiples of gsplat's
+    (the table RESULTS.md keeps); a renderer skipped or failed at a size says so in its cell."""
+    sizes = sorted({r["num"] for r in rows if "renderer" in r})
+    cells: dict[str, dict[int, str]] = {}
+    gsplat = {r["num"]: r for r in rows if r.get("renderer") == "gsplat" and "forward_ms" in r}
+    for r in rows:
+        if "renderer" not in r:
+            continue
+        if "forward_ms" in r:
+            cell = f"{r['forward_ms']:.2f} / {r['fwd_bwd_ms']:.2f}"
+            ref = gsplat.get(r["num"])
+            if ref is not None and r["renderer"] != "gsplat":
+                cell += f" ({r['forward_ms'] / ref['forward_ms']:.2f}x / {r['fwd_bwd_ms'] / ref['fwd_bwd_ms']:.2f}x)"
+        else:
+            cell = r.get("skipped") or r.get("error") or "failed"
+        cells.setdefault(r["renderer"], {})[r["num"]] = cell
+    if not cells:
+        return []
+    lines = ["| renderer | " + " | ".join(f"{num / 1e6:g} M: fwd / fwd+bwd ms (x gsplat)" for num in sizes) + " |",
+             "|---|" + "---|" * len(sizes)]
+    for name, by_size in cells.items():
+        lines.append(f"| {name} | " + " | ".join(by_size.get(num, "") for num in sizes) + " |")
+    return lines
 
 
 def scene_line(num: int, height: int, device: torch.device, tile_size: int = 16) -> str:
