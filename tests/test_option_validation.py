@@ -91,3 +91,18 @@ def test_train_options_are_typed_changes_not_yaml(tmp_path, capsys):
     printed = yaml.safe_load(capsys.readouterr().out)
     assert printed["data"]["root"] == "yes" and printed["output_dir"] == str(tmp_path / "run")
     assert printed["train"]["stages"] == [1, 2] and printed["train"]["steps_per_stage"] == [5, 6]
+
+
+def test_checked_numbers_refuse_what_does_not_convert_and_nan_whatever_the_bound():
+    import argparse
+
+    from cylindersplat.utils.arguments import checked_number, frame_count, port_number
+
+    anything = checked_number(float, lambda v: True, "a number", "anything")
+    assert anything.__name__ == "anything" and anything("-1e300") == -1e300 and anything("inf") == float("inf")
+    for text in ("nan", "x", ""):
+        with pytest.raises(argparse.ArgumentTypeError, match=f"^expected a number, got '{text}'$"):
+            anything(text)
+    big = checked_number(int, lambda v: v > 0, "a positive integer", "big")
+    assert big("1" * 400) == int("1" * 400)  # no float conversion on the way (a NaN test overflowed here)
+    assert [frame_count(t) for t in ("0", "2")] == [0, 2] and port_number("0") == 0

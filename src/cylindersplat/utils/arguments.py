@@ -9,8 +9,9 @@ from __future__ import annotations
 import argparse
 import math
 
-__all__ = ["OneLineErrorParser", "equirect_resolution", "image_resolution", "int_at_least", "positive_int",
-           "nonnegative_int", "positive_float", "fraction", "NearFar", "count_list", "stage_list", "opacity_threshold",
+__all__ = ["OneLineErrorParser", "equirect_resolution", "image_resolution", "checked_number", "int_at_least",
+           "positive_int", "nonnegative_int", "positive_float", "fraction", "finite_float", "field_of_view",
+           "frame_count", "port_number", "NearFar", "count_list", "stage_list", "opacity_threshold",
            "model_resolution", "device"]
 
 
@@ -73,45 +74,43 @@ def image_resolution(text: str) -> tuple[int, int]:
     return size
 
 
-def int_at_least(minimum: int, meaning: str = ""):
-    """An argparse type for integers >= ``minimum`` (``meaning``: a word on what the bound means)."""
+def checked_number(convert, accept, expected: str, name: str):
+    """An argparse type: ``convert(text)`` (``int`` or ``float``) where ``accept(value)`` holds, else the one-line
+    error ``expected EXPECTED, got 'TEXT'`` (text that does not convert, NaN included, is never accepted)."""
 
-    def parse(text: str) -> int:
+    def parse(text: str):
         try:
-            value = int(text)
+            value = convert(text)
         except ValueError:
-            value = minimum - 1
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}{meaning}, got {text!r}")
+            value = None
+        if value is None or (isinstance(value, float) and math.isnan(value)) or not accept(value):
+            raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}")
         return value
 
+    parse.__name__ = parse.__qualname__ = name
     return parse
+
+
+def int_at_least(minimum: int, meaning: str = ""):
+    """An argparse type for integers >= ``minimum`` (``meaning``: a word on what the bound means)."""
+    return checked_number(int, lambda v: v >= minimum, f"an integer >= {minimum}{meaning}", f"int_at_least_{minimum}")
 
 
 positive_int = int_at_least(1)
 nonnegative_int = int_at_least(0)  # a count where 0 means none
-
-
-def positive_float(text: str) -> float:
-    """A finite number > 0 (metres, scales)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return value
-
-
-def fraction(text: str) -> float:
-    """A share in [0, 1]; an argparse type."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0 <= value <= 1:  # also false for nan
-        raise argparse.ArgumentTypeError(f"expected a share in [0, 1], got {text!r}")
-    return value
+positive_float = checked_number(float, lambda v: math.isfinite(v) and v > 0, "a positive number",
+                                "positive_float")  # metres, scales, rates
+fraction = checked_number(float, lambda v: 0 <= v <= 1, "a share in [0, 1]", "fraction")
+finite_float = checked_number(float, math.isfinite, "a finite number", "finite_float")  # an angle, an offset
+field_of_view = checked_number(float, lambda v: 0 < v < 180, "a field of view in degrees between 0 and 180 (e.g. 90)",
+                               "field_of_view")  # a pinhole camera's horizontal one
+frame_count = checked_number(int, lambda v: v == 0 or v >= 2, "0 (no fly-through) or a number of frames >= 2",
+                             "frame_count")
+port_number = checked_number(int, lambda v: 0 <= v <= 65535, "a port number from 1 to 65535 (0: any free port)",
+                             "port_number")
+# --min-opacity: 1 or more would drop every Gaussian
+opacity_threshold = checked_number(float, lambda v: 0 <= v < 1,
+                                   "a number in [0, 1) (Gaussians at or below it are dropped)", "opacity_threshold")
 
 
 class NearFar(argparse.Action):
@@ -143,63 +142,6 @@ def stage_list(text: str) -> str:
     if not all(part in ("1", "2", "3") for part in parts):
         raise argparse.ArgumentTypeError(f"expected a comma list of the stages 1, 2, 3 (e.g. 1,2,3 or 3), got {text!r}")
     return ",".join(parts)
-
-
-def frame_count(text: str) -> int:
-    """A fly-through's length: 0 (none) or 2 frames or more; an argparse type."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0 or value == 1:
-        raise argparse.ArgumentTypeError(f"expected 0 (no fly-through) or a number of frames >= 2, got {text!r}")
-    return value
-
-
-def port_number(text: str) -> int:
-    """A TCP port, 0-65535 (0: one the system picks); an argparse type."""
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if not 0 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"expected a port number from 1 to 65535 (0: any free port), got {text!r}")
-    return value
-
-
-def field_of_view(text: str) -> float:
-    """A pinhole camera's horizontal field of view in degrees, in (0, 180); an argparse type."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0 < value < 180:  # also false for nan
-        raise argparse.ArgumentTypeError(f"expected a field of view in degrees between 0 and 180 (e.g. 90), got "
-                                         f"{text!r}")
-    return value
-
-
-def finite_float(text: str) -> float:
-    """Any finite number (an angle, an offset); an argparse type."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
-
-
-def opacity_threshold(text: str) -> float:
-    """A minimum opacity in [0, 1) (``--min-opacity``: 1 or more would drop every Gaussian); an argparse type."""
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not 0 <= value < 1:  # also false for nan
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1) (Gaussians at or below it are dropped), "
-                                         f"got {text!r}")
-    return value
 
 
 def model_resolution(text: str) -> tuple[int, int]:
