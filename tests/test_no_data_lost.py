@@ -79,6 +79,31 @@ def test_a_render_that_hits_a_file_size_limit_keeps_the_earlier_render(panorama_
     assert _files(out) == before  # the same files, same bytes, none replaced, no temporary left
 
 
+def test_new_folders_removes_only_the_empty_folders_it_made(tmp_path):
+    from cylindersplat.utils.atomic import new_folders
+
+    (tmp_path / "had").mkdir()
+    with pytest.raises(RuntimeError), new_folders(tmp_path / "had", tmp_path / "a" / "b" / "c", tmp_path / "a" / "d"):
+        (tmp_path / "a" / "d" / "kept.txt").write_text("written by the block")
+        raise RuntimeError("part-way")
+    assert sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*")) == ["a", "a/d", "a/d/kept.txt", "had"]
+    with new_folders(tmp_path / "x" / "y"):  # success: they stay
+        pass
+    assert (tmp_path / "x" / "y").is_dir()
+
+
+def test_a_render_into_a_new_folder_that_fails_leaves_no_folder(panorama_folder, tiny_checkpoint, tmp_path,
+                                                                 monkeypatch, capsys):
+    """(It left OUT and an empty OUT/views behind while saying that nothing in OUT was changed.)"""
+    from cylindersplat.inference import video
+
+    out = tmp_path / "new" / "render"
+    monkeypatch.setattr(video._GifStream, "append", _file_too_large)
+    assert main(_render(panorama_folder[0], tiny_checkpoint, out)) == 1
+    assert f"nothing in {out} was changed" in _one_line(capsys)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene", "tiny.safetensors"]  # no "new" left
+
+
 @pytest.mark.slow
 def test_a_render_under_ulimit_f_keeps_the_earlier_render(panorama_folder, tiny_checkpoint, tmp_path):
     """The real limit (``ulimit -f``): the kernel refuses the write with EFBIG (Python ignores SIGXFSZ)."""
@@ -157,6 +182,9 @@ def test_an_export_that_hits_a_file_size_limit_keeps_the_earlier_file(panorama_f
         f"cylindersplat export: error: file too large while writing {out} (a file-size limit: ulimit -f, FAT32's "
         f"4 GiB): choose another --out; nothing in {out.parent} was changed (not written: g.ply)")
     assert _files(out.parent) == before
+    fresh = tmp_path / "new" / "g.ply"  # into a folder of its own: none is left
+    assert main([str(fresh) if a == str(out) else a for a in argv] + ["--min-opacity", "0"]) == 1
+    assert f"nothing in {fresh.parent} was changed" in _one_line(capsys) and not (tmp_path / "new").exists()
 
 
 QUIET = ["train.tensorboard=false", "loss.use_lpips=off", "train.image_every=0", "train.progress=false"]

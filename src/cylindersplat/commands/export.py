@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..utils.atomic import output_set
+from ..utils.atomic import new_folders, output_set
 from ._arguments import check_output
 from ._inference import add_input_arguments, reconstruct_from_args
 
@@ -18,7 +18,8 @@ def run(args: argparse.Namespace) -> int:
         require_splat_transform(f"writing {fmt}")
     check_output(args.out, folder=False)
     _, gaussians, _ = reconstruct_from_args(args)
-    with output_set(args.out.parent):  # a failure names what was not written and keeps an earlier file
+    # a failure names what was not written, keeps an earlier file and leaves no folder it made
+    with new_folders(args.out.parent), output_set(args.out.parent):
         path = save_gaussians(gaussians.to("cpu"), args.out, spz_version=args.spz_version)
     print(f"wrote {path} ({WRITE_FORMATS[fmt]}; {path.stat().st_size / 1e6:.1f} MB)")
     return 0

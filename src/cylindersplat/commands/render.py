@@ -7,7 +7,7 @@ import argparse
 import math
 from pathlib import Path
 
-from ..utils.atomic import output_set
+from ..utils.atomic import new_folders, output_set
 from ._arguments import (
     check_output,
     field_of_view,
@@ -183,7 +183,6 @@ def run(args: argparse.Namespace) -> int:
     camera = _camera(args, h, w)
     record = camera_record(camera, args.fov if args.camera == "pinhole" else None)
     background = tuple(args.background)
-    args.out.mkdir(parents=True, exist_ok=True)
 
     # Novel views: the poses given, else halfway between consecutive input cameras (none for a PLY without --views).
     keys = inputs.c2w if inputs is not None else view_poses  # what a generated fly-through passes through
@@ -196,10 +195,10 @@ def run(args: argparse.Namespace) -> int:
     view_dir = args.out / "views"
     said = []  # printed once every file is in place: a failure part-way writes (and says) none of them
     stale = lambda: _earlier_render(args.out, keep=[args.ply])  # noqa: E731
-    with output_set(args.out, planned=_planned(args, view_poses, video), stale=stale) as outputs:
+    folders = (args.out, view_dir) if view_poses is not None else (args.out,)  # a failure leaves none it made
+    with new_folders(*folders), output_set(args.out, planned=_planned(args, view_poses, video), stale=stale) as outputs:
         if view_poses is not None:
             view_poses = view_poses @ turn
-            view_dir.mkdir(exist_ok=True)
             records, index, covered = [], 0, 0
             for out in iter_views(gaussians, view_poses, h, w, background, args.view_batch, progress=True,
                                   desc="novel views", camera=camera, settings=settings, front=front):

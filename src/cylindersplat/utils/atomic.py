@@ -23,8 +23,8 @@ import tempfile
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "output_set", "OutputSet", "written_at_once",
-           "remove_temporaries"]
+__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "output_set", "OutputSet", "new_folders",
+           "written_at_once", "remove_temporaries"]
 
 
 def _umask() -> int:
@@ -196,6 +196,24 @@ def output_set(folder: str | Path, planned: Iterable[str | Path] = (),
     staging.removed = [p for p in earlier if Path(os.path.abspath(p)) not in written and p.is_file()]
     for path in staging.removed:
         path.unlink(missing_ok=True)
+
+
+@contextlib.contextmanager
+def new_folders(*folders: str | Path) -> Iterator[None]:
+    """``with new_folders(OUT, OUT / "views"), output_set(OUT): ...``: the folders are made (with their parents), and
+    if the block fails those this call made are removed again where they are still empty (after an
+    :func:`output_set` inside has discarded its files), so that a failed command into a new folder leaves no trace."""
+    made: list[Path] = []
+    for folder in map(Path, folders):
+        made += [d for d in reversed([folder, *folder.parents]) if not d.exists() and d not in made]
+        folder.mkdir(parents=True, exist_ok=True)
+    try:
+        yield
+    except BaseException:
+        for folder in reversed(made):  # the deepest first
+            with contextlib.suppress(OSError):  # not empty (or gone): kept
+                folder.rmdir()
+        raise
 
 
 @contextlib.contextmanager
