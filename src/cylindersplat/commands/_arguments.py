@@ -28,6 +28,19 @@ from ..utils.arguments import (  # noqa: F401  (the commands import them from he
 )
 
 
+def refuse_folder_as_splat_file(path, option: str = "") -> None:
+    """A folder given where a splat file is read (``render --ply``, ``view``): ``ValueError`` naming it, with
+    ``--input`` as the way to give a folder of posed panoramas."""
+    from pathlib import Path
+
+    from ..gaussians.formats import READ_FORMATS
+
+    if Path(path).is_dir():
+        named = f"{option} {path}" if option else str(path)
+        raise ValueError(f"{named} is a folder: give a splat file ({', '.join(READ_FORMATS)}), or --input {path} for "
+                         "a folder of posed panoramas")
+
+
 def check_output(path, folder: bool, option: str = "--out") -> None:
     """Refuse, before any work, an output the command could not write: a file where a folder is wanted
     (or the reverse), a path under a file, or a folder without write permission. ``ValueError`` naming

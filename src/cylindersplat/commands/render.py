@@ -16,6 +16,7 @@ from ._arguments import (
     image_resolution,
     memory_advice,
     positive_int,
+    refuse_folder_as_splat_file,
 )
 from ._inference import add_input_arguments, reconstruct_from_args
 
@@ -90,10 +91,10 @@ def _refuse_replacing_inputs(args) -> None:
     --views or --camera-path file (the --ply is never replaced: :func:`_earlier_render` keeps it)."""
     from ..data.folder import input_files
 
-    reads = [(p, "--input") for p in (input_files(args.input, args.poses_file, args.allow_outside_paths)
-                                      if args.input and not args.ply else [])]
-    reads += [(p, option) for p, option in ((args.views, "--views"), (args.camera_path, "--camera-path"))
-              if p is not None]
+    reads = [(p, option) for p, option in ((args.views, "--views"), (args.camera_path, "--camera-path"))
+             if p is not None]
+    if args.input:  # (never with --ply: refused before)
+        reads = [(p, "--input") for p in input_files(args.input, args.poses_file, args.allow_outside_paths)] + reads
     at_risk = {p.resolve() for p in _earlier_render(args.out, keep=[args.ply])}  # (the --ply is kept, not written)
     clashes = [(p, option) for p, option in reads if Path(p).resolve() in at_risk]
     if clashes:
@@ -150,9 +151,7 @@ def run(args: argparse.Namespace) -> int:
     if args.ply:  # an existing 3DGS scene: no model, no input panoramas
         from ..gaussians.formats import READ_FORMATS, splat_format
 
-        if Path(args.ply).is_dir():
-            raise ValueError(f"--ply {args.ply} is a folder: give a splat file ({', '.join(READ_FORMATS)}), or "
-                             f"--input {args.ply} for a folder of posed panoramas")
+        refuse_folder_as_splat_file(args.ply, "--ply")
         splat_format(args.ply, READ_FORMATS)  # an unknown format fails before anything is read
         if args.input or args.checkpoint:
             raise ValueError("give either --ply or --input/--checkpoint, not both")

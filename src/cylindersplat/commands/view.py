@@ -7,7 +7,7 @@ import contextlib
 import os
 from pathlib import Path
 
-from ._arguments import field_of_view, image_resolution, port_number, positive_float
+from ._arguments import field_of_view, image_resolution, port_number, positive_float, refuse_folder_as_splat_file
 from ._inference import add_input_arguments, reconstruct_from_args
 
 
@@ -36,11 +36,8 @@ def check_sources(args: argparse.Namespace) -> None:
     """A splat file, or --input with --checkpoint: one of the two."""
     if args.splats is not None and (args.input is not None or args.checkpoint is not None):
         raise ValueError("give either a splat file or --input/--checkpoint, not both")
-    if args.splats is not None and Path(args.splats).is_dir():
-        from ..gaussians.formats import READ_FORMATS
-
-        raise ValueError(f"{args.splats} is a folder: give a splat file ({', '.join(READ_FORMATS)}), or --input "
-                         f"{args.splats} for a folder of posed panoramas")
+    if args.splats is not None:
+        refuse_folder_as_splat_file(args.splats)
     if args.splats is None and args.input is None:
         raise ValueError("give a splat file (scene.ply, .spz, .compressed.ply, .sog) or --input (with --checkpoint, or "
                          "the shipped weights)")
