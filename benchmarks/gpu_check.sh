@@ -123,19 +123,19 @@ run_excerpted() {  # name, limit, pattern, command...: run_item, then its log's 
 
 # Item sizes: full (the issue's) or smoke (seconds on a CPU).
 # The default forward beside the lean one (no host sync before compositing: triton_backend.FORWARD), with pairs that
-# carry only their Gaussian (",ids": triton_backend.PAIR_FIELD; the default "rects" writes each pair's pixel
-# rectangle), with the compositing loading the next pair's row while it composites one (",row":
-# triton_backend.LOOKAHEAD; the default "id" loads only its Gaussian's id ahead) and with the input checks as PyTorch
-# operations (",torch": triton_backend.CHECK; the default "fused" is one kernel); --launches counts each variant's
-# kernel launches per forward and backward. The binning and backward variants measured on 2026-11-26 (and removed
-# since), the compaction of the visible pairs (",nonzero": triton_backend.COMPACTION) on 2026-11-27 (no faster, on
-# panoramas or pinhole views): benchmarks/RESULTS.md.
-variants="--launches --variants default default,ids default,row default,ids,row lean,ids,row default,torch"
-profile_variants="--variants default default,ids default,ids,row"
+# carry their pixel rectangles (",rects": triton_backend.PAIR_FIELD; the default "ids" carries only the Gaussian), with
+# the compositing loading only the next pair's Gaussian id ahead (",id": triton_backend.LOOKAHEAD; the default "row"
+# loads its whole row while it composites one) - ",rects,id" was the default until 2026-11-27 (session 26) - and with
+# the input checks as PyTorch operations (",torch": triton_backend.CHECK; the default "fused" is one kernel);
+# --launches counts each variant's kernel launches per forward and backward. The binning and backward variants
+# measured on 2026-11-26 (and removed since), the compaction of the visible pairs (",nonzero":
+# triton_backend.COMPACTION) on 2026-11-27 (no faster, on panoramas or pinhole views): benchmarks/RESULTS.md.
+variants="--launches --variants default default,rects default,id default,rects,id lean default,torch"
+profile_variants="--variants default default,rects default,rects,id"
 # Pinhole views beside gsplat (3.2 M pairs of 0.18 M visible Gaussians at 1.3 M, 512x1024: the pairs' bytes count
 # there), with their launch counts.
-gsplat_variants="--launches --variants default default,ids default,ids,row lean,ids,row"
-pinhole_variants="--variants default default,ids default,ids,row lean,ids,row"
+gsplat_variants="--launches --variants default default,rects default,rects,id lean"
+pinhole_variants="--variants default default,rects default,rects,id lean"
 if [ $smoke = 1 ]; then
   test_args=(-m "not slow" -x tests/test_render_triton_projection.py tests/test_render_binning.py)
   render_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1)
@@ -147,11 +147,11 @@ if [ $smoke = 1 ]; then
   gsplat_args=(--num 300 --height 8 --device "$device" --backend torch triton --repeats 1 $gsplat_variants)
   gsplat_profile_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --profile)
   graphs_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --graph
-               --variants default default,ids,row)
+               --variants default default,rects,id)
   graphs_render_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --graph
-                      --variants default default,ids,row)
+                      --variants default default,rects,id)
   graphs_profile_args=(--num 300 --height 8 --device "$device" --backend triton --repeats 1 --graph
-                       --variants default,ids,row --profile)
+                       --variants default --profile)
   model_args=(--config tiny_paper --height 64 --render --views 1 2 --repeats 1 --device "$device")
   train_args=(--config tiny_paper --height 64 --steps 1 --warmup 0 --lpips off --device "$device")
   synth_args=(--scenes 4 --resolution 64x128)
@@ -181,14 +181,14 @@ else
   # One forward of ours (both forwards) and of gsplat under torch.profiler: host against device time (issue 35's
   # pinhole gap: is it our launches or our kernels?)
   gsplat_profile_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 1 --profile
-                       --variants default default,ids,row)
+                       --variants default default,rects,id)
   # (each variant eager, then replayed as CUDA graphs: the ids and lookahead options timed without the host's noise)
   graphs_args=(--num 100000 500000 1300000 --height 512 --device cuda --backend triton --repeats 10 --graph
-               --variants default default,ids,row)
+               --variants default default,rects,id)
   graphs_render_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 10 --graph
-                      --variants default default,ids,row)
+                      --variants default default,rects,id)
   graphs_profile_args=(--num 100000 1300000 --height 512 --device cuda --backend triton --repeats 3 --graph
-                       --variants default,ids,row --profile)
+                       --variants default --profile)
   model_args=(--config paper --height 512 --render --views 1 2 3 4 --repeats 3)
   train_args=(--config paper --height 512 --steps 3)
   synth_args=(--scenes 12 --resolution 256x512)

@@ -20,9 +20,9 @@ def test_variant_names_are_checked_against_the_backends_lists():
     # Options in any order, one name per variant (its row's): the forward, then the options that are not their
     # switch's default, in the switches' order.
     assert bench_variants.triton_variant_name("lean,none,fused") == ("lean",)
-    assert bench_variants.triton_variant_name("lean,ids,nonzero") == ("lean", "nonzero", "ids")
-    assert bench_variants.triton_variant_name("default,rects,id") == ("default",)
-    assert bench_variants.triton_variant_name("lean,row,ids,nonzero") == ("lean", "nonzero", "ids", "row")
+    assert bench_variants.triton_variant_name("lean,rects,nonzero") == ("lean", "nonzero", "rects")
+    assert bench_variants.triton_variant_name("default,ids,row") == ("default",)
+    assert bench_variants.triton_variant_name("lean,id,rects,nonzero") == ("lean", "nonzero", "rects", "id")
     for bad, message in (("thin", "'thin' is not a forward"), ("", "'' is not a forward"),
                          ("ids", "'ids' is not a forward"),
                          ("default,all", "'all' is not an option"), ("lean,none,numpy", "'numpy' is not an option"),
@@ -30,7 +30,7 @@ def test_variant_names_are_checked_against_the_backends_lists():
                          ("fused,joined", "'fused' is not a forward")):  # the old BINNING,BACKWARD form
         with pytest.raises(argparse.ArgumentTypeError, match=message.replace("(", r"\(").replace(")", r"\)")) as e:
             bench_variants.triton_variant_name(bad)
-        assert "FORWARD one of default, lean" in str(e.value) and "PAIR_FIELD one of rects, ids" in str(e.value)
+        assert "FORWARD one of default, lean" in str(e.value) and "PAIR_FIELD one of ids, rects" in str(e.value)
 
 
 def test_a_variant_holds_inside_and_the_defaults_come_back_even_after_an_error():
@@ -40,8 +40,8 @@ def test_a_variant_holds_inside_and_the_defaults_come_back_even_after_an_error()
 
     before = switches()
     with pytest.raises(RuntimeError):
-        with bench_variants.triton_variant("lean", "ids", "nonzero", "row", "torch"):
-            assert switches() == ("lean", "nonzero", "torch", "ids", "row")
+        with bench_variants.triton_variant("lean", "rects", "nonzero", "id", "torch"):
+            assert switches() == ("lean", "nonzero", "torch", "rects", "id")
             raise RuntimeError("a failing row")
     assert switches() == before
     before = switches()[:3]
@@ -61,15 +61,15 @@ def test_the_lean_variant_is_timed_beside_the_default_with_its_agreement(capsys)
 
 def test_the_id_pairs_are_timed_by_stage_beside_the_rectangles_with_their_agreement(capsys):
     bench_render.main(["--num", "30", "--height", "8", "--device", "cpu", "--backend", "triton", "--repeats", "1",
-                       "--stages", "--variants", "default", "default,ids", "lean,ids"])
+                       "--stages", "--variants", "default", "default,rects", "lean,rects"])
     out = capsys.readouterr().out
     rows = {row["backend"]: row for row in (ast.literal_eval(x) for x in out.splitlines() if x.startswith("{"))}
     pairs = {name: row["stages_ms"]["num_pairs"] for name, row in rows.items()}
-    assert pairs["triton[default,ids]"] == pairs["triton[lean,ids]"] == pairs["triton[default]"] > 0
-    for name in ("default,ids", "lean,ids"):
+    assert pairs["triton[default,rects]"] == pairs["triton[lean,rects]"] == pairs["triton[default]"] > 0
+    for name in ("default,rects", "lean,rects"):
         line = next(x for x in out.splitlines() if x.startswith(f"# agreement triton[{name}] vs triton[default]"))
         assert "rgb max |diff| 0.00e+00" in line and "means 0.0e+00" in line, line
-    assert triton_backend.PAIR_FIELD == "rects"  # the default is back
+    assert triton_backend.PAIR_FIELD == "ids"  # the default is back
 
 
 def test_the_input_checks_variant_and_launches_are_counted(capsys):

@@ -71,9 +71,9 @@ def test_graph_rows_are_one_per_set_of_the_variants_options():
     from cylindersplat.benchmarks.variants import graph_variants
 
     assert graph_variants([]) == [("graph", None)]
-    assert graph_variants([("default",), ("default", "ids", "row"), ("lean", "ids", "row"), ("default", "nonzero"),
-                           ("default", "row")]) == [
-        ("graph", ("lean",)), ("graph,ids,row", ("lean", "ids", "row")), ("graph,row", ("lean", "row"))]
+    assert graph_variants([("default",), ("default", "rects", "id"), ("lean", "rects", "id"), ("default", "nonzero"),
+                           ("default", "id")]) == [
+        ("graph", ("lean",)), ("graph,rects,id", ("lean", "rects", "id")), ("graph,id", ("lean", "id"))]
 
 
 def test_the_parity_verdict_needs_every_size_forward_and_backward():

@@ -3,7 +3,8 @@ int32 row per (Gaussian, tile) pair and the compositing kernels compute the pair
 Gaussian's centre and extents, instead of reading one the binning wrote (56 bytes a pair with the default forward).
 
 The reference for the bins is :func:`.rasterize.bin_to_tiles` (pairs, order and tile starts); for the images and
-gradients, the same render with ``"rects"``: bit for bit, since each pixel gets the same fragments in the same order.
+gradients, the same render with ``"rects"``: bit for bit in Triton's interpreter, since each pixel gets the same
+fragments in the same order (compiled for a GPU, to float32 rounding: :func:`assert_same_image`).
 The hard case is a footprint across the panorama's seam whose two column intervals meet one tile: two pairs of one
 Gaussian there, told apart by their order. Without a GPU the kernels run in Triton's interpreter (conftest.py).
 """
@@ -91,11 +92,21 @@ def assert_same_gradient(got, expected, name):
         torch.testing.assert_close(got, expected, atol=1e-6, rtol=1e-4, msg=name)
 
 
+def assert_same_image(got, expected, name):
+    """Bit for bit in Triton's interpreter; to float32 rounding on a GPU, where two kernels that do the same arithmetic
+    may be compiled to another order of it (``LOOKAHEAD`` "row" against "id" with computed rectangles, on pinhole
+    views: up to 2.4e-7 on an H100, 2026-11-27)."""
+    if DEVICE == "cpu":
+        assert torch.equal(got, expected), name
+    else:
+        torch.testing.assert_close(got, expected, rtol=0, atol=1e-6, msg=name)
+
+
 def _assert_ids_equal_rects(monkeypatch, g, poses, camera, forward, **kwargs):
     (out_r, grad_r), (out_i, grad_i) = (_render(g, poses, camera, forward, p, monkeypatch, **kwargs)
                                         for p in ("rects", "ids"))
     for name, a, b in zip(("rgb", "depth", "alpha"), out_r, out_i):
-        assert torch.equal(a, b), name  # each pixel by one program, its pairs in one order: on a GPU too
+        assert_same_image(b, a, name)  # each pixel by one program, its pairs in one order
     for name, expected in grad_r.items():
         assert (expected is None) == (grad_i[name] is None), name
         if expected is not None:
@@ -136,7 +147,7 @@ def test_rows_the_compositing_cannot_read_extents_from_keep_their_rectangles(mon
 def test_an_unknown_pair_field_is_refused_by_name(monkeypatch):
     monkeypatch.setattr(triton_backend, "PAIR_FIELD", "boxes")
     g = shell_scene(5, seed=1, dtype=F32).to(DEVICE)
-    with pytest.raises(ValueError, match="unknown Triton pair field 'boxes': choose one of rects, ids"):
+    with pytest.raises(ValueError, match="unknown Triton pair field 'boxes': choose one of ids, rects"):
         render(g, torch.eye(4, device=DEVICE), Equirect(8, 16), backend="triton")
 
 

@@ -19,11 +19,11 @@ backward launch (PyTorch operations and Triton kernels: on an H100 the Triton pa
 ``triton[...]`` row each - ``triton[lean]`` with the lean forward (:data:`cylindersplat.render.triton_backend.FORWARD`),
 ``triton[default,nonzero]`` with the visible pairs compacted first (:data:`cylindersplat.render.triton_backend.
 COMPACTION`), ``triton[default,torch]`` with the input checks as PyTorch operations
-(:data:`cylindersplat.render.triton_backend.CHECK`), ``triton[lean,ids]`` with pairs that carry only their Gaussian
-(:data:`cylindersplat.render.triton_backend.PAIR_FIELD`), ``triton[default,row]`` with the next pair's row loaded
-ahead (:data:`cylindersplat.render.triton_backend.LOOKAHEAD`) - then ``# agreement`` lines (each variant's image and
-gradients against the first's, at the timed size), e.g. ``--backend triton --stages --variants default lean
-default,ids``.
+(:data:`cylindersplat.render.triton_backend.CHECK`), ``triton[lean,rects]`` with pairs that carry their pixel rectangles
+(:data:`cylindersplat.render.triton_backend.PAIR_FIELD`), ``triton[default,id]`` with only the next pair's Gaussian
+id loaded ahead (:data:`cylindersplat.render.triton_backend.LOOKAHEAD`) - then ``# agreement`` lines (each variant's
+image and gradients against the first's, at the timed size), e.g. ``--backend triton --stages --variants default
+lean default,rects``.
 """
 
 from __future__ import annotations

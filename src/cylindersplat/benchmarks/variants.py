@@ -68,7 +68,7 @@ def graphed_render(gaussians, c2w: torch.Tensor, camera):
 def graph_variants(variants: list[tuple[str, ...]]) -> list[tuple[str, tuple[str, ...] | None]]:
     """``(row tag, variant)`` of the graph rows for the timed ``variants``: one per distinct set of options (a graph
     always captures the lean forward, every pair projected: the forward and the compaction are not the variant's),
-    tagged ``graph`` and the options, e.g. ``graph,ids,row``; no variants: the defaults, ``graph``."""
+    tagged ``graph`` and the options, e.g. ``graph,rects,id``; no variants: the defaults, ``graph``."""
     rows: dict[str, tuple[str, ...] | None] = {}
     for variant in variants or [None]:
         options = () if variant is None else tuple(o for o in variant[1:] if o not in triton_backend.COMPACTIONS)

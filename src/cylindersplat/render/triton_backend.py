@@ -58,25 +58,29 @@ COMPACTION = "none"
 CHECKS = ("fused", "torch")
 CHECK = "fused"
 
-# What a (Gaussian, tile) pair carries from the binning to the compositing: "rects" (its Gaussian's row and its pixel
+# What a (Gaussian, tile) pair carries from the binning to the compositing: "ids" (the default: its Gaussian's row
+# only, 4 bytes; the compositing kernels compute the rectangle from the Gaussian's centre and extents with the
+# binning's arithmetic, as gsplat's rasterizer reads only Gaussian ids) or "rects" (its Gaussian's row and its pixel
 # rectangle in the tile, written by the binning's last kernel: 56 bytes a pair with the default forward, 20 with
-# "lean") or "ids" (its Gaussian's row only, 4 bytes; the compositing kernels compute the rectangle from the
-# Gaussian's centre and extents with the binning's arithmetic, as gsplat's rasterizer reads only Gaussian ids). The
-# same images and gradients. "ids" needs the Triton projection's rows (float32, extents in place); other
-# projections' pairs carry rectangles whatever this says. Module-level: the benchmark switches it.
-PAIR_FIELDS = ("rects", "ids")
-PAIR_FIELD = "rects"
+# "lean"). The same images and gradients. "ids" needs the Triton projection's rows (float32, extents in place); other
+# projections' pairs carry rectangles whatever this says. Default since two H100 calls (2026-11-27, session 26: with
+# LOOKAHEAD "row", faster in 11 of 14 pinhole forward + backward timings and 3 of 6 panorama ones (one tie), a quarter
+# to a third less peak memory at 1.3 M Gaussians; benchmarks/RESULTS.md). Module-level: the benchmark switches it.
+PAIR_FIELDS = ("ids", "rects")
+PAIR_FIELD = "ids"
 
-# How far ahead the compositing kernels load a tile's next pair (issue 35): "id" (its Gaussian's id one pair ahead;
-# the pair's row is loaded when it is composited, and the pixels wait for it) or "row" (the next pair's whole row -
-# centre, conic, opacity, rectangle or extents, colour, depth - loaded while the current one is composited, its id
-# two pairs ahead: a load's latency hidden behind a pair's arithmetic, as gsplat hides it behind batches in shared
-# memory). The same arithmetic in the same order: the same images and gradients bit for bit. Module-level: the
-# benchmark switches it.
-LOOKAHEADS = ("id", "row")
-LOOKAHEAD = "id"
+# How far ahead the compositing kernels load a tile's next pair (issue 35): "row" (the default: the next pair's whole
+# row - centre, conic, opacity, rectangle or extents, colour, depth - loaded while the current one is composited, its
+# id two pairs ahead: a load's latency hidden behind a pair's arithmetic, as gsplat hides it behind batches in shared
+# memory) or "id" (its Gaussian's id one pair ahead; the pair's row is loaded when it is composited, and the pixels
+# wait for it). The same arithmetic in the same order: the same images and gradients bit for bit in Triton's
+# interpreter. Compiled for a GPU, pinhole views with PAIR_FIELD "ids" differed in the last bits (at most 2.4e-7 on an
+# H100, 2026-11-27; the two kernels' PTX has the same arithmetic instructions in another order), both as close to the
+# float64 reference. Module-level: the benchmark switches it.
+LOOKAHEADS = ("row", "id")
+LOOKAHEAD = "row"
 
-# The switches above by name, for the benchmarks' variant names (every value is one field's: "lean,ids,row").
+# The switches above by name, for the benchmarks' variant names (every value is one field's: "lean,rects,id").
 VARIANT_FIELDS = {"FORWARD": FORWARDS, "COMPACTION": COMPACTIONS, "CHECK": CHECKS, "PAIR_FIELD": PAIR_FIELDS,
                   "LOOKAHEAD": LOOKAHEADS}
 
