@@ -63,9 +63,10 @@ CHECK = "fused"
 # binning's arithmetic, as gsplat's rasterizer reads only Gaussian ids) or "rects" (its Gaussian's row and its pixel
 # rectangle in the tile, written by the binning's last kernel: 56 bytes a pair with the default forward, 20 with
 # "lean"). The same images and gradients. "ids" needs the Triton projection's rows (float32, extents in place); other
-# projections' pairs carry rectangles whatever this says. Default since two H100 calls (2026-11-27, session 26: with
-# LOOKAHEAD "row", faster in 11 of 14 pinhole forward + backward timings and 3 of 6 panorama ones (one tie), a quarter
-# to a third less peak memory at 1.3 M Gaussians; benchmarks/RESULTS.md). Module-level: the benchmark switches it.
+# projections' pairs carry rectangles whatever this says. Default since three H100 calls (2026-11-27, session 26: with
+# LOOKAHEAD "row", faster in 13 of 20 pinhole forward + backward timings and 5 of 8 panorama ones, within the calls'
+# noise, and a quarter to a third less peak memory at 1.3 M Gaussians; benchmarks/RESULTS.md). Module-level: the
+# benchmark switches it.
 PAIR_FIELDS = ("ids", "rects")
 PAIR_FIELD = "ids"
 
