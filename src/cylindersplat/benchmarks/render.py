@@ -409,6 +409,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--graph", action="store_true",
                         help="also time the Triton backend replayed as CUDA graphs (render.graphs.RenderGraph: the "
                              "render's host work made once, at capture), one more row (CUDA only)")
+    parser.add_argument("--tile-walk", action="store_true",
+                        help="also print, per size, how many (Gaussian, tile) pairs the Triton compositing kernels "
+                             "walk before every pixel of a tile is opaque (benchmarks.tile_walk, on the CPU)")
     parser.add_argument("--ply-view", type=positive_int, nargs="+", default=[], metavar="N",
                         help="also time loading a PLY of N Gaussians and rendering one 512x1024 view, per backend")
     args = parser.parse_args(argv)
@@ -474,6 +477,11 @@ def main(argv: list[str] | None = None) -> None:
                     for row in ply_view(num, torch.device(dev), backends, folder):
                         print(row)
                         timed.append(row)
+    if args.tile_walk:
+        from .tile_walk import tile_walk_line
+
+        for num in args.num:
+            print(tile_walk_line(num, args.height, args.camera))
     print()
     print("\n".join(table(timed)))
     if any(row.get("device") == "cpu" and "peak_mb" in row for row in timed):
