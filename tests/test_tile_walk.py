@@ -61,6 +61,11 @@ def test_the_walked_fragments_give_the_reference_renders_alpha(camera):
     assert ((walk.forward % FORWARD_RUN == 0) | (walk.forward == walk.pairs)).all()
 
 
+def test_the_forward_run_is_the_kernels():
+    triton_kernels = pytest.importorskip("cylindersplat.render.triton_kernels")
+    assert triton_kernels._ALIVE_EVERY == FORWARD_RUN
+
+
 def test_bench_render_prints_the_walk_per_size(capsys):
     bench_render.main(["--num", "300", "2000", "--height", "16", "--device", "cpu", "--backend", "torch",
                        "--repeats", "1", "--tile-walk"])

@@ -55,7 +55,7 @@ def _walk(starts, pair_gaussian, rows, cols, col_shift, uv, conic, opacity, tile
         for k in range(tile * tile):
             alive[k] = ty * tile + k // tile < height and tx * tile + k % tile < width
         n_alive = alive.sum()
-        p, end, last_death = starts[t], starts[t + 1], starts[t]
+        p, end = starts[t], starts[t + 1]
         while p < end and n_alive > 0:
             g = pair_gaussian[p]
             for k in range(tile * tile):
@@ -75,9 +75,7 @@ def _walk(starts, pair_gaussian, rows, cols, col_shift, uv, conic, opacity, tile
                     trans[k] = after
                     used[t] += 1
             p += 1
-            if n_alive == 0:
-                last_death = p
-        backward[t] = (last_death if n_alive == 0 else end) - starts[t]
+        backward[t] = p - starts[t]  # (up to the pair that left no pixel alive, or all of them)
         forward[t] = min(starts[t] + -(-backward[t] // run) * run, end) - starts[t]  # up to the end of its run
         for k in range(tile * tile):
             r, c = ty * tile + k // tile, tx * tile + k % tile
