@@ -8,7 +8,8 @@ and load instructions, and writes their PTX to OUT_DIR/forward_ptx.txt.
 
 The result (call3_lookahead_diagnosis.log): each lookahead is deterministic; they differ only on pinhole views with
 ``PAIR_FIELD = "ids"``, by at most 2.4e-7, both equally close to the reference; the PTX of the two kernels has the
-same arithmetic instructions in another order. (At this call, "id" and "rects" were still the defaults.)
+same arithmetic instructions in another order. (At this call, "id" and "rects" were still the defaults. This file is
+call 3's script tidied for the repository: the same cases, its lines labelled a little differently from the log's.)
 """
 
 import os
